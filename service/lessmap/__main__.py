@@ -1,0 +1,9 @@
+"""``python -m lessmap``."""
+
+from __future__ import annotations
+
+import sys
+
+from lessmap.cli import main
+
+sys.exit(main())

@@ -1,0 +1,144 @@
+"""The ``lessmap`` command line: one entry point, one subcommand per job."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from lessmap import __version__
+from lessmap.core import PROFILES, GraphError, PartitionParams, SeedMode
+from lessmap.errors import ConfigError, DatasetError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from lessmap.core import Transition
+
+log = logging.getLogger(__name__)
+
+#: Failures a user can fix: one line on stderr and exit code 1, no traceback.
+KNOWN_EXCEPTIONS: tuple[type[Exception], ...] = (
+    ConfigError,
+    DatasetError,
+    GraphError,
+    FileNotFoundError,
+    IsADirectoryError,
+    PermissionError,
+)
+
+
+def add_partition_options(parser: argparse.ArgumentParser) -> None:
+    """Add the partitioning options shared by offline and online commands."""
+    group = parser.add_argument_group("partitioning (LESS-mapping Eq. 4)")
+    group.add_argument(
+        "--profile",
+        choices=sorted(PROFILES),
+        default="laser",
+        help="threshold profile: laser/stereo = Ncut 0.25, λ2 0.2; monocular = 0.1, 0.1 "
+        "(default: laser)",
+    )
+    group.add_argument("--ncut-min", type=float, help="override the profile's Ncut threshold")
+    group.add_argument("--lambda2-min", type=float, help="override the profile's λ2 threshold")
+    group.add_argument(
+        "--seed-mode",
+        choices=[m.value for m in SeedMode],
+        default=SeedMode.SEED.value,
+        help="after a transition keep the new cluster in the CovGraph (seed) or start empty "
+        "(fresh); default: seed",
+    )
+    group.add_argument(
+        "--min-frames-between",
+        type=int,
+        default=0,
+        help="guard: frames after a transition before the next test (default 0: off)",
+    )
+    group.add_argument(
+        "--min-cluster-size",
+        type=int,
+        default=1,
+        help="guard: smallest number of features a transition may cut off (default 1: off)",
+    )
+
+
+def partition_params(args: argparse.Namespace) -> PartitionParams:
+    """Build the partition parameters from parsed options."""
+    overrides: dict[str, object] = {
+        "seed_mode": SeedMode(args.seed_mode),
+        "min_frames_between": args.min_frames_between,
+        "min_cluster_size": args.min_cluster_size,
+    }
+    if args.ncut_min is not None:
+        overrides["ncut_min"] = args.ncut_min
+    if args.lambda2_min is not None:
+        overrides["lambda2_min"] = args.lambda2_min
+    return PartitionParams.from_profile(args.profile, **overrides)
+
+
+def _cmd_segment(args: argparse.Namespace) -> int:
+    from lessmap.frames_file import read_frames
+    from lessmap.offline import segment, transition_record
+
+    params = partition_params(args)
+    path = Path(args.file)
+    frames = read_frames(path)
+    if args.robot:
+        frames = (f for f in frames if f.robot in set(args.robot))
+
+    def emit(robot: str, transition: Transition) -> None:
+        if not args.summary_only:
+            print(json.dumps(transition_record(robot, transition)), flush=False)
+
+    summary = segment(frames, params, on_transition=emit)
+    record = summary.as_dict()
+    record["file"] = path.name
+    record["params"] = {"ncut_min": params.ncut_min, "lambda2_min": params.lambda2_min,
+                        "seed_mode": str(params.seed_mode)}  # fmt: skip
+    print(json.dumps(record))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the parser of every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="lessmap",
+        description="Online environment segmentation for robot fleets "
+        "(LESS-mapping spectral covisibility partitioning) over Eclipse Zenoh.",
+    )
+    parser.add_argument("--version", action="version", version=f"lessmap {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    seg = commands.add_parser(
+        "segment",
+        help="segment a recorded frames file offline (one session per robot)",
+        description="Read FILE.frames.jsonl and print one JSON line per transition, then a "
+        "summary line. Decides at every frame, exactly as the service does without load.",
+    )
+    seg.add_argument("file", metavar="FILE", help="frames file (.frames.jsonl)")
+    seg.add_argument("--robot", action="append", help="only this robot (repeatable)")
+    seg.add_argument("--summary-only", action="store_true", help="print only the summary")
+    add_partition_options(seg)
+    seg.set_defaults(run=_cmd_segment)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(
+        level=level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    try:
+        code: int = args.run(args)
+    except KNOWN_EXCEPTIONS as exc:
+        print(f"lessmap {args.command}: {exc}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:
+        return 0  # output piped into head & co.
+    return code

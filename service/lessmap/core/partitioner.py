@@ -1,0 +1,370 @@
+"""The partitioner of one robot session: frames in, transitions out (LESS-mapping §3).
+
+Rules of this file:
+
+1. Frames are applied in strictly increasing seq; anything else is a ``StaleFrameError``
+   and changes nothing, so a caller can retry or drop without corrupting the session.
+2. ``apply`` only counts (cheap); ``decide`` runs the spectral test once for every frame
+   applied since the last decision. ``observe`` = apply + decide is the paper's per-frame
+   loop; a loaded service applies a burst and decides once (coalescing, never dropping).
+3. After a transition, the cluster that holds most of the last frame's features is the new
+   area (ties: the cluster whose features were first seen later). The other side is closed
+   as a submap. The new CovGraph keeps the new cluster (``seed``) or starts empty (``fresh``).
+4. Everything that influences a later decision is in ``PartitionerState``; a restored
+   partitioner makes exactly the decisions the original would have made.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lessmap.core.covgraph import CovGraph, CovGraphState
+from lessmap.core.errors import GraphError, StaleFrameError
+from lessmap.core.params import PartitionParams, SeedMode
+from lessmap.core.spectral import components, normalized_bisection
+from lessmap.core.submaps import Evaluation, Reason, Submap, Transition
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from numpy.typing import NDArray
+    from scipy import sparse
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """A frame kept for the boundary estimate: its seq and distinct feature IDs."""
+
+    seq: int
+    features: NDArray[np.int64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PartitionerState:
+    """The whole state of a partitioner, for snapshots (see ``lessmap.core.snapshot``)."""
+
+    params: PartitionParams
+    graph: CovGraphState
+    history: tuple[FrameRecord, ...]
+    closed_submaps: tuple[Submap, ...]
+    submap_id: int
+    submap_first_seq: int | None
+    submap_frame_count: int
+    last_seq: int | None
+    last_stamp_s: float
+    last_features: tuple[int, ...]  # distinct features of the last non-empty frame
+    pending_frames: int  # applied since the last decision
+    pending_nonempty: bool
+    frames_since_transition: int
+    frames_applied: int
+    transitions: int
+
+
+class Partitioner:
+    """CovGraph and submap state of one robot session. No I/O."""
+
+    def __init__(self, params: PartitionParams | None = None) -> None:
+        self.params = params if params is not None else PartitionParams()
+        self._graph = CovGraph()
+        self._history: deque[FrameRecord] = deque(maxlen=self.params.history_frames)
+        self._closed: deque[Submap] = deque(maxlen=self.params.keep_closed_submaps)
+        self._submap_id = 0
+        self._submap_first_seq: int | None = None
+        self._submap_frame_count = 0
+        self._last_seq: int | None = None
+        self._last_stamp_s = 0.0
+        self._last_features: tuple[int, ...] = ()
+        self._pending_frames = 0
+        self._pending_nonempty = False
+        self._frames_since_transition = 0
+        self._frames_applied = 0
+        self._transitions = 0
+        self.last_evaluation: Evaluation | None = None
+
+    # -- read ------------------------------------------------------------------------------
+
+    @property
+    def graph(self) -> CovGraph:
+        """The current submap's CovGraph (read it, don't change it)."""
+        return self._graph
+
+    @property
+    def last_seq(self) -> int | None:
+        """Seq of the last applied frame, None before the first."""
+        return self._last_seq
+
+    @property
+    def frames_applied(self) -> int:
+        """Frames applied since the session began."""
+        return self._frames_applied
+
+    @property
+    def transitions(self) -> int:
+        """Transitions declared since the session began."""
+        return self._transitions
+
+    @property
+    def pending_frames(self) -> int:
+        """Frames applied but not yet covered by a decision."""
+        return self._pending_frames
+
+    @property
+    def closed_submaps(self) -> tuple[Submap, ...]:
+        """Closed submaps, oldest first (at most ``params.keep_closed_submaps``)."""
+        return tuple(self._closed)
+
+    def current_submap(self) -> Submap:
+        """The open submap: its features so far and its frames."""
+        first = self._submap_first_seq
+        last = self._last_seq
+        return Submap(
+            id=self._submap_id,
+            first_seq=first if first is not None else 0,
+            last_seq=last if last is not None else 0,
+            frame_count=self._submap_frame_count,
+            features=tuple(sorted(self._graph.feature_ids.tolist())),
+        )
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> Transition | None:
+        """Add one frame and decide at once; return the transition it reveals, if any."""
+        self.apply(seq, stamp_s, features)
+        return self.decide()
+
+    def apply(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """Count one frame into the CovGraph without running the spectral test.
+
+        Raises:
+            StaleFrameError: seq is not greater than the last applied seq.
+            GraphError: a feature ID is not an integer in the int64 range.
+        """
+        if self._last_seq is not None and seq <= self._last_seq:
+            msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
+            raise StaleFrameError(msg)
+        try:
+            distinct = np.unique(np.fromiter(features, dtype=np.int64))
+        except (OverflowError, TypeError, ValueError) as exc:
+            msg = f"frame {seq}: feature IDs must be integers in the int64 range ({exc})"
+            raise GraphError(msg) from exc
+        self._graph.add_frame(seq, distinct.tolist())
+        self._history.append(FrameRecord(seq, distinct))
+        if self._submap_first_seq is None:
+            self._submap_first_seq = seq
+        self._submap_frame_count += 1
+        self._last_seq = seq
+        self._last_stamp_s = float(stamp_s)
+        self._pending_frames += 1
+        self._frames_since_transition += 1
+        self._frames_applied += 1
+        if distinct.size:
+            self._last_features = tuple(distinct.tolist())
+            self._pending_nonempty = True
+
+    def decide(self) -> Transition | None:
+        """Run the spectral test once for every frame applied since the last decision."""
+        if self._pending_frames == 0:
+            return None
+        batch_frames = self._pending_frames
+        self._pending_frames = 0
+        if not self._pending_nonempty:
+            return None  # empty frames change nothing, so the last decision stands
+        self._pending_nonempty = False
+        if self._frames_since_transition <= self.params.min_frames_between:
+            return None
+        assert self._last_seq is not None  # a pending frame was applied
+        seq = self._last_seq
+        if self._graph.node_count < 2:
+            self.last_evaluation = Evaluation(
+                seq=seq, nodes=self._graph.node_count, components=1, ncut=None, lambda2=None,
+                transition=False,
+            )  # fmt: skip
+            return None
+        w = self._graph.covrate()
+        count, component_of = components(w)
+        if count > 1:
+            new_side = self._new_component(component_of)
+            return self._conclude(seq, w, new_side, Reason.DISCONNECTED, None, None, count,
+                                  batch_frames)  # fmt: skip
+        split = normalized_bisection(w, dense_max_nodes=self.params.dense_max_nodes)
+        new_side = self._new_cluster(split.labels)
+        valid = split.ncut <= self.params.ncut_min and split.lambda2 <= self.params.lambda2_min
+        if not valid:
+            self.last_evaluation = Evaluation(
+                seq=seq, nodes=w.shape[0], components=1, ncut=split.ncut, lambda2=split.lambda2,
+                transition=False,
+            )  # fmt: skip
+            return None
+        return self._conclude(seq, w, new_side, Reason.SPECTRAL, split.ncut, split.lambda2, 1,
+                              batch_frames)  # fmt: skip
+
+    # -- deciding which side is new ---------------------------------------------------------
+
+    def _current_nodes(self) -> NDArray[np.int64]:
+        return self._graph.nodes_of(self._last_features)
+
+    def _new_cluster(self, labels: NDArray[np.int8]) -> NDArray[np.bool_]:
+        """Mask of the side that holds most of the last frame (rule 3)."""
+        side = labels.astype(bool)
+        current = self._current_nodes()
+        on_side = int(side[current].sum())
+        off_side = current.size - on_side
+        if on_side != off_side:
+            return side if on_side > off_side else ~side
+        first_seen = self._graph.first_seen
+        newer = first_seen[side].mean() > first_seen[~side].mean()
+        return side if newer else ~side
+
+    def _new_component(self, component_of: NDArray[np.int32]) -> NDArray[np.bool_]:
+        """Mask of the component that holds most of the last frame; the rest are closed."""
+        current = self._current_nodes()
+        votes = np.bincount(component_of[current], minlength=int(component_of.max()) + 1)
+        best = np.flatnonzero(votes == votes.max())
+        if best.size > 1:
+            first_seen = self._graph.first_seen
+            newest = [first_seen[component_of == c].mean() for c in best]
+            best = best[[int(np.argmax(newest))]]
+        mask: NDArray[np.bool_] = component_of == best[0]
+        return mask
+
+    # -- transition ------------------------------------------------------------------------
+
+    def _conclude(
+        self,
+        seq: int,
+        w: sparse.csr_array,
+        new_side: NDArray[np.bool_],
+        reason: Reason,
+        ncut: float | None,
+        lambda2: float | None,
+        component_count: int,
+        batch_frames: int,
+    ) -> Transition | None:
+        small = min(int(new_side.sum()), int((~new_side).sum()))
+        self.last_evaluation = Evaluation(
+            seq=seq, nodes=w.shape[0], components=component_count, ncut=ncut, lambda2=lambda2,
+            transition=small >= self.params.min_cluster_size,
+        )  # fmt: skip
+        if small < self.params.min_cluster_size:
+            return None
+        ids = self._graph.feature_ids
+        new_ids = np.sort(ids[new_side])
+        old_ids = np.sort(ids[~new_side])
+        coo = w.tocoo()
+        crossing = new_side[coo.row] != new_side[coo.col]
+        boundary = np.unique(ids[np.concatenate([coo.row[crossing], coo.col[crossing]])])
+
+        boundary_seq = self._boundary_seq(new_ids)
+        opened_frames = sum(1 for record in self._history if record.seq >= boundary_seq)
+        first_seq = self._submap_first_seq if self._submap_first_seq is not None else seq
+        closed = Submap(
+            id=self._submap_id,
+            first_seq=first_seq,
+            last_seq=max(first_seq, boundary_seq - 1),
+            frame_count=self._submap_frame_count - opened_frames,
+            features=tuple(old_ids.tolist()),
+        )
+        opened = Submap(
+            id=self._submap_id + 1,
+            first_seq=boundary_seq,
+            last_seq=seq,
+            frame_count=opened_frames,
+            features=tuple(new_ids.tolist()),
+        )
+        transition = Transition(
+            seq=seq,
+            boundary_seq=boundary_seq,
+            stamp_s=self._last_stamp_s,
+            reason=reason,
+            ncut=ncut,
+            lambda2=lambda2,
+            closed=closed,
+            opened=opened,
+            boundary_features=tuple(boundary.tolist()),
+            batch_frames=batch_frames,
+        )
+        self._closed.append(closed)
+        self._open_next(new_side, opened)
+        return transition
+
+    def _boundary_seq(self, new_ids: NDArray[np.int64]) -> int:
+        """Estimate the first frame in the new area.
+
+        Walking back from the detection frame, the boundary is the first frame of the
+        trailing run of frames whose features lie mostly (> half) in the new cluster; empty
+        frames neither break nor start the run. The closed submap keeps at least its first
+        frame, so the boundary is never the submap's first frame when it has several.
+        """
+        records = list(self._history)
+        start = len(records) - 1
+        for index in range(len(records) - 1, -1, -1):
+            features = records[index].features
+            if features.size == 0:
+                continue
+            inside = np.isin(features, new_ids, assume_unique=True).sum()
+            if 2 * inside <= features.size:
+                break
+            start = index
+        if start == 0 and len(records) > 1 and records[0].seq == self._submap_first_seq:
+            start = 1
+        return records[start].seq
+
+    def _open_next(self, new_side: NDArray[np.bool_], opened: Submap) -> None:
+        if self.params.seed_mode is SeedMode.SEED:
+            self._graph.keep_only(np.flatnonzero(new_side))
+        else:
+            self._graph = CovGraph()
+        kept = [record for record in self._history if record.seq >= opened.first_seq]
+        self._history.clear()
+        self._history.extend(kept)
+        self._submap_id = opened.id
+        self._submap_first_seq = opened.first_seq
+        self._submap_frame_count = opened.frame_count
+        self._frames_since_transition = 0
+        self._transitions += 1
+
+    # -- snapshot --------------------------------------------------------------------------
+
+    def state(self) -> PartitionerState:
+        """Return the whole state (arrays copied), enough to continue exactly."""
+        return PartitionerState(
+            params=self.params,
+            graph=self._graph.state(),
+            history=tuple(self._history),
+            closed_submaps=tuple(self._closed),
+            submap_id=self._submap_id,
+            submap_first_seq=self._submap_first_seq,
+            submap_frame_count=self._submap_frame_count,
+            last_seq=self._last_seq,
+            last_stamp_s=self._last_stamp_s,
+            last_features=self._last_features,
+            pending_frames=self._pending_frames,
+            pending_nonempty=self._pending_nonempty,
+            frames_since_transition=self._frames_since_transition,
+            frames_applied=self._frames_applied,
+            transitions=self._transitions,
+        )
+
+    @classmethod
+    def from_state(cls, state: PartitionerState) -> Partitioner:
+        """Rebuild a partitioner that makes exactly the decisions the original would."""
+        partitioner = cls(state.params)
+        partitioner._graph = CovGraph.from_state(state.graph)
+        partitioner._history.extend(state.history)
+        partitioner._closed.extend(state.closed_submaps)
+        partitioner._submap_id = state.submap_id
+        partitioner._submap_first_seq = state.submap_first_seq
+        partitioner._submap_frame_count = state.submap_frame_count
+        partitioner._last_seq = state.last_seq
+        partitioner._last_stamp_s = state.last_stamp_s
+        partitioner._last_features = state.last_features
+        partitioner._pending_frames = state.pending_frames
+        partitioner._pending_nonempty = state.pending_nonempty
+        partitioner._frames_since_transition = state.frames_since_transition
+        partitioner._frames_applied = state.frames_applied
+        partitioner._transitions = state.transitions
+        return partitioner
