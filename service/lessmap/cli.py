@@ -95,10 +95,92 @@ def _cmd_segment(args: argparse.Namespace) -> int:
     summary = segment(frames, params, on_transition=emit)
     record = summary.as_dict()
     record["file"] = path.name
-    record["params"] = {"ncut_min": params.ncut_min, "lambda2_min": params.lambda2_min,
-                        "seed_mode": str(params.seed_mode)}  # fmt: skip
+    record["params"] = {
+        "ncut_min": params.ncut_min,
+        "lambda2_min": params.lambda2_min,
+        "seed_mode": str(params.seed_mode),
+    }
     print(json.dumps(record))
     return 0
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from lessmap.runtime.daemon import serve
+    from lessmap.settings import load_settings
+
+    zenoh.init_log_from_env_or("error")
+    flags = {
+        "profile": args.profile,
+        "ncut_min": args.ncut_min,
+        "lambda2_min": args.lambda2_min,
+        "seed_mode": args.seed_mode,
+        "workers": args.workers,
+        "metrics_port": args.metrics_port,
+        "instance": args.instance,
+        "session_idle_timeout_s": args.idle_timeout,
+        "max_batch_frames": args.max_batch_frames,
+        "mode": args.mode,
+        "zenoh_config": args.zenoh_config,
+        "connect": tuple(args.connect) if args.connect else None,
+        "listen": tuple(args.listen) if args.listen else None,
+    }
+    settings = load_settings(args.config, **{k: v for k, v in flags.items() if v is not None})
+    try:
+        return serve(settings, args.cfg or ())
+    except zenoh.ZError as exc:
+        msg = f"Zenoh could not start: {exc}"
+        raise ConfigError(msg) from exc
+
+
+def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    srv = commands.add_parser(
+        "serve",
+        help="run the partition service (a Zenoh daemon for many robots)",
+        description="Run the partition service in the foreground until SIGTERM/SIGINT. With no "
+        "Zenoh option it opens its own router on tcp/127.0.0.1:7447. Settings come from "
+        "defaults < --config FILE (JSON) < LESSMAP_* environment < these flags.",
+    )
+    srv.add_argument("--config", type=Path, help="JSON file of service settings")
+    zen = srv.add_argument_group("Zenoh (as in zenoh-python's examples)")
+    zen.add_argument("-m", "--mode", choices=["peer", "client", "router"], help="Zenoh mode")
+    zen.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to connect to (repeatable), e.g. tcp/10.0.0.5:7447",
+    )
+    zen.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on (repeatable)",
+    )
+    zen.add_argument("--zenoh-config", type=Path, metavar="FILE.json5", help="Zenoh config file")
+    zen.add_argument(
+        "--cfg",
+        action="append",
+        metavar="KEY:VALUE",
+        help="Zenoh config override, VALUE in JSON5 (repeatable)",
+    )
+    part = srv.add_argument_group("partitioning and runtime (override config and environment)")
+    part.add_argument("--profile", choices=sorted(PROFILES))
+    part.add_argument("--ncut-min", type=float)
+    part.add_argument("--lambda2-min", type=float)
+    part.add_argument("--seed-mode", choices=[m.value for m in SeedMode])
+    part.add_argument("--workers", type=int, help="shards (worker threads); default 2")
+    part.add_argument("--metrics-port", type=int, help="serve Prometheus /metrics on this port")
+    part.add_argument("--instance", help="instance name (default: host-pid)")
+    part.add_argument("--idle-timeout", type=float, help="seconds before an idle session closes")
+    part.add_argument(
+        "--max-batch-frames",
+        type=int,
+        help="frames coalesced per decision under load (1 = decide every frame)",
+    )
+    srv.set_defaults(run=_cmd_serve)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -123,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("--summary-only", action="store_true", help="print only the summary")
     add_partition_options(seg)
     seg.set_defaults(run=_cmd_segment)
+    _add_serve(commands)
     return parser
 
 

@@ -1,0 +1,47 @@
+"""Run the service in the foreground until SIGTERM or SIGINT (systemd-friendly)."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from typing import TYPE_CHECKING
+
+from lessmap.runtime.service import Service
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from types import FrameType
+
+    from lessmap.settings import ServiceSettings
+
+log = logging.getLogger(__name__)
+
+
+def serve(settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> int:
+    """Start the service, park the main thread until a stop signal, stop cleanly.
+
+    Returns:
+        0 after a clean shutdown.
+
+    Raises:
+        ConfigError, zenoh.ZError: the service could not start (the CLI prints one line).
+    """
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("received %s", signal.Signals(signum).name)
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    service = Service(settings, zenoh_cfg)
+    try:
+        service.start()
+        # Park on an Event, not on a Zenoh receive: signals are handled between waits.
+        while not stop.wait(0.5):
+            pass
+    finally:
+        service.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0

@@ -1,0 +1,62 @@
+"""Prometheus metrics of one service instance (its own registry, so instances never mix)."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+
+class ServiceMetrics:
+    """Every counter, gauge and histogram ``lessmap serve`` exports on ``/metrics``."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry(auto_describe=True)
+        r = self.registry
+        self.frames_received = Counter(
+            "lessmap_frames_received", "Inbound samples on frames keys", registry=r
+        )
+        self.frames_applied = Counter(
+            "lessmap_frames_applied", "Frames counted into a CovGraph", registry=r
+        )
+        self.frames_duplicate = Counter(
+            "lessmap_frames_duplicate", "Frames ignored: seq already applied", registry=r
+        )
+        self.frames_missing = Counter(
+            "lessmap_frames_missing", "Frames never received (seq gaps)", registry=r
+        )
+        self.frames_rejected = Counter(
+            "lessmap_frames_rejected", "Inbound messages rejected, by reason", ["reason"],
+            registry=r,
+        )  # fmt: skip
+        self.transitions = Counter(
+            "lessmap_transitions", "Transitions published, by reason", ["reason"], registry=r
+        )
+        self.decisions = Counter("lessmap_decisions", "Spectral decisions run", registry=r)
+        self.coalesced_batches = Counter(
+            "lessmap_coalesced_batches", "Decisions that covered more than one frame", registry=r
+        )
+        self.errors_published = Counter(
+            "lessmap_errors_published", "Error events published", registry=r
+        )
+        self.errors_suppressed = Counter(
+            "lessmap_errors_suppressed", "Error events held back by the rate limit", registry=r
+        )
+        self.sessions_opened = Counter("lessmap_sessions_opened", "Sessions opened", registry=r)
+        self.sessions_closed = Counter(
+            "lessmap_sessions_closed", "Sessions closed, by cause", ["cause"], registry=r
+        )
+        self.sessions = Gauge("lessmap_sessions", "Open sessions", registry=r)
+        self.queue_depth = Gauge(
+            "lessmap_queue_depth", "Messages waiting in the shard queues", registry=r
+        )
+        self.decision_seconds = Histogram(
+            "lessmap_decision_seconds",
+            "Time of one spectral decision (apply excluded)",
+            buckets=(0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
+            registry=r,
+        )
+        self.queue_latency_seconds = Histogram(
+            "lessmap_queue_latency_seconds",
+            "Time from receipt to processing of an inbound sample",
+            buckets=(0.001, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0),
+            registry=r,
+        )

@@ -1,0 +1,221 @@
+"""Everything the service puts on Zenoh: transitions, errors, final states.
+
+Called from shard worker threads only (never from a Zenoh callback). Transitions go out
+through one ``AdvancedPublisher`` per robot with a cache, so a fleet app that joins late or
+misses samples recovers the recent ones; errors are rate-limited per robot.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import OrderedDict
+from typing import TYPE_CHECKING
+
+import zenoh
+from zenoh import ext
+
+from lessmap.runtime.ratelimit import RateLimiter
+from lessmap_schemas import keys
+from lessmap_schemas.codec import encode, encoding
+from lessmap_schemas.errors import ErrorCode
+from lessmap_schemas.messages import Error, SessionState, SubmapSummary as WireSubmap, Transition
+
+if TYPE_CHECKING:
+    from lessmap.core import Submap, Transition as CoreTransition
+    from lessmap.runtime.metrics import ServiceMetrics
+    from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
+    from lessmap_schemas.errors import WireError
+
+log = logging.getLogger(__name__)
+
+_NOT_REJECTIONS = {ErrorCode.SEQ_GAP}  # reported, but the frame was applied
+_DUPLICATES = {ErrorCode.DUPLICATE_SEQ, ErrorCode.OUT_OF_ORDER}
+_TRANSITION_ENCODING = zenoh.Encoding(encoding(Transition))
+_ERROR_ENCODING = zenoh.Encoding(encoding(Error))
+_STATE_ENCODING = zenoh.Encoding(encoding(SessionState))
+
+
+def wire_transition(session: RobotSession, transition: CoreTransition, instance: str) -> Transition:
+    """Convert a core transition of a session to the wire message."""
+    return Transition(
+        fleet=session.fleet,
+        robot=session.robot,
+        session=session.session,
+        seq=transition.seq,
+        boundary_seq=transition.boundary_seq,
+        stamp_s=transition.stamp_s,
+        reason=transition.reason.value,
+        ncut=transition.ncut,
+        lambda2=transition.lambda2,
+        closed=_summary(transition.closed),
+        opened=_summary(transition.opened),
+        boundary_features=list(transition.boundary_features),
+        batch_frames=transition.batch_frames,
+        instance=instance,
+    )
+
+
+def _summary(submap: Submap) -> WireSubmap:
+    return WireSubmap(
+        id=submap.id,
+        first_seq=submap.first_seq,
+        last_seq=submap.last_seq,
+        frame_count=submap.frame_count,
+        features=list(submap.features),
+    )
+
+
+class Outbox:
+    """Publishes outcomes of the shards and keeps the metrics in step."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        metrics: ServiceMetrics,
+        *,
+        instance: str,
+        transition_cache: int,
+        max_publishers: int,
+        error_rate_per_s: float,
+        error_burst: int,
+    ) -> None:
+        self.metrics = metrics
+        self._session = session
+        self._instance = instance
+        self._cache = transition_cache
+        self._max_publishers = max_publishers
+        self._publishers: OrderedDict[tuple[str, str], ext.AdvancedPublisher] = OrderedDict()
+        self._publishers_lock = threading.Lock()
+        self._limiter = RateLimiter(error_rate_per_s, error_burst)
+        self._limiter_lock = threading.Lock()
+        self._service_errors_key = f"{keys.KEY_PREFIX}/@/errors/{instance}"
+        self.frames_applied = 0  # for the health answer (prometheus counters are write-only)
+
+    # -- outcomes ----------------------------------------------------------------------------
+
+    def publish(self, outcome: Outcome, now_s: float) -> None:
+        """Put everything a batch produced and count it."""
+        m = self.metrics
+        m.frames_applied.inc(outcome.frames_applied)
+        self.frames_applied += outcome.frames_applied
+        m.frames_duplicate.inc(outcome.frames_duplicate)
+        m.frames_missing.inc(outcome.frames_missing)
+        for seconds, batch in outcome.decisions:
+            m.decisions.inc()
+            m.decision_seconds.observe(seconds)
+            if batch > 1:
+                m.coalesced_batches.inc()
+        for key, exc in outcome.failures:
+            log.error("session %s/%s reset after an internal error", *key, exc_info=exc)
+        for session in outcome.opened:
+            m.sessions_opened.inc()
+            m.sessions.inc()
+            log.info("session opened: %s/%s %s", session.fleet, session.robot, session.session)
+        for session, transition in outcome.transitions:
+            self._put_transition(session, transition)
+        for rejection in outcome.rejections:
+            self._count_rejection(rejection.code)
+            self._put_error(rejection, now_s)
+        for state, cause in outcome.closed:
+            m.sessions.dec()
+            m.sessions_closed.labels(cause=cause).inc()
+            log.info("session closed (%s): %s/%s %s after %d frames, %d transitions", cause,
+                     state.fleet, state.robot, state.session, state.frames_applied,
+                     state.transitions)  # fmt: skip
+            self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
+
+    def _count_rejection(self, code: ErrorCode) -> None:
+        if code in _NOT_REJECTIONS or code in _DUPLICATES:
+            return  # counted as missing / duplicate frames by the table
+        self.metrics.frames_rejected.labels(reason=code.value).inc()
+
+    def reject_unattributed(self, key: str, exc: WireError) -> None:
+        """Report a sample whose key names no valid robot (no robot errors key to use)."""
+        self.metrics.frames_rejected.labels(reason=exc.code.value).inc()
+        with self._limiter_lock:
+            allowed, suppressed = self._limiter.allow(None, time.monotonic())
+        if not allowed:
+            self.metrics.errors_suppressed.inc()
+            return
+        log.warning("rejected a sample on %r: %s", key[:200], exc)
+        error = Error(
+            fleet=None, robot=None, session=None, code=exc.code,
+            detail=_detail(f"key {key[:200]!r}: {exc}", suppressed), seq=None,
+            stamp_s=time.time(), instance=self._instance,
+        )  # fmt: skip
+        self._put(self._service_errors_key, encode(error), _ERROR_ENCODING)
+
+    # -- puts --------------------------------------------------------------------------------
+
+    def _put_transition(self, session: RobotSession, transition: CoreTransition) -> None:
+        message = wire_transition(session, transition, self._instance)
+        self.metrics.transitions.labels(reason=message.reason).inc()
+        log.debug("->> TRANSITION %s/%s seq=%d %s", session.fleet, session.robot,
+                  transition.seq, message.reason)  # fmt: skip
+        publisher = self._publisher(session.fleet, session.robot)
+        try:
+            publisher.put(encode(message))
+        except zenoh.ZError:
+            log.exception("could not publish a transition of %s/%s", session.fleet, session.robot)
+
+    def _publisher(self, fleet: str, robot: str) -> ext.AdvancedPublisher:
+        key = (fleet, robot)
+        with self._publishers_lock:
+            publisher = self._publishers.get(key)
+            if publisher is not None:
+                self._publishers.move_to_end(key)
+                return publisher
+            publisher = ext.declare_advanced_publisher(
+                self._session,
+                keys.transitions(fleet, robot),
+                encoding=_TRANSITION_ENCODING,
+                cache=ext.CacheConfig(self._cache),
+                publisher_detection=True,
+            )
+            self._publishers[key] = publisher
+            if len(self._publishers) > self._max_publishers:
+                _, oldest = self._publishers.popitem(last=False)
+                oldest.undeclare()
+            return publisher
+
+    def _put_error(self, rejection: Rejection, now_s: float) -> None:
+        with self._limiter_lock:
+            allowed, suppressed = self._limiter.allow((rejection.fleet, rejection.robot), now_s)
+        if not allowed:
+            self.metrics.errors_suppressed.inc()
+            return
+        log.warning("%s/%s %s: %s", rejection.fleet, rejection.robot, rejection.code.value,
+                    rejection.detail)  # fmt: skip
+        error = Error(
+            fleet=rejection.fleet,
+            robot=rejection.robot,
+            session=rejection.session,
+            code=rejection.code,
+            detail=_detail(rejection.detail, suppressed),
+            seq=rejection.seq,
+            stamp_s=time.time(),
+            instance=self._instance,
+        )
+        self.metrics.errors_published.inc()
+        self._put(keys.errors(rejection.fleet, rejection.robot), encode(error), _ERROR_ENCODING)
+
+    def _put(self, key: str, payload: bytes, encoding_: zenoh.Encoding) -> None:
+        try:
+            self._session.put(key, payload, encoding=encoding_)
+        except zenoh.ZError:
+            log.exception("could not put on %s", key)
+
+    def close(self) -> None:
+        """Undeclare every transitions publisher."""
+        with self._publishers_lock:
+            for publisher in self._publishers.values():
+                publisher.undeclare()
+            self._publishers.clear()
+
+
+def _detail(text: str, suppressed: int) -> str:
+    if suppressed:
+        text = f"{text} ({suppressed} similar error(s) suppressed by the rate limit)"
+    return text[:1024]

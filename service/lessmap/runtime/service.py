@@ -1,0 +1,224 @@
+"""The partition service: Zenoh declarations, shards, queries, lifecycle.
+
+Threads: Zenoh's own (callbacks: enqueue only), one worker per shard, one query server, and
+the caller's (``Service.start``/``stop``; ``serve`` parks it on a stop event). Callbacks never
+call Zenoh or block; queries are answered from the query thread under the shard's lock.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+import zlib
+from typing import TYPE_CHECKING
+
+import zenoh
+from prometheus_client import start_http_server
+
+from lessmap import __version__
+from lessmap.runtime.metrics import ServiceMetrics
+from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.shard import Inbound, Shard
+from lessmap.runtime.zenoh_config import service_config
+from lessmap_schemas import keys
+from lessmap_schemas.codec import encode, encoding
+from lessmap_schemas.errors import ErrorCode, WireError
+from lessmap_schemas.messages import Health, SessionState, Submap
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from wsgiref.simple_server import WSGIServer
+
+    from lessmap.settings import ServiceSettings
+
+log = logging.getLogger(__name__)
+
+_QUEUE_BYTES_PER_SHARD = 256 * 1024 * 1024
+
+
+class Service:
+    """One lessmap service instance on a Zenoh session."""
+
+    def __init__(self, settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> None:
+        self.settings = settings
+        self.metrics = ServiceMetrics()
+        self._zenoh_cfg = tuple(zenoh_cfg)
+        self._session: zenoh.Session | None = None
+        self._outbox: Outbox | None = None
+        self._shards: list[Shard] = []
+        self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
+        self._token: zenoh.LivelinessToken | None = None
+        self._queries: queue.SimpleQueue[zenoh.Query | None] = queue.SimpleQueue()
+        self._query_thread = threading.Thread(target=self._serve_queries, name="lessmap-queries",
+                                              daemon=True)  # fmt: skip
+        self._metrics_server: WSGIServer | None = None
+        self._started_s = time.monotonic()
+        self.metrics_port: int | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Open Zenoh, declare everything and start the workers.
+
+        Raises:
+            ConfigError: the Zenoh configuration is invalid.
+            zenoh.ZError: Zenoh could not open (for example the port is taken).
+        """
+        s = self.settings
+        conf = service_config(s, self._zenoh_cfg)
+        self._session = session = zenoh.open(conf)
+        per_shard_sessions = max(1, -(-s.max_sessions // s.workers))
+        self._outbox = Outbox(
+            session, self.metrics, instance=s.instance, transition_cache=s.transition_cache,
+            max_publishers=s.max_sessions, error_rate_per_s=s.error_rate_per_s,
+            error_burst=s.error_burst,
+        )  # fmt: skip
+        params = s.partition_params()
+        for index in range(s.workers):
+            table = SessionTable(
+                params, max_sessions=per_shard_sessions, max_nodes=s.max_nodes_per_session,
+                max_batch_frames=s.max_batch_frames, idle_timeout_s=s.session_idle_timeout_s,
+                instance=s.instance, clock=time.perf_counter,
+            )  # fmt: skip
+            self._shards.append(Shard(index, table, self._outbox, limits=s.limits.wire_limits(),
+                                      queue_depth=s.queue_depth,
+                                      queue_bytes=_QUEUE_BYTES_PER_SHARD))  # fmt: skip
+        for shard in self._shards:
+            shard.start()
+        self._query_thread.start()
+        any_robot = f"{keys.KEY_PREFIX}/*/*"
+        self._declared.append(session.declare_queryable(f"{any_robot}/state", self._queries.put))
+        self._declared.append(
+            session.declare_queryable(f"{any_robot}/submaps/*", self._queries.put)
+        )
+        self._declared.append(session.declare_queryable(keys.health(s.instance), self._queries.put))
+        self._declared.append(session.declare_subscriber(f"{any_robot}/frames", self._on_sample))
+        self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
+        if s.metrics_port is not None:
+            server, _thread = start_http_server(
+                s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
+            )
+            self._metrics_server = server
+            self.metrics_port = server.server_port
+        log.info(
+            "lessmap %s serving as %s (%s, %d shard(s), profile %s)%s", __version__, s.instance,
+            "embedded router on tcp/127.0.0.1:7447" if s.embedded else "joined Zenoh network",
+            s.workers, s.profile,
+            f", metrics on http://{s.metrics_addr}:{self.metrics_port}/metrics"
+            if self.metrics_port is not None else "",
+        )  # fmt: skip
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop taking frames, finish the queued ones, publish final states, close Zenoh."""
+        log.info("stopping %s", self.settings.instance)
+        for declared in reversed(self._declared):
+            declared.undeclare()  # type: ignore[no-untyped-call]
+        self._declared.clear()
+        deadline = time.monotonic() + timeout_s
+        for shard in self._shards:
+            shard.stop(max(0.1, deadline - time.monotonic()))
+        if self._outbox is not None:
+            now = time.monotonic()
+            for shard in self._shards:
+                with shard.lock:
+                    outcome = shard.table.close_all("shutdown")
+                self._outbox.publish(outcome, now)
+        self._queries.put(None)
+        self._query_thread.join(1.0)
+        if self._token is not None:
+            self._token.undeclare()
+        if self._outbox is not None:
+            self._outbox.close()
+        if self._metrics_server is not None:
+            self._metrics_server.shutdown()
+            self._metrics_server.server_close()
+        if self._session is not None:
+            self._session.close()
+        log.info("stopped %s", self.settings.instance)
+
+    # -- receive path (Zenoh callback: enqueue only) ----------------------------------------
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self.metrics.frames_received.inc()
+        key = str(sample.key_expr)
+        shard = self._shards[zlib.crc32(key.encode()) % len(self._shards)]
+        payload = sample.payload
+        if len(payload) > self.settings.limits.max_payload_bytes:
+            # Decided here, before copying the bytes: a huge sample never reaches a queue.
+            limit = self.settings.limits.max_payload_bytes
+            self._outbox_reject(key, f"payload of {len(payload)} bytes exceeds {limit=}")
+            return
+        if not shard.offer(Inbound(time.monotonic(), key, payload.to_bytes())):
+            depth = self.settings.queue_depth
+            self._outbox_reject(key, f"shard {shard.index} queue full ({depth=}); frame dropped")
+
+    def _outbox_reject(self, key: str, detail: str) -> None:
+        # Runs on Zenoh's thread: no Zenoh calls here. Hand the note to the shard, whose
+        # worker publishes it as an Error on the robot's key.
+        shard = self._shards[zlib.crc32(key.encode()) % len(self._shards)]
+        shard.note_rejection(key, ErrorCode.LIMIT_EXCEEDED, detail)
+
+    # -- queries -----------------------------------------------------------------------------
+
+    def _serve_queries(self) -> None:
+        while True:
+            query = self._queries.get()
+            if query is None:
+                return
+            try:
+                with query:
+                    self._answer(query)
+            except Exception:
+                log.exception("query %s failed", query.selector)
+
+    def _answer(self, query: zenoh.Query) -> None:
+        selector = query.key_expr
+        text = str(selector)
+        if text.startswith(f"{keys.KEY_PREFIX}/@/health/"):
+            self._reply_health(query)
+            return
+        is_submap = "/submaps/" in text
+        for shard in self._shards:
+            with shard.lock:
+                robots = shard.table.robots()
+                for fleet, robot in robots:
+                    if is_submap:
+                        self._reply_submaps(query, shard, fleet, robot)
+                        continue
+                    key = keys.state(fleet, robot)
+                    if not selector.intersects(zenoh.KeyExpr(key)):
+                        continue
+                    state = shard.table.state(fleet, robot)
+                    if state is not None:
+                        query.reply(key, encode(state), encoding=zenoh.Encoding(
+                            encoding(SessionState)))  # fmt: skip
+
+    def _reply_submaps(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
+        state = shard.table.state(fleet, robot)
+        if state is None:
+            return
+        candidates = [(state.current_submap, state.open)]
+        candidates += [(closed, False) for closed in state.closed_submaps]
+        for summary, is_open in candidates:
+            key = keys.submap(fleet, robot, summary.id)
+            if query.key_expr.intersects(zenoh.KeyExpr(key)):
+                message = Submap(fleet=fleet, robot=robot, session=state.session,
+                                 summary=summary, open=is_open)  # fmt: skip
+                query.reply(key, encode(message), encoding=zenoh.Encoding(encoding(Submap)))
+
+    def _reply_health(self, query: zenoh.Query) -> None:
+        health = Health(
+            instance=self.settings.instance,
+            version=__version__,
+            sessions=sum(len(shard.table) for shard in self._shards),
+            uptime_s=time.monotonic() - self._started_s,
+            frames_applied=self._outbox.frames_applied if self._outbox is not None else 0,
+        )
+        query.reply(keys.health(self.settings.instance), encode(health),
+                    encoding=zenoh.Encoding(encoding(Health)))  # fmt: skip
+
+
+__all__ = ["Service", "WireError"]

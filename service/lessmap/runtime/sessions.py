@@ -1,0 +1,396 @@
+"""The robot sessions of one shard: sequencing, coalescing, limits. No Zenoh, no threads.
+
+Rules of this file (the service's ordering contract, schemas/README.md):
+
+1. One open session per (fleet, robot). A frame with a new session id closes the open one
+   (its final state goes out) and starts a new CovGraph. Frames of a session closed before
+   are rejected (SESSION_CLOSED): a session id is never reopened.
+2. Frames of a session are applied in seq order exactly once. A batch is sorted by seq first,
+   so reordering inside a batch loses nothing. seq <= last applied: ignored, counted as
+   DUPLICATE_SEQ, or OUT_OF_ORDER when it falls in a gap reported earlier. seq > last + 1:
+   the missing frames are counted, SEQ_GAP is reported, and the frame is applied.
+3. Coalescing: ``handle_batch`` applies up to ``max_batch_frames`` frames of a session and
+   then decides once; with ``max_batch_frames = 1`` it decides at every frame, exactly as
+   ``lessmap segment`` does offline.
+4. Limits never grow memory unbounded: at most ``max_sessions`` open sessions per shard and
+   ``max_nodes`` features per CovGraph; past either, the message is rejected with an error.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from lessmap.core import GraphError, Partitioner, PartitionParams
+from lessmap_schemas.errors import ErrorCode
+from lessmap_schemas.messages import Frame, SessionEnd, SessionState, SubmapSummary
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable
+
+    from lessmap.core import Submap, Transition
+
+RobotKey = tuple[str, str]  # (fleet, robot)
+
+_CLOSED_IDS_KEPT = 16  # per robot: enough to reject stragglers of recent sessions
+_GAPS_KEPT = 64  # per session: gap ranges remembered to tell OUT_OF_ORDER from DUPLICATE
+
+
+@dataclass(frozen=True, slots=True)
+class Rejection:
+    """An inbound message the table refused, and why (becomes an Error event)."""
+
+    fleet: str
+    robot: str
+    session: str | None
+    code: ErrorCode
+    detail: str
+    seq: int | None
+
+
+@dataclass(slots=True)
+class RobotSession:
+    """One robot session: its partitioner and its counters."""
+
+    fleet: str
+    robot: str
+    session: str
+    partitioner: Partitioner
+    last_activity_s: float
+    frames_duplicate: int = 0
+    frames_missing: int = 0
+    frames_rejected: int = 0
+    gaps: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=_GAPS_KEPT))
+
+    def state(self, instance: str, *, is_open: bool) -> SessionState:
+        """Return the session's state as the wire message."""
+        p = self.partitioner
+        return SessionState(
+            fleet=self.fleet,
+            robot=self.robot,
+            session=self.session,
+            instance=instance,
+            open=is_open,
+            last_seq=p.last_seq,
+            frames_applied=p.frames_applied,
+            frames_duplicate=self.frames_duplicate,
+            frames_missing=self.frames_missing,
+            frames_rejected=self.frames_rejected,
+            transitions=p.transitions,
+            current_submap=summary_of(p.current_submap()),
+            closed_submaps=[summary_of(s) for s in p.closed_submaps],
+            nodes=p.graph.node_count,
+            edges=p.graph.edge_count,
+        )
+
+
+def summary_of(submap: Submap) -> SubmapSummary:
+    """Convert a core submap to its wire summary."""
+    return SubmapSummary(
+        id=submap.id,
+        first_seq=submap.first_seq,
+        last_seq=submap.last_seq,
+        frame_count=submap.frame_count,
+        features=list(submap.features),
+    )
+
+
+@dataclass(slots=True)
+class Outcome:
+    """What one batch produced, for the transport layer to publish."""
+
+    transitions: list[tuple[RobotSession, Transition]] = field(default_factory=list)
+    rejections: list[Rejection] = field(default_factory=list)
+    opened: list[RobotSession] = field(default_factory=list)
+    closed: list[tuple[SessionState, str]] = field(default_factory=list)  # (final state, cause)
+    frames_applied: int = 0
+    frames_duplicate: int = 0
+    frames_missing: int = 0
+    decisions: list[tuple[float, int]] = field(default_factory=list)  # (seconds, batch frames)
+    failures: list[tuple[RobotKey, Exception]] = field(default_factory=list)
+
+    def reject(
+        self,
+        fleet: str,
+        robot: str,
+        session: str | None,
+        code: ErrorCode,
+        detail: str,
+        seq: int | None,
+    ) -> None:
+        """Record a refused (or, for SEQ_GAP, a noted) message."""
+        self.rejections.append(Rejection(fleet, robot, session, code, detail, seq))
+
+
+class SessionTable:
+    """The open sessions of one shard and the rules above."""
+
+    def __init__(
+        self,
+        params: PartitionParams,
+        *,
+        max_sessions: int,
+        max_nodes: int,
+        max_batch_frames: int,
+        idle_timeout_s: float,
+        instance: str,
+        clock: Callable[[], float],
+    ) -> None:
+        self._params = params
+        self._instance = instance
+        self._max_sessions = max_sessions
+        self._max_nodes = max_nodes
+        self._max_batch_frames = max_batch_frames
+        self._idle_timeout_s = idle_timeout_s
+        self._clock = clock  # only used to time decisions; activity time is passed in
+        self._open: dict[RobotKey, RobotSession] = {}
+        self._closed_ids: OrderedDict[RobotKey, deque[str]] = OrderedDict()
+        # Closed sessions leave only their final state (the CovGraph is freed), kept for
+        # state and submap queries until max_sessions newer ones push it out.
+        self._final_states: OrderedDict[RobotKey, SessionState] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._open)
+
+    def robots(self) -> list[RobotKey]:
+        """Every robot with an open or remembered closed session."""
+        return list(dict.fromkeys([*self._open, *self._final_states]))
+
+    def state(self, fleet: str, robot: str) -> SessionState | None:
+        """Return the state of a robot's open session, else of its last closed one."""
+        key = (fleet, robot)
+        session = self._open.get(key)
+        if session is not None:
+            return session.state(self._instance, is_open=True)
+        return self._final_states.get(key)
+
+    def submap(
+        self, fleet: str, robot: str, submap_id: int
+    ) -> tuple[SessionState, SubmapSummary, bool] | None:
+        """Return (session state, submap, is the submap open) for a submap id, if known."""
+        state = self.state(fleet, robot)
+        if state is None:
+            return None
+        if state.current_submap.id == submap_id:
+            return state, state.current_submap, state.open
+        for closed in state.closed_submaps:
+            if closed.id == submap_id:
+                return state, closed, False
+        return None
+
+    # -- batch -----------------------------------------------------------------------------
+
+    def handle_batch(
+        self, messages: Iterable[tuple[str, str, Frame | SessionEnd]], now_s: float
+    ) -> Outcome:
+        """Apply a batch of decoded messages (arrival order) and decide once per session."""
+        outcome = Outcome()
+        per_robot: dict[RobotKey, list[Frame | SessionEnd]] = {}
+        for fleet, robot, message in messages:
+            per_robot.setdefault((fleet, robot), []).append(message)
+        for key, robot_messages in per_robot.items():
+            try:
+                self._handle_robot(key, robot_messages, now_s, outcome)
+            except Exception as exc:
+                # A bug in one session must not stop the others: drop that session (its
+                # state is suspect), report it, go on. The shard logs the traceback.
+                outcome.failures.append((key, exc))
+                broken = self._open.pop(key, None)
+                outcome.reject(
+                    key[0],
+                    key[1],
+                    broken.session if broken else None,
+                    ErrorCode.INTERNAL,
+                    f"session reset after an internal error: {type(exc).__name__}",
+                    None,
+                )
+        return outcome
+
+    def _handle_robot(
+        self, key: RobotKey, messages: list[Frame | SessionEnd], now_s: float, out: Outcome
+    ) -> None:
+        run: list[Frame] = []  # frames of one session id, in arrival order
+        for message in messages:
+            if run and message.session != run[0].session:
+                self._apply_run(key, run, now_s, out)
+                run = []
+            if isinstance(message, SessionEnd):
+                self._apply_run(key, run, now_s, out)
+                run = []
+                self._end(key, message, out)
+            else:
+                run.append(message)
+        self._apply_run(key, run, now_s, out)
+
+    def _apply_run(self, key: RobotKey, run: list[Frame], now_s: float, out: Outcome) -> None:
+        if not run:
+            return
+        fleet, robot = key
+        session_id = run[0].session
+        current = self._open.get(key)
+        if current is None or current.session != session_id:
+            if session_id in self._closed_ids.get(key, ()):
+                for frame in run:
+                    out.reject(
+                        fleet,
+                        robot,
+                        session_id,
+                        ErrorCode.SESSION_CLOSED,
+                        f"session {session_id!r} is closed",
+                        frame.seq,
+                    )
+                return
+            if current is not None:
+                self._close(key, "replaced", out)
+            if len(self._open) >= self._max_sessions:
+                out.reject(
+                    fleet,
+                    robot,
+                    session_id,
+                    ErrorCode.SESSION_LIMIT,
+                    f"{len(self._open)} sessions open, the shard limit",
+                    run[0].seq,
+                )
+                return
+            current = RobotSession(fleet, robot, session_id, Partitioner(self._params), now_s)
+            self._open[key] = current
+            out.opened.append(current)
+        current.last_activity_s = now_s
+        pending = 0
+        for frame in sorted(run, key=lambda f: f.seq):
+            if self._apply_frame(current, frame, out):
+                pending += 1
+                if pending >= self._max_batch_frames:
+                    self._decide(current, out)
+                    pending = 0
+        if pending:
+            self._decide(current, out)
+
+    def _apply_frame(self, session: RobotSession, frame: Frame, out: Outcome) -> bool:
+        p = session.partitioner
+        last = p.last_seq
+        if last is not None and frame.seq <= last:
+            late = any(lo <= frame.seq <= hi for lo, hi in session.gaps)
+            code = ErrorCode.OUT_OF_ORDER if late else ErrorCode.DUPLICATE_SEQ
+            what = "arrived after later frames" if late else "already applied"
+            session.frames_duplicate += 1
+            out.frames_duplicate += 1
+            out.reject(
+                session.fleet,
+                session.robot,
+                session.session,
+                code,
+                f"frame {frame.seq} {what} (last applied {last})",
+                frame.seq,
+            )
+            return False
+        unknown = sum(1 for f in set(frame.features) if p.graph.count(f) == 0)
+        if p.graph.node_count + unknown > self._max_nodes:
+            session.frames_rejected += 1
+            out.reject(
+                session.fleet,
+                session.robot,
+                session.session,
+                ErrorCode.GRAPH_LIMIT,
+                f"CovGraph would exceed {self._max_nodes} features",
+                frame.seq,
+            )
+            return False
+        if last is not None and frame.seq > last + 1:
+            missing = frame.seq - last - 1
+            session.frames_missing += missing
+            session.gaps.append((last + 1, frame.seq - 1))
+            out.frames_missing += missing
+            out.reject(
+                session.fleet,
+                session.robot,
+                session.session,
+                ErrorCode.SEQ_GAP,
+                f"{missing} frame(s) missing: {last + 1}..{frame.seq - 1}",
+                frame.seq,
+            )
+        try:
+            p.apply(frame.seq, frame.stamp_s, frame.features)
+        except GraphError as exc:
+            session.frames_rejected += 1
+            out.reject(
+                session.fleet,
+                session.robot,
+                session.session,
+                ErrorCode.INVALID,
+                str(exc),
+                frame.seq,
+            )
+            return False
+        out.frames_applied += 1
+        return True
+
+    def _decide(self, session: RobotSession, out: Outcome) -> None:
+        batch = session.partitioner.pending_frames
+        started = self._clock()
+        transition = session.partitioner.decide()
+        out.decisions.append((self._clock() - started, batch))
+        if transition is not None:
+            out.transitions.append((session, transition))
+
+    # -- closing ---------------------------------------------------------------------------
+
+    def _end(self, key: RobotKey, end: SessionEnd, out: Outcome) -> None:
+        current = self._open.get(key)
+        if current is None or current.session != end.session:
+            if end.session not in self._closed_ids.get(key, ()):
+                out.reject(
+                    key[0],
+                    key[1],
+                    end.session,
+                    ErrorCode.SESSION_CLOSED,
+                    f"no open session {end.session!r} to end",
+                    end.last_seq,
+                )
+            return
+        last = current.partitioner.last_seq
+        if end.last_seq is not None and (last is None or end.last_seq > last):
+            missing = end.last_seq - (last if last is not None else -1)
+            current.frames_missing += missing
+            out.frames_missing += missing
+            out.reject(
+                key[0],
+                key[1],
+                end.session,
+                ErrorCode.SEQ_GAP,
+                f"session ended at {end.last_seq} but only {last} was received",
+                end.last_seq,
+            )
+        self._close(key, "ended", out)
+
+    def _close(self, key: RobotKey, cause: str, out: Outcome) -> None:
+        session = self._open.pop(key)
+        if session.partitioner.pending_frames:
+            self._decide(session, out)
+        ids = self._closed_ids.setdefault(key, deque(maxlen=_CLOSED_IDS_KEPT))
+        ids.append(session.session)
+        self._closed_ids.move_to_end(key)
+        while len(self._closed_ids) > 4 * self._max_sessions:
+            self._closed_ids.popitem(last=False)
+        final = session.state(self._instance, is_open=False)
+        self._final_states[key] = final
+        self._final_states.move_to_end(key)
+        while len(self._final_states) > self._max_sessions:
+            self._final_states.popitem(last=False)
+        out.closed.append((final, cause))
+
+    def expire_idle(self, now_s: float) -> Outcome:
+        """Close every session idle for longer than the timeout."""
+        out = Outcome()
+        for key, session in list(self._open.items()):
+            if now_s - session.last_activity_s > self._idle_timeout_s:
+                self._close(key, "idle", out)
+        return out
+
+    def close_all(self, cause: str) -> Outcome:
+        """Close every open session (shutdown)."""
+        out = Outcome()
+        for key in list(self._open):
+            self._close(key, cause, out)
+        return out

@@ -1,0 +1,60 @@
+"""Build the Zenoh configuration of the service from its settings.
+
+Zenoh's own configuration is never re-modelled: a JSON5 file goes to
+``zenoh.Config.from_file``; ``--mode``, ``--connect``, ``--listen`` and ``--cfg KEY:VALUE``
+override it, spelled as in zenoh-python's examples.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from lessmap.errors import ConfigError
+from lessmap.settings import EMBEDDED_ENDPOINT
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from lessmap.settings import ServiceSettings
+
+
+def service_config(settings: ServiceSettings, extra: Sequence[str] = ()) -> zenoh.Config:
+    """Return the Zenoh config: an embedded loopback router unless told otherwise.
+
+    Args:
+        settings: the service settings (mode, connect, listen, zenoh_config).
+        extra: ``KEY:VALUE`` overrides (VALUE is JSON5), applied last.
+
+    Raises:
+        ConfigError: the file cannot be read or an override is invalid.
+    """
+    try:
+        if settings.zenoh_config is not None:
+            conf = zenoh.Config.from_file(str(settings.zenoh_config))
+        else:
+            conf = zenoh.Config()
+        if settings.embedded:
+            # One machine, nothing else to run: be the router, on loopback only, and don't
+            # go looking for other routers on the LAN.
+            conf.insert_json5("mode", json.dumps("router"))
+            conf.insert_json5("listen/endpoints", json.dumps([EMBEDDED_ENDPOINT]))
+            conf.insert_json5("scouting/multicast/enabled", "false")
+        if settings.mode is not None:
+            conf.insert_json5("mode", json.dumps(settings.mode))
+        if settings.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+        if settings.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+        for item in extra:
+            key, sep, value = item.partition(":")
+            if not sep:
+                msg = f"--cfg expects KEY:VALUE, got {item!r}"
+                raise ConfigError(msg)
+            conf.insert_json5(key, value)
+    except zenoh.ZError as exc:
+        msg = f"invalid Zenoh configuration: {exc}"
+        raise ConfigError(msg) from exc
+    return conf

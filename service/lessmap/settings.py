@@ -1,0 +1,153 @@
+"""Service settings: one model, filled from defaults < config file < environment < flags.
+
+Environment variables are ``LESSMAP_<FIELD>`` (nested: ``LESSMAP_LIMITS__MAX_PAYLOAD_BYTES``).
+Zenoh's own configuration is never re-modelled here: it is a JSON5 file handed to
+``zenoh.Config.from_file`` plus the ``--connect/--listen/--mode`` overrides.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from lessmap.core import PROFILES, PartitionParams, SeedMode
+from lessmap.errors import ConfigError
+from lessmap_schemas.keys import validate_name
+from lessmap_schemas.limits import WireLimits
+
+#: Where the embedded router listens when no Zenoh option is given.
+EMBEDDED_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+class LimitSettings(BaseModel):
+    """Wire limits the service enforces on every inbound message (see schemas/README.md)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    max_payload_bytes: int = Field(1_048_576, ge=64)
+    max_features_per_frame: int = Field(4096, ge=1)
+    max_name_len: int = Field(64, ge=1, le=64)
+
+    def wire_limits(self) -> WireLimits:
+        """Return the codec's limits."""
+        return WireLimits(
+            max_payload_bytes=self.max_payload_bytes,
+            max_features_per_frame=self.max_features_per_frame,
+            max_name_len=self.max_name_len,
+        )
+
+
+class ServiceSettings(BaseSettings):
+    """Everything ``lessmap serve`` can be told; every field has a working default."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="LESSMAP_", env_nested_delimiter="__", frozen=True, extra="forbid"
+    )
+
+    # -- partitioning (Eq. 4) --
+    profile: Literal["laser", "stereo", "monocular"] = "laser"
+    ncut_min: float | None = Field(None, ge=0.0, description="overrides the profile")
+    lambda2_min: float | None = Field(None, ge=0.0, description="overrides the profile")
+    seed_mode: SeedMode = SeedMode.SEED
+    min_frames_between: int = Field(0, ge=0)
+    min_cluster_size: int = Field(1, ge=1)
+
+    # -- sessions --
+    session_idle_timeout_s: float = Field(300.0, gt=0.0)
+    max_sessions: int = Field(10_000, ge=1)
+    max_nodes_per_session: int = Field(20_000, ge=2)
+    max_batch_frames: int = Field(256, ge=1, description="1 = decide at every frame")
+
+    # -- receive path --
+    workers: int = Field(2, ge=1, le=64, description="shards; a robot always maps to one")
+    queue_depth: int = Field(50_000, ge=1, description="pending messages per shard")
+
+    # -- outputs --
+    transition_cache: int = Field(
+        64, ge=1, description="transitions kept per robot for late joiners"
+    )
+    error_rate_per_s: float = Field(5.0, gt=0.0, description="error events per robot and second")
+    error_burst: int = Field(20, ge=1)
+    instance: str = Field(default_factory=lambda: f"{socket.gethostname()[:40]}-{os.getpid()}")
+    metrics_port: int | None = Field(None, ge=0, le=65535)
+    metrics_addr: str = "127.0.0.1"
+
+    # -- zenoh --
+    zenoh_config: Path | None = None
+    mode: Literal["peer", "client", "router"] | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+
+    limits: LimitSettings = LimitSettings()
+
+    @field_validator("instance")
+    @classmethod
+    def _instance_is_a_name(cls, value: str) -> str:
+        # Instances appear as key chunks (liveliness token, health key): same rule as robots.
+        cleaned = "".join(c if c.isalnum() or c in "_.-" else "-" for c in value)[:64]
+        return validate_name(cleaned.lstrip(".-") or "lessmap", "instance")
+
+    @property
+    def embedded(self) -> bool:
+        """True when no Zenoh option was given: open our own router on loopback."""
+        return (
+            self.zenoh_config is None and self.mode is None and not self.connect and not self.listen
+        )
+
+    def partition_params(self) -> PartitionParams:
+        """Return the core's parameters for every session of this service."""
+        ncut_min, lambda2_min = PROFILES[self.profile]
+        return PartitionParams(
+            ncut_min=self.ncut_min if self.ncut_min is not None else ncut_min,
+            lambda2_min=self.lambda2_min if self.lambda2_min is not None else lambda2_min,
+            seed_mode=self.seed_mode,
+            min_frames_between=self.min_frames_between,
+            min_cluster_size=self.min_cluster_size,
+        )
+
+
+def load_settings(config_file: Path | None = None, **overrides: Any) -> ServiceSettings:
+    """Build the settings: defaults < JSON config file < ``LESSMAP_*`` environment < overrides.
+
+    Raises:
+        ConfigError: a value is invalid or the config file cannot be read (one-line message).
+    """
+    file_values: object = {}
+    if config_file is not None:
+        try:
+            file_values = json.loads(config_file.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            msg = f"cannot read config file {config_file}: {exc}"
+            raise ConfigError(msg) from exc
+        if not isinstance(file_values, dict):
+            msg = f"config file {config_file}: expected a JSON object"
+            raise ConfigError(msg)
+    try:
+        # Environment beats the file: pydantic-settings gives init kwargs precedence, so the
+        # file's values go in as defaults of a subclass-free merge below.
+        from_env = ServiceSettings()
+        assert isinstance(file_values, dict)
+        merged = {**file_values, **_explicit(from_env), **overrides}
+        return ServiceSettings(**merged)
+    except (ValidationError, ValueError) as exc:
+        msg = f"invalid setting: {_first_error(exc)}"
+        raise ConfigError(msg) from exc
+
+
+def _explicit(settings: ServiceSettings) -> dict[str, Any]:
+    """Return only the fields the environment actually set."""
+    return {name: getattr(settings, name) for name in settings.model_fields_set}
+
+
+def _first_error(exc: Exception) -> str:
+    if isinstance(exc, ValidationError):
+        error = exc.errors()[0]
+        where = ".".join(str(p) for p in error["loc"])
+        return f"{where}: {error['msg']} (got {error.get('input')!r})"
+    return str(exc)
