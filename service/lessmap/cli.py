@@ -105,12 +105,9 @@ def _cmd_segment(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    import zenoh
-
     from lessmap.runtime.daemon import serve
     from lessmap.settings import load_settings
 
-    zenoh.init_log_from_env_or("error")
     flags = {
         "profile": args.profile,
         "ncut_min": args.ncut_min,
@@ -127,11 +124,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         "listen": tuple(args.listen) if args.listen else None,
     }
     settings = load_settings(args.config, **{k: v for k, v in flags.items() if v is not None})
-    try:
-        return serve(settings, args.cfg or ())
-    except zenoh.ZError as exc:
-        msg = f"Zenoh could not start: {exc}"
-        raise ConfigError(msg) from exc
+    return serve(settings, args.cfg or ())
 
 
 def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -206,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_partition_options(seg)
     seg.set_defaults(run=_cmd_segment)
     _add_serve(commands)
+    from lessmap.evaluation.commands import add_commands as add_evaluation_commands
+
+    add_evaluation_commands(commands)
     return parser
 
 

@@ -23,6 +23,7 @@ class FrameRow:
     stamp_s: float
     features: tuple[int, ...]
     pose: tuple[float, float, float] | None
+    where: str = ""  # "file:line" when read from a file, for error messages
 
 
 def parse_frame_line(line: str, where: str) -> FrameRow:
@@ -62,6 +63,7 @@ def parse_frame_line(line: str, where: str) -> FrameRow:
         stamp_s=float(stamp),
         features=tuple(features),
         pose=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
+        where=where,
     )
 
 

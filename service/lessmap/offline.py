@@ -6,7 +6,8 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from lessmap.core import Partitioner, Transition
+from lessmap.core import GraphError, Partitioner, Transition
+from lessmap.errors import DatasetError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
@@ -80,7 +81,11 @@ def segment(
         if partitioner is None:
             partitioner = partitioners[frame.robot] = Partitioner(params)
             summary.robots[frame.robot] = 0
-        transition = partitioner.observe(frame.seq, frame.stamp_s, frame.features)
+        try:
+            transition = partitioner.observe(frame.seq, frame.stamp_s, frame.features)
+        except GraphError as exc:
+            msg = f"{frame.where or 'frame'} (robot {frame.robot}): {exc}"
+            raise DatasetError(msg) from exc
         summary.frames += 1
         if transition is not None:
             summary.transitions += 1

@@ -4,4 +4,17 @@ from __future__ import annotations
 
 import logging
 
+from lessmap_client.fleet import FleetClient
+from lessmap_client.robot import RobotPublisher, new_session_id
+from lessmap_client.session import DEFAULT_ENDPOINT, open_session, wait_for_service
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "FleetClient",
+    "RobotPublisher",
+    "new_session_id",
+    "open_session",
+    "wait_for_service",
+]
+
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -290,6 +290,17 @@ class CovGraph:
         if state.edge_indptr.size != n + 1:
             msg = f"inconsistent CovGraph state: indptr of {state.edge_indptr.size} for {n} nodes"
             raise GraphError(msg)
+        indptr, indices = state.edge_indptr, state.edge_indices
+        if (
+            indptr[0] != 0
+            or indptr[-1] != indices.size
+            or state.edge_counts.size != indices.size
+            or (indptr.size > 1 and (np.diff(indptr) < 0).any())
+            or (indices.size and (indices.min() < 0 or indices.max() >= n))
+            or (state.counts < 0).any()
+        ):
+            msg = "inconsistent CovGraph state: malformed edge arrays"
+            raise GraphError(msg)
         capacity = max(_INITIAL_CAPACITY, n)
         self._ids = np.zeros(capacity, dtype=np.int64)
         self._counts = np.zeros(capacity, dtype=np.int64)

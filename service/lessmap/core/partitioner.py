@@ -64,6 +64,27 @@ class PartitionerState:
     transitions: int
 
 
+def _feature_array(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
+    """Return the distinct feature IDs as int64, refusing floats, strings and bools."""
+    values = features if isinstance(features, np.ndarray) else list(features)
+    try:
+        array = np.asarray(values)
+    except (OverflowError, TypeError, ValueError) as exc:
+        msg = f"frame {seq}: feature IDs must be integers in the int64 range ({exc})"
+        raise GraphError(msg) from exc
+    if array.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    # numpy casts 1.5, "7" and True to int64 without complaint; only integer dtypes pass.
+    # Python ints beyond int64 give an object array, which fails here too.
+    if array.ndim != 1 or array.dtype.kind not in "iu":
+        msg = f"frame {seq}: feature IDs must be integers in the int64 range, got {array.dtype}"
+        raise GraphError(msg)
+    if array.dtype.kind == "u" and array.max() > np.iinfo(np.int64).max:
+        msg = f"frame {seq}: feature ID {array.max()} is beyond the int64 range"
+        raise GraphError(msg)
+    return np.unique(array.astype(np.int64))
+
+
 class Partitioner:
     """CovGraph and submap state of one robot session. No I/O."""
 
@@ -146,11 +167,7 @@ class Partitioner:
         if self._last_seq is not None and seq <= self._last_seq:
             msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
             raise StaleFrameError(msg)
-        try:
-            distinct = np.unique(np.fromiter(features, dtype=np.int64))
-        except (OverflowError, TypeError, ValueError) as exc:
-            msg = f"frame {seq}: feature IDs must be integers in the int64 range ({exc})"
-            raise GraphError(msg) from exc
+        distinct = _feature_array(seq, features)
         self._graph.add_frame(seq, distinct.tolist())
         self._history.append(FrameRecord(seq, distinct))
         if self._submap_first_seq is None:

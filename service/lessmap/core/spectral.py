@@ -3,7 +3,7 @@
 The generalized problem L v = λ D v (L = D - W) is solved through its symmetric form
 L_sym = I - D^-1/2 W D^-1/2 = I - S: L_sym u = λ u with v = D^-1/2 u, the same eigenvalues.
 Small graphs use LAPACK (exact, deterministic); large ones use ARPACK on S with the known
-first eigenvector u1 = D^1/2 1 deflated out, so Lanczos converges on u2 alone instead of
+first eigenvector u1 = D^1/2 1 reflected out, so Lanczos converges on u2 alone instead of
 fighting the eigenvalue cluster at 1 that a nearly separable graph produces.
 
 This is deliberately not MRPT's variant (unnormalized Laplacian, threshold at the mean of
@@ -146,8 +146,10 @@ def _sparse_second_pair(
     u1 = sqrt_degrees / np.linalg.norm(sqrt_degrees)
 
     def deflated(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        # S - 2 u1 u1ᵀ moves S's top eigenvalue from 1 to -1, the bottom of S's spectrum
+        # [-1, 1], so the largest eigenvalue left is 1 - λ2 even when λ2 > 1.
         x = np.asarray(x, dtype=np.float64).ravel()
-        y: NDArray[np.float64] = scaled @ x - u1 * (u1 @ x)
+        y: NDArray[np.float64] = scaled @ x - 2.0 * u1 * (u1 @ x)
         return y
 
     operator = LinearOperator((n, n), matvec=deflated, dtype=np.float64)

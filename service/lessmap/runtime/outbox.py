@@ -171,6 +171,7 @@ class Outbox:
                 self._session,
                 keys.transitions(fleet, robot),
                 encoding=_TRANSITION_ENCODING,
+                congestion_control=zenoh.CongestionControl.BLOCK,
                 cache=ext.CacheConfig(self._cache),
                 publisher_detection=True,
             )

@@ -127,7 +127,8 @@ class Service:
                     outcome = shard.table.close_all("shutdown")
                 self._outbox.publish(outcome, now)
         self._queries.put(None)
-        self._query_thread.join(1.0)
+        if self._query_thread.is_alive():
+            self._query_thread.join(1.0)
         if self._token is not None:
             self._token.undeclare()
         if self._outbox is not None:

@@ -48,6 +48,8 @@ def service_config(settings: ServiceSettings, extra: Sequence[str] = ()) -> zeno
             conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
         if settings.listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+        # The transitions' AdvancedPublisher cache needs timestamps in every mode.
+        conf.insert_json5("timestamping/enabled", "true")
         for item in extra:
             key, sep, value = item.partition(":")
             if not sep:

@@ -1,0 +1,74 @@
+"""Open the Zenoh session a client uses: by default a client of the local lessmap router."""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from lessmap_schemas import keys
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+#: The embedded router of ``lessmap serve`` with no options.
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def client_config(
+    connect: Sequence[str] = (DEFAULT_ENDPOINT,),
+    mode: str = "client",
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """Return a Zenoh config that connects to ``connect`` without multicast scouting."""
+    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    # Explicit endpoints: scouting would only find unrelated peers on the LAN.
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    # AdvancedPublisher's cache orders samples by timestamp; only routers stamp by default.
+    conf.insert_json5("timestamping/enabled", "true")
+    return conf
+
+
+def open_session(
+    connect: Sequence[str] = (DEFAULT_ENDPOINT,), mode: str = "client", timeout_s: float = 10.0
+) -> zenoh.Session:
+    """Open a Zenoh session for a lessmap client (the caller closes it).
+
+    A client-mode session fails at once when no router answers yet; retry until
+    ``timeout_s`` so a client started next to the service does not race it.
+
+    Raises:
+        zenoh.ZError: no router could be reached within ``timeout_s``.
+    """
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return zenoh.open(client_config(connect, mode))
+        except zenoh.ZError:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(0.1)
+
+
+def service_instances(session: zenoh.Session, timeout_s: float = 1.0) -> list[str]:
+    """Return the names of the lessmap service instances alive on the network."""
+    found = []
+    for reply in session.liveliness().get(keys.instances(), timeout=timeout_s):
+        if reply.ok is not None:
+            found.append(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+    return found
+
+
+def wait_for_service(session: zenoh.Session, timeout_s: float = 10.0) -> bool:
+    """Wait until at least one service instance is alive; False on timeout."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if service_instances(session, timeout_s=min(1.0, max(0.1, deadline - time.monotonic()))):
+            return True
+        time.sleep(0.05)
+    return False

@@ -1,0 +1,196 @@
+"""Key expressions of every lessmap stream, one function per stream.
+
+Layout (all under `KEY_PREFIX`, one chunk per name):
+
+    lessmap/v1/<fleet>/<robot>/frames          robot -> service  put Frame, SessionEnd
+    lessmap/v1/<fleet>/<robot>/transitions     service -> apps   put Transition
+    lessmap/v1/<fleet>/<robot>/errors          service -> apps   put Error
+    lessmap/v1/<fleet>/<robot>/state           apps -> service   get SessionState
+    lessmap/v1/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
+    lessmap/v1/@/instances/<instance>          service           liveliness token
+    lessmap/v1/@/health/<instance>             apps -> service   get Health
+
+Service bookkeeping sits under the `@` chunk: Zenoh never lets `*` or `**` match a chunk that
+starts with `@`, so a fleet-wide `lessmap/v1/**` subscription sees robot traffic only.
+
+A fleet or robot argument may be `"*"` (any single name) wherever the key is used to subscribe,
+declare a queryable or query; publishers must pass concrete names, which `validate_name` checks.
+"""
+
+from __future__ import annotations
+
+import re
+
+from lessmap_schemas.errors import InvalidNameError
+from lessmap_schemas.limits import DEFAULT_LIMITS, MAX_SEQ, WireLimits
+
+KEY_PREFIX = "lessmap/v1"
+"""First two chunks of every key; the version chunk changes only on a breaking change."""
+WIRE_VERSION = 1
+"""Value of the `v` field of every message and of the `v1` key chunk."""
+NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$"
+"""Names: ASCII letters, digits, `_`, `.`, `-`; not starting with `.` or `-`; 1..64 chars."""
+ANY = "*"
+"""Wildcard for exactly one fleet, robot or instance chunk."""
+ROBOT_STREAMS = ("frames", "transitions", "errors", "state")
+"""Streams with a `lessmap/v1/<fleet>/<robot>/<stream>` key; submaps have one more chunk."""
+
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
+_FIRST = re.compile(r"[A-Za-z0-9_]")
+_REST = re.compile(r"[A-Za-z0-9_.\-]")
+_ID = re.compile(r"0|[1-9][0-9]*")
+
+
+def validate_name(value: str, what: str = "robot", limits: WireLimits = DEFAULT_LIMITS) -> str:
+    """Check a fleet, robot, session or instance name and return it unchanged.
+
+    Args:
+        value: The name. Wildcards are not names: pass `"*"` only to the key helpers.
+        what: What the name is, for the error message ("fleet", "robot", "session", ...).
+        limits: Supplies `max_name_len`.
+
+    Returns:
+        `value`.
+
+    Raises:
+        InvalidNameError: Not a str, empty, too long, or a character outside the rule; the
+            message names `what` and the first bad character.
+    """
+    if type(value) is not str:
+        msg = f"{what} name must be a str, not {type(value).__name__}"
+        raise InvalidNameError(msg)
+    if len(value) > limits.max_name_len:
+        msg = f"{what} name {value[:80]!r} is longer than {limits.max_name_len} characters"
+        raise InvalidNameError(msg, limit="max_name_len")
+    if _NAME.fullmatch(value) is None:
+        raise InvalidNameError(_explain(value, what))
+    return value
+
+
+def _explain(value: str, what: str) -> str:
+    if not value:
+        return f"{what} name is empty"
+    if _FIRST.fullmatch(value[0]) is None:
+        return (
+            f"{what} name {value!r} starts with {value[0]!r}; "
+            "a name starts with a letter, digit or '_'"
+        )
+    index = next(i for i, char in enumerate(value) if _REST.fullmatch(char) is None)
+    return (
+        f"{what} name {value!r} has {value[index]!r} at index {index}; "
+        "allowed are ASCII letters, digits, '_', '.' and '-'"
+    )
+
+
+def _chunk(value: str, what: str) -> str:
+    return value if value == ANY else validate_name(value, what)
+
+
+def _robot_key(fleet: str, robot: str, stream: str) -> str:
+    return f"{KEY_PREFIX}/{_chunk(fleet, 'fleet')}/{_chunk(robot, 'robot')}/{stream}"
+
+
+def frames(fleet: str, robot: str) -> str:
+    """Return the key robots put `Frame` and `SessionEnd` on (one key keeps their order)."""
+    return _robot_key(fleet, robot, "frames")
+
+
+def transitions(fleet: str = ANY, robot: str = ANY) -> str:
+    """Return the key the service puts `Transition` messages on."""
+    return _robot_key(fleet, robot, "transitions")
+
+
+def errors(fleet: str = ANY, robot: str = ANY) -> str:
+    """Return the key the service puts `Error` messages on."""
+    return _robot_key(fleet, robot, "errors")
+
+
+def state(fleet: str, robot: str) -> str:
+    """Return the key the service answers with the robot's `SessionState`."""
+    return _robot_key(fleet, robot, "state")
+
+
+def submap(fleet: str, robot: str, submap_id: int) -> str:
+    """Return the key the service answers with one `Submap` of the robot's session."""
+    if type(submap_id) is not int or not 0 <= submap_id <= MAX_SEQ:
+        msg = f"submap id must be an int in [0, 2**53-1], not {submap_id!r}"
+        raise InvalidNameError(msg)
+    return f"{_robot_key(fleet, robot, 'submaps')}/{submap_id}"
+
+
+def submaps(fleet: str, robot: str) -> str:
+    """Return the key that queries every `Submap` of the robot's session."""
+    return f"{_robot_key(fleet, robot, 'submaps')}/{ANY}"
+
+
+def instance_token(instance: str) -> str:
+    """Return the liveliness token key a service instance declares while it runs."""
+    return f"{KEY_PREFIX}/@/instances/{validate_name(instance, 'instance')}"
+
+
+def instances() -> str:
+    """Return the key that matches the liveliness tokens of every service instance."""
+    return f"{KEY_PREFIX}/@/instances/{ANY}"
+
+
+def health(instance: str = ANY) -> str:
+    """Return the key a service instance answers with its `Health`."""
+    return f"{KEY_PREFIX}/@/health/{_chunk(instance, 'instance')}"
+
+
+def parse_robot_key(key: str) -> tuple[str, str, str]:
+    """Split a concrete `lessmap/v1/<fleet>/<robot>/<stream>` key.
+
+    Args:
+        key: A key a sample arrived on, e.g. `lessmap/v1/warehouse/amr-7/frames`.
+
+    Returns:
+        `(fleet, robot, stream)`, stream one of `ROBOT_STREAMS`.
+
+    Raises:
+        InvalidNameError: Another prefix or stream, a wildcard, or a name breaking the rule.
+    """
+    fleet, robot, rest = _split(key, 5)
+    if rest[0] not in ROBOT_STREAMS:
+        msg = (
+            f"key {key[:200]!r} has stream {rest[0]!r}; expected one of {', '.join(ROBOT_STREAMS)}"
+        )
+        raise InvalidNameError(msg)
+    return fleet, robot, rest[0]
+
+
+def parse_submap_key(key: str) -> tuple[str, str, int]:
+    """Split a concrete `lessmap/v1/<fleet>/<robot>/submaps/<id>` key.
+
+    Args:
+        key: A concrete submap key.
+
+    Returns:
+        `(fleet, robot, submap_id)`.
+
+    Raises:
+        InvalidNameError: Not a submap key, or a bad name or id.
+    """
+    fleet, robot, rest = _split(key, 6)
+    stream, text = rest
+    # One spelling per id: ASCII digits, no sign, no leading zero, at most MAX_SEQ.
+    if (
+        stream != "submaps"
+        or _ID.fullmatch(text) is None
+        or len(text) > len(str(MAX_SEQ))
+        or int(text) > MAX_SEQ
+    ):
+        msg = f"key {key[:200]!r} is not {KEY_PREFIX}/<fleet>/<robot>/submaps/<id>"
+        raise InvalidNameError(msg)
+    return fleet, robot, int(text)
+
+
+def _split(key: str, chunks: int) -> tuple[str, str, list[str]]:
+    if type(key) is not str:
+        msg = f"key must be a str, not {type(key).__name__}"
+        raise InvalidNameError(msg)
+    parts = key.split("/")
+    if len(parts) != chunks or f"{parts[0]}/{parts[1]}" != KEY_PREFIX:
+        msg = f"key {key[:200]!r} does not have the form {KEY_PREFIX}/<fleet>/<robot>/..."
+        raise InvalidNameError(msg)
+    return validate_name(parts[2], "fleet"), validate_name(parts[3], "robot"), parts[4:]

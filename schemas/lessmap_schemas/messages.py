@@ -1,0 +1,285 @@
+"""Messages of the lessmap wire contract: the source of truth for schemas and vectors.
+
+Invariants every model keeps (the README and the JSON Schemas are generated from or checked
+against these models, so change them here first):
+
+* `type` and `v` are the first two fields, so any reader can dispatch before it knows the rest.
+* Field order is the canonical msgpack key order; `codec.encode` writes fields in this order.
+* Models are frozen, reject unknown fields and are strict: `"5"` is not an int, `True` is not
+  an int, `5.0` is not an int. Float fields accept ints, because JavaScript encoders write
+  `5.0` as the integer 5.
+* Format bounds (name length, seq, feature id, detail length) are fixed here; receiver-policy
+  limits (payload size, list lengths) live in `WireLimits` and are enforced by the codec.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Self
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    Strict,
+    StringConstraints,
+    model_validator,
+)
+
+from lessmap_schemas.errors import ErrorCode, InvalidNameError, WireError
+from lessmap_schemas.keys import NAME_PATTERN
+from lessmap_schemas.limits import MAX_DETAIL_LEN, MAX_FEATURE_ID, MAX_NAME_LEN, MAX_SEQ
+
+__all__ = [
+    "MESSAGE_TYPES",
+    "Error",
+    "ErrorCode",
+    "FeatureId",
+    "Frame",
+    "Health",
+    "InvalidNameError",
+    "Message",
+    "Name",
+    "Seq",
+    "SessionEnd",
+    "SessionState",
+    "Submap",
+    "SubmapSummary",
+    "Transition",
+    "WireError",
+]
+
+Name = Annotated[
+    str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN, pattern=NAME_PATTERN)
+]
+"""Fleet, robot, session or instance name (see `keys.validate_name`)."""
+Seq = Annotated[int, Field(ge=0, le=MAX_SEQ)]
+"""Frame sequence number: 0 <= seq <= 2**53-1, so JavaScript numbers hold it exactly."""
+Count = Annotated[int, Field(ge=0, le=MAX_SEQ)]
+"""Non-negative counter, JavaScript-safe."""
+FeatureId = Annotated[int, Field(ge=0, le=MAX_FEATURE_ID)]
+"""Feature ID: 0 <= id <= 2**63-1 (a signed 64-bit integer)."""
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+"""Finite float64; NaN and infinities are rejected."""
+Pose = Annotated[tuple[Finite, Finite, Finite], Strict(False)]
+"""(x_m, y_m, theta_rad). Lax only on the container: msgpack arrays decode as lists."""
+
+
+def _error_code(value: object) -> object:
+    # Strict enums take only members; the wire carries the value as a msgpack str.
+    if type(value) is str and value in ErrorCode.__members__:
+        return ErrorCode(value)
+    return value
+
+
+_CONFIG = ConfigDict(frozen=True, extra="forbid", strict=True, use_attribute_docstrings=True)
+
+
+class Message(BaseModel):
+    """Base of every top-level message: `type` names the model, `v` the wire version."""
+
+    model_config = _CONFIG
+
+    type: str
+    v: int
+
+
+class Frame(Message):
+    """One sensor frame of a robot session: the features it observed (robot -> service)."""
+
+    type: Literal["Frame"] = "Frame"
+    v: Literal[1] = 1
+    session: Name
+    """Robot-chosen session id; a restarted robot picks a new one and gets a new CovGraph."""
+    seq: Seq
+    """Frame number, strictly increasing within the session; 0 <= seq <= 2**53-1."""
+    stamp_s: Finite
+    """Acquisition time in seconds, any epoch (the robot's clock)."""
+    features: list[FeatureId]
+    """IDs of the features observed; duplicates count once; may be empty."""
+    pose: Pose | None = None
+    """Optional planar pose (x_m, y_m, theta_rad) in the robot's odometry frame."""
+
+
+class SessionEnd(Message):
+    """The robot ends its session; the service closes it (robot -> service, on `frames`)."""
+
+    type: Literal["SessionEnd"] = "SessionEnd"
+    v: Literal[1] = 1
+    session: Name
+    """Session being ended."""
+    last_seq: Seq | None
+    """Seq of the last frame the robot sent, or null if it sent none."""
+    stamp_s: Finite
+    """Time of the end in seconds, the robot's clock."""
+
+
+class SubmapSummary(BaseModel):
+    """A submap: the frames of one area and the features seen in it (nested only)."""
+
+    model_config = _CONFIG
+
+    id: Count
+    """Submap id, 0 for the first submap of a session, +1 per transition."""
+    first_seq: Seq
+    """Seq of the first frame of the submap."""
+    last_seq: Seq
+    """Seq of the last frame of the submap so far; first_seq <= last_seq."""
+    frame_count: Count
+    """Frames applied to the submap (gaps make it smaller than last_seq - first_seq + 1)."""
+    features: list[FeatureId]
+    """Distinct feature IDs seen in the submap, in ascending order."""
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if self.first_seq > self.last_seq:
+            msg = f"first_seq {self.first_seq} is after last_seq {self.last_seq}"
+            raise ValueError(msg)
+        return self
+
+
+class Transition(Message):
+    """The robot left one area for another (service -> apps)."""
+
+    type: Literal["Transition"] = "Transition"
+    v: Literal[1] = 1
+    fleet: Name
+    """Fleet of the robot."""
+    robot: Name
+    """Robot that moved."""
+    session: Name
+    """Session the frames belong to."""
+    seq: Seq
+    """Detection frame: the last frame covered by this decision."""
+    boundary_seq: Seq
+    """Estimated first frame in the new area; boundary_seq <= seq."""
+    stamp_s: Finite
+    """Stamp of the detection frame, in seconds (the robot's clock)."""
+    reason: Literal["SPECTRAL", "DISCONNECTED"]
+    """SPECTRAL: a normalized cut below threshold; DISCONNECTED: the CovGraph fell apart."""
+    ncut: Finite | None
+    """Normalized cut of the accepted split; null for DISCONNECTED."""
+    lambda2: Finite | None
+    """Second smallest generalized eigenvalue (algebraic connectivity); null for DISCONNECTED."""
+    closed: SubmapSummary
+    """The area left behind; final."""
+    opened: SubmapSummary
+    """The area entered, with its frames so far."""
+    boundary_features: list[FeatureId]
+    """Features seen on both sides of the boundary, ascending."""
+    batch_frames: Annotated[int, Field(ge=1, le=MAX_SEQ)]
+    """Frames covered by this decision; above 1 when the service coalesced frames under load."""
+    instance: Name
+    """Service instance that produced the transition."""
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Self:
+        if self.boundary_seq > self.seq:
+            msg = f"boundary_seq {self.boundary_seq} is after seq {self.seq}"
+            raise ValueError(msg)
+        spectral = self.reason == "SPECTRAL"
+        if (self.ncut is not None) != spectral or (self.lambda2 is not None) != spectral:
+            msg = f"{self.reason}: ncut, lambda2 are set for SPECTRAL, null for DISCONNECTED"
+            raise ValueError(msg)
+        return self
+
+
+class Error(Message):
+    """A frame or message was rejected, or frames went missing (service -> apps)."""
+
+    type: Literal["Error"] = "Error"
+    v: Literal[1] = 1
+    fleet: Name | None
+    """Fleet of the key the input arrived on; null if the key could not be parsed."""
+    robot: Name | None
+    """Robot of the key the input arrived on; null if the key could not be parsed."""
+    session: Name | None
+    """Session of the offending input; null if it could not be decoded."""
+    code: Annotated[ErrorCode, BeforeValidator(_error_code)]
+    """What went wrong (see ErrorCode)."""
+    detail: Annotated[str, StringConstraints(max_length=MAX_DETAIL_LEN)]
+    """Human-readable explanation, at most 1024 characters."""
+    seq: Seq | None
+    """Seq of the offending frame, if known."""
+    stamp_s: Finite
+    """When the service saw the problem, in seconds since the Unix epoch (service clock)."""
+    instance: Name
+    """Service instance that reports the error."""
+
+
+class SessionState(Message):
+    """Counters and submaps of a robot's current session (reply to a `state` query)."""
+
+    type: Literal["SessionState"] = "SessionState"
+    v: Literal[1] = 1
+    fleet: Name
+    """Fleet of the robot."""
+    robot: Name
+    """Robot of the session."""
+    session: Name
+    """The robot's current (latest) session."""
+    instance: Name
+    """Service instance holding the session."""
+    open: bool
+    """False once a SessionEnd closed the session."""
+    last_seq: Seq | None
+    """Seq of the last frame applied; null before the first frame."""
+    frames_applied: Count
+    """Frames applied to the CovGraph, in seq order, each once."""
+    frames_duplicate: Count
+    """Frames ignored because their seq was not above the last applied one."""
+    frames_missing: Count
+    """Frames never received: the sum of all seq gaps (late arrivals stay counted here)."""
+    frames_rejected: Count
+    """Frames of this session received but not applied, other than duplicates (late, limits)."""
+    transitions: Count
+    """Transitions published for this session."""
+    current_submap: SubmapSummary
+    """The submap the robot is in."""
+    closed_submaps: list[SubmapSummary]
+    """Submaps left behind, oldest first."""
+    nodes: Count
+    """Nodes in the session's CovGraph."""
+    edges: Count
+    """Edges in the session's CovGraph."""
+
+
+class Submap(Message):
+    """One submap of a robot's session (reply to a `submaps/<id>` query)."""
+
+    type: Literal["Submap"] = "Submap"
+    v: Literal[1] = 1
+    fleet: Name
+    """Fleet of the robot."""
+    robot: Name
+    """Robot of the session."""
+    session: Name
+    """Session the submap belongs to."""
+    summary: SubmapSummary
+    """Frames and features of the submap."""
+    open: bool
+    """True for the submap the robot is in (it still grows)."""
+
+
+class Health(Message):
+    """Liveness figures of one service instance (reply to a `health` query)."""
+
+    type: Literal["Health"] = "Health"
+    v: Literal[1] = 1
+    instance: Name
+    """The instance reporting."""
+    version: Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
+    """Service software version, e.g. "0.1.0"."""
+    sessions: Count
+    """Sessions held in memory."""
+    uptime_s: Annotated[float, Field(ge=0, allow_inf_nan=False)]
+    """Seconds since the instance started."""
+    frames_applied: Count
+    """Frames applied over all sessions since start."""
+
+
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    model.__name__: model
+    for model in (Frame, SessionEnd, Transition, Error, SessionState, Submap, Health)
+}
+"""Every top-level message by its `type` value."""

@@ -1,0 +1,160 @@
+"""Snapshots: bytes -> partitioner -> the same decisions as never stopping."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from lessmap.core import GraphError, Partitioner, PartitionParams, SeedMode, Transition
+from lessmap.core.snapshot import SNAPSHOT_VERSION, from_bytes, to_bytes
+from tests.core.helpers import assert_same_state, observe_all, room_walk, two_room_frames
+
+PARAMS = [
+    PartitionParams(),
+    PartitionParams(seed_mode=SeedMode.FRESH, min_frames_between=3, min_cluster_size=2),
+    PartitionParams(history_frames=7, keep_closed_submaps=1, dense_max_nodes=2),
+]
+
+
+def run_with_restores(
+    frames: list[list[int]], params: PartitionParams, cuts: set[int], batch: int = 1
+) -> list[Transition]:
+    """Apply frames, deciding every ``batch`` frames; before frame c in ``cuts`` replace the
+    partitioner by its restored snapshot (possibly with undecided frames pending)."""
+    partitioner = Partitioner(params)
+    found: list[Transition] = []
+    for seq, frame in enumerate(frames):
+        if seq in cuts:
+            data = to_bytes(partitioner)
+            restored = from_bytes(data)
+            assert_same_state(restored.state(), partitioner.state())
+            assert to_bytes(restored) == data  # deterministic bytes
+            partitioner = restored
+        partitioner.apply(seq, seq * 0.1, frame)  # stamps that are not exact in binary
+        if (seq + 1) % batch == 0:
+            transition = partitioner.decide()
+            if transition is not None:
+                found.append(transition)
+    return found
+
+
+@pytest.mark.parametrize("params", PARAMS, ids=["default", "fresh-guarded", "small-arpack"])
+@pytest.mark.parametrize("seed", range(3))
+def test_restore_then_continue_gives_the_same_transitions(
+    seed: int, params: PartitionParams
+) -> None:
+    walk = room_walk(seed, rooms=4, back=seed == 0, stay=(20, 30), door_frames=2, door_share=0.2)
+    rng = np.random.default_rng(seed)
+    cuts = {int(c) for c in rng.choice(len(walk.frames), size=6, replace=False)}
+    cuts |= {d + k for d in walk.doors[:2] for k in range(4)}  # around decisions too
+    batch = 1 + seed  # also with undecided frames in the snapshot
+    expected = run_with_restores(walk.frames, params, set(), batch)
+    assert len(expected) >= 2
+    assert run_with_restores(walk.frames, params, cuts, batch) == expected
+
+
+def test_restore_keeps_params_counters_and_submaps() -> None:
+    params = PartitionParams.from_profile(
+        "monocular", seed_mode="fresh", min_frames_between=1, history_frames=50
+    )
+    partitioner = Partitioner(params)
+    found = observe_all(partitioner, two_room_frames()[:45])
+    partitioner.apply(45, 45.0, [10, 11])
+    restored = from_bytes(to_bytes(partitioner))
+    assert restored.params == params
+    assert restored.closed_submaps == tuple(t.closed for t in found)
+    assert restored.current_submap() == partitioner.current_submap()
+    assert (restored.last_seq, restored.pending_frames, restored.transitions) == (45, 1, len(found))
+    assert restored.frames_applied == 46
+
+
+def test_fresh_partitioner_round_trips() -> None:
+    restored = from_bytes(to_bytes(Partitioner()))
+    assert restored.last_seq is None
+    assert restored.graph.node_count == 0
+    assert observe_all(restored, two_room_frames()) == observe_all(Partitioner(), two_room_frames())
+
+
+def snapshot_arrays() -> dict[str, np.ndarray]:
+    partitioner = Partitioner()
+    observe_all(partitioner, two_room_frames()[:40])
+    with np.load(io.BytesIO(to_bytes(partitioner)), allow_pickle=False) as archive:
+        return {name: archive[name] for name in archive.files}
+
+
+def npz(arrays: dict[str, np.ndarray]) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    return buffer.getvalue()
+
+
+def with_meta(**changes: object) -> bytes:
+    arrays = snapshot_arrays()
+    meta = json.loads(arrays["meta"].tobytes().decode())
+    meta.update(changes)
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    return npz(arrays)
+
+
+def without(name: str) -> bytes:
+    arrays = snapshot_arrays()
+    del arrays[name]
+    return npz(arrays)
+
+
+def replaced(name: str, value: np.ndarray) -> bytes:
+    arrays = snapshot_arrays()
+    arrays[name] = value
+    return npz(arrays)
+
+
+def pickled_object_array() -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    data = io.BytesIO()
+    with zipfile.ZipFile(data, "w") as archive:
+        archive.writestr("meta.npy", buffer.getvalue())
+    return data.getvalue()
+
+
+def flipped(locate: bytes, offset: int) -> bytes:
+    """A snapshot with the byte at ``offset`` from the first ``locate`` inverted."""
+    data = bytearray(to_bytes(Partitioner()))
+    data[data.index(locate) + offset] ^= 0xFF
+    return bytes(data)
+
+
+GARBAGE = {
+    "empty": b"",
+    "text": b"not a snapshot",
+    "random": np.random.default_rng(0).bytes(512),
+    "truncated": to_bytes(Partitioner())[:-40],
+    "flipped data byte": flipped(b'"version"', 3),  # the zip CRC catches it
+    "unknown compression": flipped(b"PK\x01\x02", 10),  # central directory: method
+    "zip of nothing": npz({}),
+    "no meta": without("meta"),
+    "no counts": without("counts"),
+    "meta not json": replaced("meta", np.frombuffer(b"\xff{", dtype=np.uint8)),
+    "meta a list": replaced("meta", np.frombuffer(b"[1, 2]", dtype=np.uint8)),
+    "future version": with_meta(version=SNAPSHOT_VERSION + 1),
+    "no version": with_meta(version=None),
+    "bad param": with_meta(params={"ncut_min": -1.0}),
+    "unknown param": with_meta(params={"speed": 3}),
+    "bad seed mode": with_meta(params={"seed_mode": "sometimes"}),
+    "short history": with_meta(history_seqs=[1]),
+    "short counts": replaced("counts", np.zeros(3, dtype=np.int64)),
+    "repeated ids": replaced("feature_ids", np.zeros(20, dtype=np.int64)),
+    "indptr reversed": replaced("edge_indptr", snapshot_arrays()["edge_indptr"][::-1].copy()),
+    "edge index out of range": replaced("edge_indices", snapshot_arrays()["edge_indices"] + 99),
+    "pickled object": pickled_object_array(),
+}
+
+
+@pytest.mark.parametrize("data", GARBAGE.values(), ids=GARBAGE.keys())
+def test_garbage_is_a_graph_error(data: bytes) -> None:
+    with pytest.raises(GraphError):
+        from_bytes(data)

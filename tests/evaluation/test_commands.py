@@ -1,0 +1,76 @@
+"""The ``eval`` and ``plot`` subcommands, run through an argparse parser as cli.py does."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import TYPE_CHECKING
+
+import pytest
+
+from lessmap.errors import ConfigError, DatasetError
+from lessmap.evaluation.commands import add_commands
+from tests.evaluation.helpers import write_dataset
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+def run(*argv: str) -> int:
+    parser = argparse.ArgumentParser(prog="lessmap")
+    add_commands(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    code: int = args.run(args)
+    return code
+
+
+def test_eval_prints_and_writes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    frames = write_dataset(tmp_path)
+    out = tmp_path / "out"
+    argv = ["eval", str(frames), "--out", str(out), "--plots", "--fixed-features", "5", "8",
+            "--sweep-ncut", "0.1", "0.25", "--sweep-lambda2", "0.2"]  # fmt: skip
+    assert run(*argv) == 0
+    text = capsys.readouterr().out
+    for name in ("lessmap (Ncut≤0.25, λ2≤0.2)", "fixed-5 features", "fixed-8 features",
+                 "fixed-30 frames", "no partition", "threshold sweep", "wrote"):  # fmt: skip
+        assert name in text
+    report = json.loads((out / "eval.json").read_text())
+    assert [m["method"] for m in report["methods"]][1:3] == ["fixed-5 features", "fixed-8 features"]
+    assert len(report["sweep"]) == 2
+    assert report["information"]["unit_information_edges"] == 0
+    assert (out / "eval.md").read_text().startswith("# Information loss on rooms")
+    assert (out / "sweep.png").stat().st_size > 0
+
+
+def test_eval_without_companions_fails_clearly(tmp_path: Path) -> None:
+    frames = write_dataset(tmp_path)
+    (tmp_path / "rooms.edges.jsonl").unlink()
+    with pytest.raises(DatasetError, match=r"rooms\.edges\.jsonl not found"):
+        run("eval", str(frames), "--no-sweep")
+
+
+def test_eval_rejects_bad_options(tmp_path: Path) -> None:
+    frames = write_dataset(tmp_path)
+    with pytest.raises(ConfigError, match="--plots needs --out"):
+        run("eval", str(frames), "--plots")
+    with pytest.raises(ConfigError, match="at least 1"):
+        run("eval", str(frames), "--fixed-frames", "0")
+    with pytest.raises(ConfigError, match="--jobs"):
+        run("eval", str(frames), "--jobs", "0")
+
+
+def test_plot_without_sweep_needs_only_frames(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = write_dataset(tmp_path)
+    (tmp_path / "rooms.edges.jsonl").unlink()
+    assert run("plot", str(frames), "--out", str(tmp_path / "png"), "--no-sweep") == 0
+    assert capsys.readouterr().out.count("wrote") == 3
+
+
+def test_plot_with_sweep(tmp_path: Path) -> None:
+    frames = write_dataset(tmp_path)
+    argv = ["plot", str(frames), "--out", str(tmp_path / "png"), "--sweep-ncut", "0.25",
+            "--sweep-lambda2", "0.2", "0.4"]  # fmt: skip
+    assert run(*argv) == 0
+    assert (tmp_path / "png" / "sweep.png").stat().st_size > 0

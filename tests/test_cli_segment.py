@@ -1,0 +1,199 @@
+"""``lessmap segment``: offline segmentation of a frames file, in-process and as a script."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pytest
+
+from lessmap.cli import main
+from tests.core.helpers import TWO_ROOM_DOOR, two_room_frames
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+ROOT = Path(__file__).resolve().parents[1]
+DATASETS = ROOT / ".." / "shared" / "datasets"
+DLR = DATASETS / "dlr.frames.jsonl"
+
+
+def frame_line(robot: str, seq: int, features: Sequence[int]) -> str:
+    row = {"robot": robot, "seq": seq, "stamp": seq / 10, "features": list(features)}
+    return json.dumps({**row, "pose": None})
+
+
+def write_frames(path: Path, robots: Sequence[str] = ("r1",)) -> Path:
+    """The two-room stream for each robot, robots interleaved frame by frame."""
+    lines = [
+        frame_line(robot, seq, frame)
+        for seq, frame in enumerate(two_room_frames())
+        for robot in robots
+    ]
+    path.write_text("\n".join(lines) + "\n\n", encoding="utf-8")  # a trailing blank line
+    return path
+
+
+def run(argv: Sequence[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[Any], str]:
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, [json.loads(line) for line in captured.out.splitlines()], captured.err
+
+
+def test_two_rooms_print_one_transition_and_a_summary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write_frames(tmp_path / "rooms.frames.jsonl")
+    code, records, err = run(["segment", str(path)], capsys)
+    assert code == 0
+    assert err == ""
+    [transition, summary] = records
+
+    assert transition["robot"] == "r1"
+    assert transition["reason"] == "SPECTRAL"
+    assert transition["boundary_seq"] <= transition["seq"]
+    assert abs(transition["boundary_seq"] - TWO_ROOM_DOOR) <= 2
+    assert transition["stamp_s"] == pytest.approx(transition["seq"] / 10)
+    assert 0.0 <= transition["lambda2"] <= 0.2
+    assert transition["lambda2"] <= transition["ncut"] <= 0.25
+    assert transition["closed"]["features"] == list(range(10))
+    assert transition["closed"]["id"] == 0
+    assert transition["closed"]["first_seq"] == 0
+    assert transition["closed"]["frame_count"] == transition["boundary_seq"]
+    assert transition["opened"] == {
+        "id": 1,
+        "first_seq": transition["boundary_seq"],
+        "features": list(range(10, 20)),
+    }
+    assert set(transition["boundary_features"]) <= set(range(5, 20))
+
+    assert summary["summary"] is True
+    assert summary["file"] == path.name
+    assert (summary["frames"], summary["robots"], summary["transitions"]) == (62, 1, 1)
+    assert summary["transitions_per_robot"] == {"r1": 1}
+    assert summary["submaps"] == 2
+    assert summary["params"] == {"ncut_min": 0.25, "lambda2_min": 0.2, "seed_mode": "seed"}
+
+
+def test_robots_are_segmented_independently_and_can_be_selected(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write_frames(tmp_path / "fleet.frames.jsonl", robots=("a", "b"))
+    code, records, _ = run(["segment", str(path)], capsys)
+    assert code == 0
+    *transitions, summary = records
+    assert sorted(t["robot"] for t in transitions) == ["a", "b"]
+    first, second = transitions
+    assert {k: v for k, v in first.items() if k != "robot"} == {
+        k: v for k, v in second.items() if k != "robot"
+    }
+    assert (summary["frames"], summary["robots"], summary["submaps"]) == (124, 2, 4)
+
+    code, records, _ = run(["segment", str(path), "--robot", "b", "--summary-only"], capsys)
+    assert code == 0
+    [summary] = records
+    assert summary["transitions_per_robot"] == {"b": 1}
+    assert summary["frames"] == 62
+
+
+def test_profile_and_overrides_reach_the_partitioner(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write_frames(tmp_path / "rooms.frames.jsonl")
+    argv = ["segment", str(path), "--profile", "monocular", "--seed-mode", "fresh"]
+    code, records, _ = run(argv, capsys)
+    assert code == 0
+    assert records[-1]["params"] == {"ncut_min": 0.1, "lambda2_min": 0.1, "seed_mode": "fresh"}
+    # Ncut 0 is never reached by a connected split: no transition at all.
+    code, records, _ = run(["segment", str(path), "--ncut-min", "0"], capsys)
+    assert code == 0
+    assert records[-1]["transitions"] == 0
+
+
+MALFORMED = {
+    "not json": '{"robot": "r1", "seq": 2,',
+    "not an object": "[1, 2, 3]",
+    "missing field": json.dumps({"robot": "r1", "seq": 2, "stamp": 0.2}),
+    "feature not int": json.dumps({"robot": "r1", "seq": 2, "stamp": 0.2, "features": ["x"]}),
+    "negative seq": json.dumps({"robot": "r1", "seq": -2, "stamp": 0.2, "features": []}),
+    "duplicate seq": frame_line("r1", 1, [1, 2]),
+}
+
+
+@pytest.mark.parametrize("bad", MALFORMED.values(), ids=MALFORMED.keys())
+def test_malformed_line_is_one_error_line_naming_file_and_line(
+    bad: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "broken.frames.jsonl"
+    lines = [frame_line("r1", 0, [1, 2]), frame_line("r1", 1, [2, 3]), bad]
+    path.write_text("\n".join([*lines, frame_line("r1", 3, [3])]) + "\n", encoding="utf-8")
+    code = main(["segment", str(path)])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err.endswith("\n")
+    assert err.count("\n") == 1, err
+    assert err.startswith("lessmap segment: ")
+    assert "broken.frames.jsonl:3" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["segment", "nowhere.frames.jsonl"], "nowhere.frames.jsonl"),
+        (["segment", "FRAMES", "--min-cluster-size", "0"], "min_cluster_size"),
+        (["segment", "FRAMES", "--lambda2-min", "-1"], "lambda2_min"),
+    ],
+    ids=["missing file", "bad guard", "bad threshold"],
+)
+def test_user_errors_exit_1_with_one_line(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = str(write_frames(tmp_path / "rooms.frames.jsonl"))
+    argv = [frames if a == "FRAMES" else str(tmp_path / a) if a.endswith(".jsonl") else a
+            for a in argv]  # fmt: skip
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert message in err
+
+
+@pytest.mark.skipif(not DLR.is_file(), reason=f"data set not present: {DLR}")
+def test_console_script_on_the_dlr_data_set() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "lessmap", "segment", "../shared/datasets/dlr.frames.jsonl"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ""
+    *transitions, summary = [json.loads(line) for line in result.stdout.splitlines()]
+
+    assert summary["summary"] is True
+    assert summary["frames"] == 3297
+    assert summary["transitions"] == len(transitions)
+    assert 5 <= len(transitions) <= 200
+    assert summary["submaps"] == len(transitions) + 1
+    boundary = 0  # submaps chain up: each closed submap starts at the previous boundary
+    for index, transition in enumerate(transitions):
+        closed = transition["closed"]
+        assert closed["first_seq"] == boundary
+        assert boundary < transition["boundary_seq"] <= transition["seq"]
+        boundary = transition["boundary_seq"]
+        assert closed["id"] == index
+        assert len(closed["features"]) >= 1
+        assert closed["frame_count"] >= 1
+        assert closed["first_seq"] <= closed["last_seq"] < transition["boundary_seq"]
+        assert transition["opened"]["features"]
+        if transition["reason"] == "SPECTRAL":
+            assert transition["ncut"] <= 0.25
+            assert transition["lambda2"] <= 0.2
+        else:
+            assert transition["reason"] == "DISCONNECTED"
+            assert transition["ncut"] is None
+            assert transition["lambda2"] is None
