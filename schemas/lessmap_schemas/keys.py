@@ -9,6 +9,7 @@ Layout (all under `KEY_PREFIX`, one chunk per name):
     lessmap/v1/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
     lessmap/v1/@/instances/<instance>          service           liveliness token
     lessmap/v1/@/health/<instance>             apps -> service   get Health
+    lessmap/v1/@/errors/<instance>             service -> ops    put Error (unattributable input)
 
 Service bookkeeping sits under the `@` chunk: Zenoh never lets `*` or `**` match a chunk that
 starts with `@`, so a fleet-wide `lessmap/v1/**` subscription sees robot traffic only.
@@ -136,6 +137,11 @@ def instances() -> str:
 def health(instance: str = ANY) -> str:
     """Return the key a service instance answers with its `Health`."""
     return f"{KEY_PREFIX}/@/health/{_chunk(instance, 'instance')}"
+
+
+def service_errors(instance: str = ANY) -> str:
+    """Return the key a service instance puts `Error`s on when the key names no valid robot."""
+    return f"{KEY_PREFIX}/@/errors/{_chunk(instance, 'instance')}"
 
 
 def parse_robot_key(key: str) -> tuple[str, str, str]:

@@ -75,6 +75,9 @@ class ServiceSettings(BaseSettings):
     error_rate_per_s: float = Field(5.0, gt=0.0, description="error events per robot and second")
     error_burst: int = Field(20, ge=1)
     instance: str = Field(default_factory=lambda: f"{socket.gethostname()[:40]}-{os.getpid()}")
+    shutdown_grace_s: float = Field(
+        2.0, ge=0.0, description="on stop, keep taking frames until quiet, at most this long"
+    )
     metrics_port: int | None = Field(None, ge=0, le=65535)
     metrics_addr: str = "127.0.0.1"
 

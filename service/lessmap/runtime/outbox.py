@@ -90,7 +90,7 @@ class Outbox:
         self._publishers_lock = threading.Lock()
         self._limiter = RateLimiter(error_rate_per_s, error_burst)
         self._limiter_lock = threading.Lock()
-        self._service_errors_key = f"{keys.KEY_PREFIX}/@/errors/{instance}"
+        self._service_errors_key = keys.service_errors(instance)
         self.frames_applied = 0  # for the health answer (prometheus counters are write-only)
 
     # -- outcomes ----------------------------------------------------------------------------

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _QUEUE_BYTES_PER_SHARD = 256 * 1024 * 1024
+_QUIET_S = 0.3  # no sample for this long: the inbound path has settled
 
 
 class Service:
@@ -56,6 +57,7 @@ class Service:
                                               daemon=True)  # fmt: skip
         self._metrics_server: WSGIServer | None = None
         self._started_s = time.monotonic()
+        self._last_sample_s = 0.0
         self.metrics_port: int | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -114,6 +116,7 @@ class Service:
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop taking frames, finish the queued ones, publish final states, close Zenoh."""
         log.info("stopping %s", self.settings.instance)
+        self._let_inbound_settle(min(timeout_s / 2, self.settings.shutdown_grace_s))
         for declared in reversed(self._declared):
             declared.undeclare()  # type: ignore[no-untyped-call]
         self._declared.clear()
@@ -140,9 +143,20 @@ class Service:
             self._session.close()
         log.info("stopped %s", self.settings.instance)
 
+    def _let_inbound_settle(self, grace_s: float) -> None:
+        """Keep listening until samples stop arriving (or ``grace_s`` passes).
+
+        Frames a robot sent before the stop may still be on their way through Zenoh; taking
+        them in before undeclaring the subscriber loses none that already arrived.
+        """
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline and time.monotonic() - self._last_sample_s < _QUIET_S:
+            time.sleep(0.02)
+
     # -- receive path (Zenoh callback: enqueue only) ----------------------------------------
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        self._last_sample_s = time.monotonic()
         self.metrics.frames_received.inc()
         key = str(sample.key_expr)
         shard = self._shards[zlib.crc32(key.encode()) % len(self._shards)]

@@ -1,0 +1,275 @@
+"""End to end: a real ``lessmap serve`` subprocess, real Zenoh on loopback, real clients."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+import msgpack
+import pytest
+import zenoh
+
+from lessmap.core import PartitionParams
+from lessmap.frames_file import FrameRow, read_frames
+from lessmap.offline import segment
+from lessmap_client import FleetClient, RobotPublisher
+from lessmap_schemas import keys
+from lessmap_schemas.codec import decode, encode
+from lessmap_schemas.errors import InvalidNameError
+from lessmap_schemas.messages import Error, Frame, SessionState, Transition
+from tests.conftest import ServeProcess, dataset, metric_value, wait_until
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable
+
+pytestmark = pytest.mark.timeout(240)
+
+
+def offline_transitions(frames: Iterable[FrameRow]) -> dict[str, list[dict[str, Any]]]:
+    """Per robot, the transitions ``lessmap segment`` computes (laser profile)."""
+    found: dict[str, list[dict[str, Any]]] = {}
+
+    def keep(robot: str, t: Any) -> None:
+        found.setdefault(robot, []).append(
+            {
+                "seq": t.seq,
+                "boundary_seq": t.boundary_seq,
+                "reason": str(t.reason),
+                "ncut": t.ncut,
+                "lambda2": t.lambda2,
+                "closed": list(t.closed.features),
+                "opened": list(t.opened.features),
+            }
+        )
+
+    segment(frames, PartitionParams.from_profile("laser"), on_transition=keep)
+    return found
+
+
+def as_record(t: Transition) -> dict[str, Any]:
+    return {
+        "seq": t.seq,
+        "boundary_seq": t.boundary_seq,
+        "reason": t.reason,
+        "ncut": t.ncut,
+        "lambda2": t.lambda2,
+        "closed": t.closed.features,
+        "opened": t.opened.features,
+    }
+
+
+def drain(client: FleetClient, quiet_s: float = 1.0) -> list[Transition]:
+    got = []
+    while (t := client.next_transition(timeout_s=quiet_s)) is not None:
+        got.append(t)
+    return got
+
+
+def wait_closed(client: FleetClient, fleet: str, robot: str, frames: int) -> SessionState:
+    """Wait until the robot's (last) session is closed with every frame applied."""
+    box: list[SessionState] = []
+
+    def done() -> bool:
+        state = client.state(robot, fleet=fleet, timeout_s=2.0)
+        if state is not None and not state.open and state.frames_applied == frames:
+            box.append(state)
+            return True
+        return False
+
+    wait_until(done, 120.0, f"{fleet}/{robot} to apply {frames} frames and close")
+    return box[0]
+
+
+def start_service(
+    serve: Callable[..., ServeProcess], *extra: str, metrics: bool = False
+) -> ServeProcess:
+    # max-batch-frames 1: decide at every frame, whatever the pace, so results are comparable
+    # with the offline run bit for bit.
+    return serve("--max-batch-frames", "1", *extra, metrics=metrics)
+
+
+def test_dlr_replay_equals_offline_segment(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    fleet_name: str,
+) -> None:
+    frames = list(read_frames(dataset("dlr.frames.jsonl")))
+    expected = offline_transitions(frames)["0"]
+    service = start_service(serve)
+    session = client_session(service.endpoint)
+    with FleetClient(fleet_name, session=session) as client:
+        with RobotPublisher(fleet_name, "dlr", session=session) as robot:
+            assert robot.wait_for_service(20.0), service.log()
+            for frame in frames:
+                robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+        state = wait_closed(client, fleet_name, "dlr", len(frames))
+        got = drain(client)
+    assert state.transitions == len(expected)
+    assert [as_record(t) for t in got] == expected
+    assert {t.instance for t in got} == {service.instance}
+    assert all(t.batch_frames == 1 for t in got)
+    assert service.terminate() == 0
+
+
+def test_five_robots_and_a_session_restart_match_offline(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    fleet_name: str,
+) -> None:
+    frames = list(read_frames(dataset("mrclam6.frames.jsonl")))
+    robots = sorted({f.robot for f in frames})
+    assert len(robots) == 5
+    restarted = robots[0]
+    rerun = [f for f in frames if f.robot == restarted][:300]
+    expected = offline_transitions(frames)
+    expected_rerun = offline_transitions(rerun)[restarted]
+
+    service = start_service(serve, "--workers", "2")
+    session = client_session(service.endpoint)
+    with FleetClient(fleet_name, session=session) as client:
+        publishers = {r: RobotPublisher(fleet_name, f"r{r}", session=session) for r in robots}
+        assert publishers[restarted].wait_for_service(20.0), service.log()
+        for frame in frames:  # interleaved by stamp, as the robots ran
+            publishers[frame.robot].publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+        first_session = publishers[restarted].session_id
+        publishers[restarted].close()
+        # The robot restarts: a new session id, a new CovGraph, seqs from 0 again.
+        with RobotPublisher(fleet_name, f"r{restarted}", session=session) as again:
+            for frame in rerun:
+                again.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+            second_session = again.session_id
+        for robot, publisher in publishers.items():
+            publisher.close()
+            if robot != restarted:
+                wait_closed(client, fleet_name, f"r{robot}", sum(f.robot == robot for f in frames))
+        wait_closed(client, fleet_name, f"r{restarted}", len(rerun))
+        got = drain(client)
+
+    by_session: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for t in got:
+        assert t.fleet == fleet_name
+        by_session.setdefault((t.robot, t.session), []).append(as_record(t))
+    for robot in robots:
+        if robot == restarted:
+            continue
+        sessions = [s for (r, s) in by_session if r == f"r{robot}"]
+        assert len(sessions) == 1, f"robot {robot}: {sessions}"
+        assert by_session[(f"r{robot}", sessions[0])] == expected[robot], f"robot {robot}"
+    assert by_session[(f"r{restarted}", first_session)] == expected[restarted]
+    assert by_session.get((f"r{restarted}", second_session), []) == expected_rerun
+    assert service.terminate() == 0
+
+
+def raw_put(session: zenoh.Session, key: str, payload: bytes) -> None:
+    session.put(key, payload)
+
+
+def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    fleet_name: str,
+) -> None:
+    frames = list(read_frames(dataset("dlr.frames.jsonl")))[:1500]
+    expected = offline_transitions(frames)["0"]
+    service = start_service(serve, metrics=True)
+    session = client_session(service.endpoint)
+    errors: list[Error] = []
+    lock = threading.Lock()
+
+    def on_error(sample: zenoh.Sample) -> None:
+        with lock:
+            errors.append(decode(sample.payload.to_bytes(), Error))
+
+    error_sub = session.declare_subscriber(keys.errors(fleet_name, "*"), on_error)
+    service_error_sub = session.declare_subscriber(keys.service_errors("*"), on_error)
+    evil = keys.frames(fleet_name, "evil")
+    good_frame = Frame(session="s1", seq=0, stamp_s=0.0, features=[1, 2]).model_dump()
+
+    def hostile() -> None:
+        for round_ in range(20):
+            raw_put(session, evil, b"\xc1 not msgpack")
+            raw_put(session, evil, msgpack.packb([1, 2, 3]))
+            raw_put(session, evil, msgpack.packb({**good_frame, "seq": "seven"}))
+            raw_put(session, evil, msgpack.packb({**good_frame, "features": list(range(5000))}))
+            raw_put(session, evil, b"\x00" * (2 * 1024 * 1024))
+            bad_name = f"{keys.KEY_PREFIX}/{fleet_name}/bad robot/frames"
+            raw_put(
+                session,
+                bad_name,
+                encode(Frame(session="s1", seq=round_, stamp_s=0.0, features=[1])),
+            )
+            # A replaying robot: every frame twice, then one from the past.
+            for seq in (3 * round_, 3 * round_ + 2, 3 * round_ + 2, 3 * round_ + 1):
+                replayed = Frame(session="s1", seq=seq, stamp_s=0.0, features=[seq, 1])
+                raw_put(session, keys.frames(fleet_name, "replayer"), encode(replayed))
+
+    with pytest.raises(InvalidNameError):
+        keys.frames(fleet_name, "ro*bot")  # a wildcard name never reaches the wire
+    with FleetClient(fleet_name, "good", session=session) as client:
+        with RobotPublisher(fleet_name, "good", session=session) as robot:
+            assert robot.wait_for_service(20.0), service.log()
+            rss_before = service.rss_kib()
+            attacker = threading.Thread(target=hostile)
+            attacker.start()
+            for frame in frames:
+                robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+            attacker.join(60)
+        wait_closed(client, fleet_name, "good", len(frames))
+        got = drain(client)
+    needed = {"MALFORMED", "INVALID", "LIMIT_EXCEEDED", "BAD_NAME", "DUPLICATE_SEQ"}
+    wait_until(lambda: needed <= {e.code.value for e in errors}, 20.0, "errors of every kind")
+    error_sub.undeclare()
+    service_error_sub.undeclare()
+
+    assert [as_record(t) for t in got] == expected
+    assert service.process.poll() is None, "the daemon died"
+    assert all(e.robot in (None, "evil", "replayer") for e in errors)
+    metrics = service.metrics()
+    assert metric_value(metrics, "lessmap_frames_rejected_total", reason="MALFORMED") >= 20
+    assert metric_value(metrics, "lessmap_frames_rejected_total", reason="LIMIT_EXCEEDED") >= 40
+    assert metric_value(metrics, "lessmap_frames_rejected_total", reason="BAD_NAME") >= 20
+    assert metric_value(metrics, "lessmap_frames_duplicate_total") >= 20
+    assert metric_value(metrics, "lessmap_transitions_total", reason="SPECTRAL") > 0
+    # Forty 2 MiB payloads went by: none may stay in memory.
+    assert service.rss_kib() - rss_before < 64 * 1024
+    assert service.terminate() == 0
+
+
+def test_sigterm_during_replay_exits_zero_and_publishes_final_state(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    fleet_name: str,
+) -> None:
+    frames = list(read_frames(dataset("dlr.frames.jsonl")))
+    service = start_service(serve)
+    session = client_session(service.endpoint)
+    finals: list[SessionState] = []
+    state_sub = session.declare_subscriber(
+        keys.state(fleet_name, "r0"),
+        lambda sample: finals.append(decode(sample.payload.to_bytes(), SessionState)),
+    )
+    robot = RobotPublisher(fleet_name, "r0", session=session)
+    assert robot.wait_for_service(20.0), service.log()
+    published = 0
+    for frame in frames[:1000]:
+        robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+        published += 1
+    stopped = time.monotonic()
+    service.process.send_signal(signal.SIGTERM)
+    # keep publishing while the service stops: it must not hang on it
+    for frame in frames[1000:1200]:
+        robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+    code = service.process.wait(15)
+    elapsed = time.monotonic() - stopped
+    assert code == 0, service.log()
+    assert elapsed < 10.0
+    wait_until(lambda: bool(finals), 5.0, "the final state")
+    final = finals[-1]
+    assert final.open is False
+    assert final.session == robot.session_id
+    assert final.frames_applied >= published - 1  # everything queued before SIGTERM applied
+    assert "stopped" in service.log()
+    state_sub.undeclare()
+    robot.close()

@@ -1,0 +1,305 @@
+"""Service settings (defaults < JSON file < LESSMAP_* environment < overrides) and the Zenoh
+configuration built from them. Environment variables are set with pytest's ``monkeypatch``."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pytest
+
+from lessmap.core import PartitionParams, SeedMode
+from lessmap.errors import ConfigError
+from lessmap.runtime.zenoh_config import service_config
+from lessmap.settings import EMBEDDED_ENDPOINT, load_settings
+from lessmap_schemas.keys import validate_name
+
+if TYPE_CHECKING:
+    import zenoh
+
+
+@pytest.fixture(autouse=True)
+def clean_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No LESSMAP_* variable of the outer environment leaks into a test."""
+    for name in list(os.environ):
+        if name.upper().startswith("LESSMAP_"):
+            monkeypatch.delenv(name)
+
+
+def write_config(tmp_path: Path, values: object) -> Path:
+    path = tmp_path / "lessmap.json"
+    path.write_text(json.dumps(values), encoding="utf-8")
+    return path
+
+
+def config_error(config_file: Path | None = None, **overrides: Any) -> str:
+    with pytest.raises(ConfigError) as caught:
+        load_settings(config_file, **overrides)
+    message = str(caught.value)
+    assert "\n" not in message, message
+    return message
+
+
+def json_at(conf: zenoh.Config, key: str) -> object:
+    return json.loads(conf.get_json(key))
+
+
+# -- sources and precedence ------------------------------------------------------------------
+
+
+def test_defaults() -> None:
+    settings = load_settings()
+
+    assert settings.profile == "laser"
+    assert (settings.ncut_min, settings.lambda2_min) == (None, None)
+    assert settings.seed_mode is SeedMode.SEED
+    assert settings.workers == 2
+    assert settings.max_batch_frames == 256
+    assert settings.max_sessions == 10_000
+    assert settings.limits.max_features_per_frame == 4096
+    assert settings.limits.max_payload_bytes == 1_048_576
+    assert (settings.mode, settings.connect, settings.listen) == (None, (), ())
+    assert settings.zenoh_config is None
+    assert settings.embedded
+    assert validate_name(settings.instance, "instance") == settings.instance
+    assert settings.partition_params() == PartitionParams(ncut_min=0.25, lambda2_min=0.2)
+
+
+def test_environment_variables(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("LESSMAP_PROFILE", "monocular")
+    monkeypatch.setenv("LESSMAP_LIMITS__MAX_FEATURES_PER_FRAME", "10")
+    monkeypatch.setenv("LESSMAP_CONNECT", '["tcp/127.0.0.1:7448"]')
+
+    settings = load_settings()
+
+    assert settings.profile == "monocular"
+    assert settings.limits.max_features_per_frame == 10
+    assert settings.limits.max_payload_bytes == 1_048_576  # its sibling keeps the default
+    assert settings.connect == ("tcp/127.0.0.1:7448",)
+    assert not settings.embedded
+    assert settings.limits.wire_limits().max_features_per_frame == 10
+
+
+def test_precedence_defaults_file_environment_overrides(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    config = write_config(
+        tmp_path, {"workers": 3, "queue_depth": 7, "error_burst": 9, "profile": "stereo"}
+    )
+    monkeypatch.setenv("LESSMAP_QUEUE_DEPTH", "70")
+    monkeypatch.setenv("LESSMAP_ERROR_BURST", "90")
+
+    settings = load_settings(config, error_burst=900)
+
+    assert settings.max_sessions == 10_000  # default: nobody set it
+    assert settings.workers == 3  # file beats default
+    assert settings.profile == "stereo"
+    assert settings.queue_depth == 70  # environment beats file
+    assert settings.error_burst == 900  # overrides beat everything
+
+
+def test_nested_environment_variable_keeps_the_file_siblings(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Precedence holds per field: a LESSMAP_LIMITS__X variable sets limits.x only; the
+    # other limits keep the file's values, not the defaults.
+    config = write_config(tmp_path, {"limits": {"max_payload_bytes": 4096}})
+    monkeypatch.setenv("LESSMAP_LIMITS__MAX_FEATURES_PER_FRAME", "10")
+
+    settings = load_settings(config)
+
+    assert settings.limits.max_features_per_frame == 10
+    assert settings.limits.max_payload_bytes == 4096
+
+
+def test_file_values_without_environment(tmp_path: Path) -> None:
+    config = write_config(
+        tmp_path,
+        {"limits": {"max_payload_bytes": 4096}, "listen": ["tcp/127.0.0.1:7449"], "workers": 4},
+    )
+    settings = load_settings(config)
+    assert settings.limits.max_payload_bytes == 4096
+    assert settings.listen == ("tcp/127.0.0.1:7449",)
+    assert settings.workers == 4
+    assert not settings.embedded
+
+
+# -- invalid input ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("overrides", "field"),
+    [
+        ({"workers": 0}, "workers"),
+        ({"workers": 65}, "workers"),
+        ({"profile": "sonar"}, "profile"),
+        ({"max_batch_frames": 0}, "max_batch_frames"),
+        ({"session_idle_timeout_s": 0.0}, "session_idle_timeout_s"),
+        ({"seed_mode": "sometimes"}, "seed_mode"),
+        ({"mode": "broker"}, "mode"),
+        ({"metrics_port": 70_000}, "metrics_port"),
+        ({"limits": {"max_name_len": 65}}, "max_name_len"),
+    ],
+    ids=lambda v: None if isinstance(v, str) else json.dumps(v),
+)
+def test_invalid_override_names_the_field(overrides: dict[str, Any], field: str) -> None:
+    message = config_error(**overrides)
+    assert message.startswith("invalid setting")
+    assert field in message
+
+
+def test_invalid_environment_value_names_the_field(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("LESSMAP_WORKERS", "many")
+    assert "workers" in config_error()
+
+
+def test_unknown_key_in_the_config_file(tmp_path: Path) -> None:
+    message = config_error(write_config(tmp_path, {"wokers": 3}))
+    assert "wokers" in message
+
+
+def test_invalid_value_in_the_config_file(tmp_path: Path) -> None:
+    message = config_error(write_config(tmp_path, {"profile": "sonar"}))
+    assert "profile" in message
+
+
+def test_bad_json_config_file(tmp_path: Path) -> None:
+    path = tmp_path / "broken.json"
+    path.write_text('{"workers": 3,', encoding="utf-8")
+    message = config_error(path)
+    assert str(path) in message
+
+
+def test_config_file_must_hold_an_object(tmp_path: Path) -> None:
+    message = config_error(write_config(tmp_path, [1, 2]))
+    assert "object" in message
+
+
+def test_missing_config_file(tmp_path: Path) -> None:
+    path = tmp_path / "absent.json"
+    assert str(path) in config_error(path)
+
+
+# -- derived values --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("profile", "expected"),
+    [("laser", (0.25, 0.2)), ("stereo", (0.25, 0.2)), ("monocular", (0.1, 0.1))],
+)
+def test_partition_params_follow_the_profile(profile: str, expected: tuple[float, float]) -> None:
+    params = load_settings(profile=profile).partition_params()
+    assert (params.ncut_min, params.lambda2_min) == expected
+
+
+def test_partition_params_overrides() -> None:
+    settings = load_settings(
+        profile="monocular",
+        ncut_min=0.3,
+        seed_mode="fresh",
+        min_frames_between=4,
+        min_cluster_size=2,
+    )
+    assert settings.partition_params() == PartitionParams(
+        ncut_min=0.3,
+        lambda2_min=0.1,  # from the profile
+        seed_mode=SeedMode.FRESH,
+        min_frames_between=4,
+        min_cluster_size=2,
+    )
+    only_lambda = load_settings(lambda2_min=0.0).partition_params()
+    assert (only_lambda.ncut_min, only_lambda.lambda2_min) == (0.25, 0.0)
+
+
+@pytest.mark.parametrize(
+    "zenoh_option",
+    [
+        {"connect": ("tcp/127.0.0.1:7448",)},
+        {"listen": ("tcp/127.0.0.1:7448",)},
+        {"mode": "peer"},
+        {"zenoh_config": Path("zenoh.json5")},
+    ],
+    ids=["connect", "listen", "mode", "zenoh_config"],
+)
+def test_any_zenoh_option_turns_embedded_off(zenoh_option: dict[str, Any]) -> None:
+    assert load_settings().embedded
+    assert not load_settings(**zenoh_option).embedded
+
+
+@pytest.mark.parametrize(
+    ("given", "expected"),
+    [
+        ("robot-host-42", "robot-host-42"),
+        ("my host/1:2", "my-host-1-2"),
+        ("..hidden", "hidden"),
+        ("-.-", "lessmap"),
+        ("", "lessmap"),
+        ("x" * 100, "x" * 64),
+    ],
+)
+def test_instance_is_sanitized(given: str, expected: str) -> None:
+    assert load_settings(instance=given).instance == expected
+
+
+@pytest.mark.parametrize("given", ["Büro-PC", "ロボット"])
+def test_non_ascii_instance_is_sanitized_too(given: str) -> None:
+    # str.isalnum() accepts non-ASCII letters and digits; the name rule does not.
+    instance = load_settings(instance=given).instance
+    assert validate_name(instance, "instance") == instance
+
+
+# -- Zenoh configuration ---------------------------------------------------------------------
+
+
+def test_embedded_service_config_is_a_loopback_router() -> None:
+    conf = service_config(load_settings())
+
+    assert json_at(conf, "mode") == "router"
+    assert json_at(conf, "listen/endpoints") == [EMBEDDED_ENDPOINT]
+    assert EMBEDDED_ENDPOINT == "tcp/127.0.0.1:7447"
+    assert json_at(conf, "scouting/multicast/enabled") is False
+    assert json_at(conf, "timestamping/enabled") is True
+    assert json_at(conf, "connect/endpoints") == []
+
+
+def test_client_service_config_follows_the_settings() -> None:
+    settings = load_settings(mode="client", connect=("tcp/127.0.0.1:7448",))
+    conf = service_config(settings)
+
+    assert json_at(conf, "mode") == "client"
+    assert json_at(conf, "connect/endpoints") == ["tcp/127.0.0.1:7448"]
+    assert json_at(conf, "timestamping/enabled") is True  # in every mode
+    assert EMBEDDED_ENDPOINT not in str(conf)
+
+
+def test_service_config_from_a_zenoh_file(tmp_path: Path) -> None:
+    path = tmp_path / "zenoh.json5"
+    path.write_text(
+        '{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:7450"] } }', encoding="utf-8"
+    )
+    conf = service_config(load_settings(zenoh_config=path))
+
+    assert json_at(conf, "mode") == "peer"
+    assert json_at(conf, "listen/endpoints") == ["tcp/127.0.0.1:7450"]
+    assert json_at(conf, "timestamping/enabled") is True
+
+
+def test_missing_zenoh_file_is_a_config_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError):
+        service_config(load_settings(zenoh_config=tmp_path / "absent.json5"))
+
+
+def test_cfg_items_are_applied_last() -> None:
+    conf = service_config(load_settings(), ["scouting/multicast/enabled:true", 'mode:"peer"'])
+    assert json_at(conf, "scouting/multicast/enabled") is True
+    assert json_at(conf, "mode") == "peer"
+
+
+@pytest.mark.parametrize(
+    "item", ["no-separator", "no/such/key:1", "mode:{{", "listen/endpoints:42"]
+)
+def test_bad_cfg_item_is_a_config_error(item: str) -> None:
+    with pytest.raises(ConfigError):
+        service_config(load_settings(), [item])
