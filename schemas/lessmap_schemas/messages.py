@@ -227,11 +227,11 @@ class SessionState(Message):
     frames_applied: Count
     """Frames applied to the CovGraph, in seq order, each once."""
     frames_duplicate: Count
-    """Frames ignored because their seq was not above the last applied one."""
+    """Frames ignored because their seq was not above the last received one (late ones too)."""
     frames_missing: Count
     """Frames never received: the sum of all seq gaps (late arrivals stay counted here)."""
     frames_rejected: Count
-    """Frames of this session received but not applied, other than duplicates (late, limits)."""
+    """Frames received in order but refused (limits, invalid content)."""
     transitions: Count
     """Transitions published for this session."""
     current_submap: SubmapSummary

@@ -93,7 +93,9 @@ class ServiceSettings(BaseSettings):
     @classmethod
     def _instance_is_a_name(cls, value: str) -> str:
         # Instances appear as key chunks (liveliness token, health key): same rule as robots.
-        cleaned = "".join(c if c.isalnum() or c in "_.-" else "-" for c in value)[:64]
+        cleaned = "".join(c if c.isascii() and (c.isalnum() or c in "_.-") else "-" for c in value)[
+            :64
+        ]
         return validate_name(cleaned.lstrip(".-") or "lessmap", "instance")
 
     @property
@@ -136,7 +138,7 @@ def load_settings(config_file: Path | None = None, **overrides: Any) -> ServiceS
         # file's values go in as defaults of a subclass-free merge below.
         from_env = ServiceSettings()
         assert isinstance(file_values, dict)
-        merged = {**file_values, **_explicit(from_env), **overrides}
+        merged = _deep_merge(_deep_merge(file_values, _explicit(from_env)), overrides)
         return ServiceSettings(**merged)
     except (ValidationError, ValueError) as exc:
         msg = f"invalid setting: {_first_error(exc)}"
@@ -144,8 +146,19 @@ def load_settings(config_file: Path | None = None, **overrides: Any) -> ServiceS
 
 
 def _explicit(settings: ServiceSettings) -> dict[str, Any]:
-    """Return only the fields the environment actually set."""
-    return {name: getattr(settings, name) for name in settings.model_fields_set}
+    """Return only the fields the environment actually set (nested ones too)."""
+    return settings.model_dump(exclude_unset=True)
+
+
+def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """Return ``base`` updated by ``over``; nested dicts merge key by key."""
+    merged = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _deep_merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
 
 
 def _first_error(exc: Exception) -> str:

@@ -257,7 +257,7 @@ def test_laser_scanner_transitions_follow_room_changes_at_doors() -> None:
     assert result.precision_door >= 0.8
 
 
-def test_default_lidar_places_transitions_at_doors() -> None:
+def test_360_lidar_places_transitions_at_doors() -> None:
     """A 360° sensor keeps seeing the old room behind it: late, but at the right place."""
     result = _pooled([(0, 6)], 360.0)
     _report(f"360° lidar, laser profile: {result.describe()}")
@@ -272,7 +272,7 @@ def test_default_lidar_places_transitions_at_doors() -> None:
     "~10-15 frames in the new room before Ncut <= 0.25 (boundary_seq is still at the door)",
     strict=True,
 )
-def test_default_lidar_detects_within_tolerance() -> None:
+def test_360_lidar_detects_within_tolerance() -> None:
     result = _pooled([(0, 6)], 360.0)
     assert result.recall is not None
     assert result.recall >= 0.8

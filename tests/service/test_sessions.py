@@ -322,11 +322,12 @@ def test_session_end_of_an_opened_session_without_frames_applied() -> None:
     first = table.handle_batch(msgs("r1", frame(0, (1, 2, 3))), now_s=0.0)
     assert codes(first) == [ErrorCode.GRAPH_LIMIT]
 
+    # Frame 0 was received (and refused): only frame 1 is missing.
     outcome = table.handle_batch(msgs("r1", end(1)), now_s=1.0)
     [gap] = outcome.rejections
     assert gap.code is ErrorCode.SEQ_GAP
-    assert outcome.frames_missing == 2
-    assert "0..1" in gap.detail
+    assert outcome.frames_missing == 1
+    assert "1..1" in gap.detail
     assert "None" not in gap.detail  # no Python repr in an operator-facing message
     [(final, _)] = outcome.closed
     assert (final.last_seq, final.frames_applied, final.frames_rejected) == (None, 0, 1)
@@ -595,9 +596,9 @@ def test_invalid_features_reject_one_frame_and_spare_other_robots() -> None:
         [(FLEET, "bad", bad), *frames_at(1, robot="good"), *frames_at(2, robot="bad")],
         now_s=1.0,
     )
-    [invalid, gap] = outcome.rejections
+    # The refused frame 1 counts as received: no gap before frame 2.
+    [invalid] = outcome.rejections
     assert (invalid.code, invalid.robot, invalid.seq) == (ErrorCode.INVALID, "bad", 1)
-    assert gap.code is ErrorCode.SEQ_GAP
     assert outcome.failures == []
     assert state_of(table, "bad").frames_rejected == 1
     assert state_of(table, "bad").last_seq == 2
@@ -637,14 +638,14 @@ def test_internal_failure_resets_one_session_and_spares_other_robots() -> None:
 
 def test_a_refused_frame_after_a_gap_does_not_count_the_gap_twice() -> None:
     # Frames 1..3 never get applied: 0, then an unvalidated frame 3 the core refuses, then 4.
-    # The gap 1..3 is three frames; reporting 1..2 for the refused frame and 1..3 again for
-    # frame 4 counts seqs 1 and 2 twice.
+    # Frames 1 and 2 are missing (one gap, counted once); frame 3 was received and refused,
+    # so it counts as rejected, not missing.
     bad = Frame.model_construct(session="s1", seq=3, stamp_s=3.0, features=[2**63])
     table = make_table()
     outcome = table.handle_batch([*frames_at(0), (FLEET, "r1", bad), *frames_at(4)], now_s=0.0)
 
     assert ErrorCode.INVALID in codes(outcome)
     assert codes(outcome).count(ErrorCode.SEQ_GAP) == 1
-    assert outcome.frames_missing == 3
+    assert outcome.frames_missing == 2
     state = state_of(table)
-    assert (state.frames_missing, state.frames_rejected, state.last_seq) == (3, 1, 4)
+    assert (state.frames_missing, state.frames_rejected, state.last_seq) == (2, 1, 4)

@@ -61,6 +61,7 @@ class RobotSession:
     frames_duplicate: int = 0
     frames_missing: int = 0
     frames_rejected: int = 0
+    last_seen_seq: int | None = None  # highest seq received, applied or refused
     gaps: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=_GAPS_KEPT))
 
     def state(self, instance: str, *, is_open: bool) -> SessionState:
@@ -269,11 +270,11 @@ class SessionTable:
 
     def _apply_frame(self, session: RobotSession, frame: Frame, out: Outcome) -> bool:
         p = session.partitioner
-        last = p.last_seq
-        if last is not None and frame.seq <= last:
+        seen = session.last_seen_seq
+        if seen is not None and frame.seq <= seen:
             late = any(lo <= frame.seq <= hi for lo, hi in session.gaps)
             code = ErrorCode.OUT_OF_ORDER if late else ErrorCode.DUPLICATE_SEQ
-            what = "arrived after later frames" if late else "already applied"
+            what = "arrived after later frames" if late else "was already received"
             session.frames_duplicate += 1
             out.frames_duplicate += 1
             out.reject(
@@ -281,10 +282,16 @@ class SessionTable:
                 session.robot,
                 session.session,
                 code,
-                f"frame {frame.seq} {what} (last applied {last})",
+                f"frame {frame.seq} {what} (last received {seen})",
                 frame.seq,
             )
             return False
+        # From here on the seq counts as received, applied or not: a refused frame is
+        # rejected once, never also reported missing.
+        expected = 0 if seen is None else seen + 1
+        session.last_seen_seq = frame.seq
+        if frame.seq > expected:
+            self._count_gap(session, expected, frame.seq - 1, frame.seq, out)
         unknown = sum(1 for f in set(frame.features) if p.graph.count(f) == 0)
         if p.graph.node_count + unknown > self._max_nodes:
             session.frames_rejected += 1
@@ -297,20 +304,6 @@ class SessionTable:
                 frame.seq,
             )
             return False
-        expected = 0 if last is None else last + 1
-        if frame.seq > expected:
-            missing = frame.seq - expected
-            session.frames_missing += missing
-            session.gaps.append((expected, frame.seq - 1))
-            out.frames_missing += missing
-            out.reject(
-                session.fleet,
-                session.robot,
-                session.session,
-                ErrorCode.SEQ_GAP,
-                f"{missing} frame(s) missing: {expected}..{frame.seq - 1}",
-                frame.seq,
-            )
         try:
             p.apply(frame.seq, frame.stamp_s, frame.features)
         except GraphError as exc:
@@ -327,6 +320,23 @@ class SessionTable:
         out.frames_applied += 1
         return True
 
+    @staticmethod
+    def _count_gap(
+        session: RobotSession, first: int, last: int, seq: int | None, out: Outcome
+    ) -> None:
+        missing = last - first + 1
+        session.frames_missing += missing
+        session.gaps.append((first, last))
+        out.frames_missing += missing
+        out.reject(
+            session.fleet,
+            session.robot,
+            session.session,
+            ErrorCode.SEQ_GAP,
+            f"{missing} frame(s) missing: {first}..{last}",
+            seq,
+        )
+
     def _decide(self, session: RobotSession, out: Outcome) -> None:
         batch = session.partitioner.pending_frames
         started = self._clock()
@@ -341,19 +351,10 @@ class SessionTable:
         current = self._open.get(key)
         if current is None or current.session != end.session:
             return  # a repeated end, or the end of a session never seen: nothing to close
-        last = current.partitioner.last_seq
-        if end.last_seq is not None and (last is None or end.last_seq > last):
-            missing = end.last_seq - (last if last is not None else -1)
-            current.frames_missing += missing
-            out.frames_missing += missing
-            out.reject(
-                key[0],
-                key[1],
-                end.session,
-                ErrorCode.SEQ_GAP,
-                f"session ended at {end.last_seq} but only {last} was received",
-                end.last_seq,
-            )
+        seen = current.last_seen_seq
+        expected = 0 if seen is None else seen + 1
+        if end.last_seq is not None and end.last_seq >= expected:
+            self._count_gap(current, expected, end.last_seq, end.last_seq, out)
         self._close(key, "ended", out)
 
     def _close(self, key: RobotKey, cause: str, out: Outcome) -> None:
