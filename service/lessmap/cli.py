@@ -200,7 +200,11 @@ def build_parser() -> argparse.ArgumentParser:
     seg.set_defaults(run=_cmd_segment)
     _add_serve(commands)
     from lessmap.evaluation.commands import add_commands as add_evaluation_commands
+    from lessmap.tools.demo import add_commands as add_demo_command
+    from lessmap_client.cli_client import add_commands as add_client_commands
 
+    add_demo_command(commands)
+    add_client_commands(commands)
     add_evaluation_commands(commands)
     return parser
 
@@ -209,7 +213,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    level = logging.WARNING - 10 * min(args.verbose, 2)
+    # A daemon reports its lifecycle (INFO) by default; one-shot tools only warnings.
+    base = logging.INFO if args.command == "serve" else logging.WARNING
+    level = max(logging.DEBUG, base - 10 * args.verbose)
     logging.basicConfig(
         level=level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )

@@ -72,7 +72,9 @@ class ServiceSettings(BaseSettings):
     transition_cache: int = Field(
         64, ge=1, description="transitions kept per robot for late joiners"
     )
-    error_rate_per_s: float = Field(5.0, gt=0.0, description="error events per robot and second")
+    error_rate_per_s: float = Field(
+        5.0, gt=0.0, description="error events per robot, error code and second"
+    )
     error_burst: int = Field(20, ge=1)
     instance: str = Field(default_factory=lambda: f"{socket.gethostname()[:40]}-{os.getpid()}")
     shutdown_grace_s: float = Field(

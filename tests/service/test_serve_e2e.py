@@ -219,7 +219,11 @@ def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
         wait_closed(client, fleet_name, "good", len(frames))
         got = drain(client)
     needed = {"MALFORMED", "INVALID", "LIMIT_EXCEEDED", "BAD_NAME", "DUPLICATE_SEQ"}
-    wait_until(lambda: needed <= {e.code.value for e in errors}, 20.0, "errors of every kind")
+    wait_until(
+        lambda: needed <= {e.code.value for e in errors},
+        20.0,
+        f"errors of every kind, got {sorted({e.code.value for e in errors})}",
+    )
     error_sub.undeclare()
     service_error_sub.undeclare()
 

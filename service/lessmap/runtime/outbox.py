@@ -183,7 +183,10 @@ class Outbox:
 
     def _put_error(self, rejection: Rejection, now_s: float) -> None:
         with self._limiter_lock:
-            allowed, suppressed = self._limiter.allow((rejection.fleet, rejection.robot), now_s)
+            # One bucket per robot and code: a flood of one kind of fault never hides the
+            # first report of another.
+            bucket = (rejection.fleet, rejection.robot, rejection.code)
+            allowed, suppressed = self._limiter.allow(bucket, now_s)
         if not allowed:
             self.metrics.errors_suppressed.inc()
             return

@@ -1,0 +1,224 @@
+"""Client-side subcommands of ``lessmap``: replay, sim, watch (wired in by ``lessmap.cli``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from lessmap_client.session import DEFAULT_ENDPOINT
+
+if TYPE_CHECKING:
+    from lessmap_client.fleet import FleetClient
+    from lessmap_client.watch import FleetView
+
+
+def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``-e/--connect`` (repeatable) and ``-m/--mode``."""
+    parser.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"lessmap router endpoint (repeatable; default {DEFAULT_ENDPOINT})",
+    )
+    parser.add_argument("-m", "--mode", choices=["client", "peer"], default="client")
+
+
+def endpoints(args: argparse.Namespace) -> list[str]:
+    """Return the endpoints to connect to."""
+    return list(args.connect) if args.connect else [DEFAULT_ENDPOINT]
+
+
+def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``replay``, ``sim`` and ``watch``."""
+    rep = commands.add_parser(
+        "replay",
+        help="publish a recorded frames file to the service (one publisher per robot)",
+        description="Publish FILE.frames.jsonl paced by its stamps (--speed), or as fast as "
+        "possible (--fast). Each robot in the file gets its own publisher and session.",
+    )
+    rep.add_argument("file", type=Path, metavar="FILE")
+    rep.add_argument("--fleet", default="replay", help="fleet name (default: replay)")
+    rep.add_argument("--robot-prefix", default="", help="prefix for the file's robot ids")
+    pace = rep.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=float, default=1.0, help="playback rate (default 1.0)")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    rep.add_argument(
+        "--wait-service",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds to wait for a service instance first (default 10)",
+    )
+    add_zenoh_options(rep)
+    rep.set_defaults(run=_cmd_replay)
+
+    sim = commands.add_parser(
+        "sim",
+        help="simulate a fleet in a building; write frames and ground truth, or publish live",
+        description="A seeded simulated building (rooms, doors, wall landmarks, a 270° "
+        "range- and wall-limited laser) walked by robots. --out writes <name>.frames.jsonl, "
+        "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live.",
+    )
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--rooms", type=int, default=8)
+    sim.add_argument("--robots", type=int, default=3)
+    sim.add_argument("--frames", type=int, default=600, help="frames per robot (2 Hz)")
+    sim.add_argument("--fov", type=float, default=None, help="sensor field of view, degrees")
+    sim.add_argument("--out", type=Path, help="write the run to this folder")
+    sim.add_argument("--name", default="sim", help="file name stem (default: sim)")
+    sim.add_argument("--publish", action="store_true", help="publish the frames live")
+    sim.add_argument("--fleet", default="sim")
+    sim.add_argument("--speed", type=float, default=1.0, help="playback rate with --publish")
+    add_zenoh_options(sim)
+    sim.set_defaults(run=_cmd_sim)
+
+    watch = commands.add_parser(
+        "watch",
+        help="live view of a fleet: one row per robot, transitions as they arrive",
+    )
+    watch.add_argument("--fleet", default="*", help="fleet to follow (default: all)")
+    watch.add_argument("--duration", type=float, help="stop after this many seconds")
+    watch.add_argument("--interval", type=float, default=1.0, help="refresh period, seconds")
+    add_zenoh_options(watch)
+    watch.set_defaults(run=_cmd_watch)
+
+
+class Progress:
+    """A one-line progress counter on stderr, only on a terminal."""
+
+    def __init__(self, total: int | None, label: str) -> None:
+        self._total = total
+        self._label = label
+        self._enabled = sys.stderr.isatty()
+        self._last_s = 0.0
+
+    def __call__(self, done: int) -> None:
+        """Show ``done`` (at most five times a second)."""
+        now = time.monotonic()
+        if not self._enabled or (now - self._last_s < 0.2 and done != self._total):
+            return
+        self._last_s = now
+        if self._total:
+            width = 30
+            filled = int(width * done / self._total)
+            bar = "#" * filled + "." * (width - filled)
+            sys.stderr.write(f"\r{self._label} [{bar}] {done}/{self._total}")
+        else:
+            sys.stderr.write(f"\r{self._label} {done}")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        """End the line."""
+        if self._enabled:
+            sys.stderr.write("\n")
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from lessmap_client.adapters.replay import read_recorded, replay
+    from lessmap_client.session import open_session, wait_for_service
+
+    frames = list(read_recorded(args.file))
+    with open_session(endpoints(args), args.mode) as session:
+        if not wait_for_service(session, args.wait_service):
+            sys.stderr.write("lessmap replay: no lessmap service answered; publishing anyway\n")
+        progress = Progress(len(frames), "replay")
+        stats = replay(
+            frames,
+            session,
+            args.fleet,
+            speed=None if args.fast else args.speed,
+            robot_prefix=args.robot_prefix,
+            on_frame=progress,
+        )
+        progress.close()
+    summary = {
+        "frames": stats.frames,
+        "robots": stats.robots,
+        "elapsed_s": round(stats.elapsed_s, 3),
+    }
+    sys.stdout.write(json.dumps(summary) + "\n")
+    return 0
+
+
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from lessmap_client.adapters.replay import RecordedFrame, replay
+    from lessmap_client.adapters.sim import simulate, write_run
+    from lessmap_client.session import open_session
+
+    options = {} if args.fov is None else {"fov_deg": args.fov}
+    run = simulate(
+        args.seed, rooms=args.rooms, robots=args.robots, frames_per_robot=args.frames, **options
+    )
+    if args.out:
+        paths = write_run(run, args.out, args.name)
+        sys.stdout.write(json.dumps({k: str(v) for k, v in paths._asdict().items()}) + "\n")
+    if args.publish:
+        frames = [
+            RecordedFrame(
+                f["robot"],
+                f["seq"],
+                f["stamp"],
+                f["features"],
+                tuple(f["pose"]) if f["pose"] else None,
+            )
+            for f in run.frames
+        ]
+        with open_session(endpoints(args), args.mode) as session:
+            stats = replay(frames, session, args.fleet, speed=args.speed)
+        sys.stdout.write(json.dumps({"published": stats.frames, "robots": stats.robots}) + "\n")
+    if not args.out and not args.publish:
+        sys.stderr.write("lessmap sim: nothing to do; give --out DIR and/or --publish\n")
+        return 1
+    return 0
+
+
+def _cmd_watch(args: argparse.Namespace) -> int:
+    from lessmap_client.fleet import FleetClient
+    from lessmap_client.session import open_session
+    from lessmap_client.watch import FleetView
+
+    view = FleetView()
+    with (
+        open_session(endpoints(args), args.mode) as session,
+        FleetClient(args.fleet, session=session) as client,
+    ):
+        follow(client, view, args.duration, args.interval, title=f"lessmap watch {args.fleet}")
+    sys.stdout.write(view.table() + "\n")
+    return 0
+
+
+def follow(
+    client: FleetClient,
+    view: FleetView,
+    duration_s: float | None,
+    interval_s: float,
+    title: str,
+    fleet: str | None = None,
+) -> None:
+    """Feed the view from the client until ``duration_s`` passes (or Ctrl-C)."""
+    tty = sys.stdout.isatty()
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    next_refresh = 0.0
+    try:
+        while deadline is None or time.monotonic() < deadline:
+            transition = client.next_transition(timeout_s=0.1)
+            if transition is not None:
+                line = view.add_transition(transition)
+                if not tty:
+                    sys.stdout.write(line + "\n")
+                    sys.stdout.flush()
+            now = time.monotonic()
+            if now >= next_refresh:
+                next_refresh = now + interval_s
+                for state in client.states(fleet, timeout_s=0.5):
+                    view.add_state(state)
+                if tty:
+                    sys.stdout.write("\x1b[2J\x1b[H" + view.screen(title) + "\n")
+                    sys.stdout.flush()
+    except KeyboardInterrupt:
+        pass

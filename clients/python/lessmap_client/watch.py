@@ -1,0 +1,109 @@
+"""A live terminal view of a fleet: one row per robot, new transitions as they arrive."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from lessmap_schemas.messages import SessionState, Transition
+
+
+_KEEP = 100_000  # transitions remembered by a view
+
+
+@dataclass(slots=True)
+class RobotRow:
+    """What the view knows of one robot."""
+
+    fleet: str
+    robot: str
+    session: str = ""
+    submap: int = 0
+    frames: int | None = None  # from state queries; None until one answered
+    transitions: int = 0
+    last_seq: int | None = None
+    last_reason: str = ""
+    ncut: float | None = None
+    lambda2: float | None = None
+    open: bool = True
+
+
+class FleetView:
+    """Folds transitions and session states into rows, and renders them as text."""
+
+    def __init__(self) -> None:
+        self.rows: dict[tuple[str, str], RobotRow] = {}
+        self.log: list[str] = []  # one line per transition, newest last (bounded)
+        self.transitions: list[Transition] = []  # every transition seen (bounded)
+        self.started_s = time.monotonic()
+
+    def _row(self, fleet: str, robot: str) -> RobotRow:
+        key = (fleet, robot)
+        if key not in self.rows:
+            self.rows[key] = RobotRow(fleet, robot)
+        return self.rows[key]
+
+    def add_transition(self, t: Transition) -> str:
+        """Record a transition; return its one-line description."""
+        row = self._row(t.fleet, t.robot)
+        if row.session != t.session:
+            row.session, row.transitions = t.session, 0
+        row.submap = t.opened.id
+        row.transitions += 1
+        row.last_seq, row.last_reason, row.ncut, row.lambda2 = t.seq, t.reason, t.ncut, t.lambda2
+        figures = (
+            f"Ncut {t.ncut:.3f} λ2 {t.lambda2:.3f}"
+            if t.ncut is not None and t.lambda2 is not None
+            else "graph fell apart"
+        )
+        line = (
+            f"{t.fleet}/{t.robot}: frame {t.seq} (boundary {t.boundary_seq}) {t.reason} "
+            f"{figures}; closed submap {t.closed.id} ({len(t.closed.features)} features, "
+            f"{t.closed.frame_count} frames) -> submap {t.opened.id}"
+        )
+        self.log.append(line)
+        del self.log[:-200]
+        self.transitions.append(t)
+        del self.transitions[:-_KEEP]
+        return line
+
+    def add_state(self, state: SessionState) -> None:
+        """Record a session state answer."""
+        row = self._row(state.fleet, state.robot)
+        if row.session and row.session != state.session and state.open is False:
+            return  # an older session's final state: the row follows the newer one
+        row.session = state.session
+        row.frames = state.frames_applied
+        row.submap = state.current_submap.id
+        row.transitions = state.transitions
+        row.open = state.open
+
+    def table(self) -> str:
+        """Render the rows as a fixed-width table."""
+        header = (
+            f"{'robot':<24} {'session':<14} {'submap':>6} {'frames':>7} {'trans':>5} "
+            f"{'last':>6} {'reason':<12} {'Ncut':>6} {'λ2':>6}"
+        )
+        lines = [header, "-" * len(header)]
+        for (fleet, robot), row in sorted(self.rows.items()):
+            name = f"{fleet}/{robot}"[:24]
+            lines.append(
+                f"{name:<24} {row.session[-14:]:<14} {row.submap:>6} "
+                f"{'-' if row.frames is None else row.frames:>7} {row.transitions:>5} "
+                f"{'-' if row.last_seq is None else row.last_seq:>6} {row.last_reason:<12} "
+                f"{_num(row.ncut):>6} {_num(row.lambda2):>6}" + ("" if row.open else "  (closed)")
+            )
+        return "\n".join(lines)
+
+    def screen(self, title: str, recent: int = 8) -> str:
+        """Render a full screen: title, table, the most recent transitions."""
+        elapsed = time.monotonic() - self.started_s
+        parts = [f"{title}   ({elapsed:5.1f} s)", "", self.table(), "", "recent transitions:"]
+        parts += [f"  {line}" for line in self.log[-recent:]] or ["  (none yet)"]
+        return "\n".join(parts)
+
+
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"

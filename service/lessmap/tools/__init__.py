@@ -1,0 +1,1 @@
+"""Tools that drive the service and the client together (demo, benchmarks)."""
