@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import queue
 import time
+from collections import OrderedDict
 from typing import TYPE_CHECKING, TypeVar
 
 import zenoh
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _CLOSED = object()
+_SEEN_KEPT = 100_000
 M = TypeVar("M", SessionState, Submap, Health)
 
 
@@ -59,6 +61,8 @@ class FleetClient:
         self._session = session if session is not None else open_session(connect)
         self._events: queue.SimpleQueue[tuple[str, bytes] | object] = queue.SimpleQueue()
         self.undecodable = 0  # samples that were not valid messages (logged, skipped)
+        # Transition identities already delivered: (fleet, robot, session, closed submap id).
+        self._seen: OrderedDict[tuple[str, str, str, int], None] = OrderedDict()
         self._subscribers: list[ext.AdvancedSubscriber[None] | zenoh.Subscriber[None]] = []
         history_config = (
             ext.HistoryConfig(detect_late_publishers=True, max_samples=history)
@@ -105,13 +109,26 @@ class FleetClient:
             payload: bytes = item[1]
             try:
                 if kind == "Transition":
-                    return decode(payload, Transition)
+                    transition = decode(payload, Transition)
+                    if self._is_repeat(transition):
+                        continue
+                    return transition
                 return decode(payload, Error)
             except WireError as exc:
                 self.undecodable += 1
                 log.warning("skipped an undecodable %s: %s", kind, exc)
             if deadline is not None and time.monotonic() >= deadline:
                 return None
+
+    def _is_repeat(self, t: Transition) -> bool:
+        """Whether this transition was delivered before (history and live can overlap)."""
+        identity = (t.fleet, t.robot, t.session, t.closed.id)
+        if identity in self._seen:
+            return True
+        self._seen[identity] = None
+        if len(self._seen) > _SEEN_KEPT:
+            self._seen.popitem(last=False)
+        return False
 
     def next_transition(self, timeout_s: float | None = None) -> Transition | None:
         """Return the next transition (errors are skipped), or None on timeout or close."""
