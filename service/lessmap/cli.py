@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 from lessmap import __version__
 from lessmap.core import PROFILES, GraphError, PartitionParams, SeedMode
 from lessmap.errors import ConfigError, DatasetError
+from lessmap.logfmt import configure as configure_logging
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -185,6 +186,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lessmap {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
+    parser.add_argument(
+        "--log-format",
+        choices=["text", "json"],
+        default="text",
+        help="stderr log lines as text or one JSON object per line (default: text)",
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     seg = commands.add_parser(
@@ -216,9 +223,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # A daemon reports its lifecycle (INFO) by default; one-shot tools only warnings.
     base = logging.INFO if args.command == "serve" else logging.WARNING
     level = max(logging.DEBUG, base - 10 * args.verbose)
-    logging.basicConfig(
-        level=level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    configure_logging(level, args.log_format)
     try:
         code: int = args.run(args)
     except KNOWN_EXCEPTIONS as exc:

@@ -22,6 +22,8 @@ if TYPE_CHECKING:
 
     import zenoh
 
+    from lessmap_schemas.messages import Transition
+
 pytestmark = pytest.mark.timeout(180)
 
 
@@ -53,6 +55,9 @@ def test_round_trip_late_join_and_queries(
     service = serve("--max-batch-frames", "1")
     session = client_session(service.endpoint)
     live = FleetClient(fleet_name, session=session)
+    callbacks = FleetClient(fleet_name, session=session)
+    via_callback: list[Transition] = []
+    callbacks.on_transition(via_callback.append)
     with RobotPublisher(fleet_name, "walker", session=session) as robot:
         assert robot.wait_for_service(20.0), service.log()
         for features in walk:
@@ -61,6 +66,10 @@ def test_round_trip_late_join_and_queries(
     received = [t for t in live.transitions(timeout_s=5.0)]
     live.close()
     assert [t.seq for t in received] == expected
+    called_back = callbacks.transitions(timeout_s=0.1)  # the dispatcher took them all
+    assert list(called_back) == []
+    callbacks.close()
+    assert [t.seq for t in via_callback] == expected
     assert {(t.robot, t.session) for t in received} == {("walker", session_id)}
 
     # A fleet app that joins after the fact recovers the recent transitions from the cache.

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import threading
 import time
 from collections import OrderedDict
 from typing import TYPE_CHECKING, TypeVar
@@ -23,7 +24,7 @@ from lessmap_schemas.errors import WireError
 from lessmap_schemas.messages import Error, Health, SessionState, Submap, Transition
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Sequence
+    from collections.abc import Callable, Iterator, Sequence
     from types import TracebackType
 
 log = logging.getLogger(__name__)
@@ -81,6 +82,7 @@ class FleetClient:
             self._subscribers.append(
                 self._session.declare_subscriber(keys.errors(fleet, robot), self._on_error)
             )
+        self._dispatchers: list[threading.Thread] = []
         self._closed = False
 
     # -- callbacks (Zenoh's threads: enqueue only) ------------------------------------------
@@ -143,6 +145,25 @@ class FleetClient:
         """Iterate over transitions until the client closes (or ``timeout_s`` of silence)."""
         while (event := self.next_transition(timeout_s)) is not None:
             yield event
+
+    def on_transition(self, callback: Callable[[Transition], None]) -> threading.Thread:
+        """Call ``callback`` with every transition, on a thread of its own, until ``close``.
+
+        The callback runs outside Zenoh's threads, so it may block or call the client's
+        queries. An exception in it is logged and the next transition still arrives.
+        """
+
+        def dispatch() -> None:
+            while (transition := self.next_transition()) is not None:
+                try:
+                    callback(transition)
+                except Exception:
+                    log.exception("transition callback failed")
+
+        thread = threading.Thread(target=dispatch, name="lessmap-fleet-callback", daemon=True)
+        thread.start()
+        self._dispatchers.append(thread)
+        return thread
 
     # -- queries -----------------------------------------------------------------------------
 
@@ -209,6 +230,10 @@ class FleetClient:
             subscriber.undeclare()  # type: ignore[no-untyped-call]
         self._subscribers.clear()
         self._events.put(_CLOSED)
+        current = threading.current_thread()
+        for thread in self._dispatchers:
+            if thread is not current:  # close() may be called from inside a callback
+                thread.join(timeout=5.0)
         if self._owns_session:
             self._session.close()
 

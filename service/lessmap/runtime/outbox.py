@@ -112,7 +112,18 @@ class Outbox:
         for session in outcome.opened:
             m.sessions_opened.inc()
             m.sessions.inc()
-            log.info("session opened: %s/%s %s", session.fleet, session.robot, session.session)
+            log.info(
+                "session opened: %s/%s %s",
+                session.fleet,
+                session.robot,
+                session.session,
+                extra={
+                    "event": "session_opened",
+                    "fleet": session.fleet,
+                    "robot": session.robot,
+                    "session": session.session,
+                },
+            )
         for session, transition in outcome.transitions:
             self._put_transition(session, transition)
         for rejection in outcome.rejections:
@@ -121,9 +132,24 @@ class Outbox:
         for state, cause in outcome.closed:
             m.sessions.dec()
             m.sessions_closed.labels(cause=cause).inc()
-            log.info("session closed (%s): %s/%s %s after %d frames, %d transitions", cause,
-                     state.fleet, state.robot, state.session, state.frames_applied,
-                     state.transitions)  # fmt: skip
+            log.info(
+                "session closed (%s): %s/%s %s after %d frames, %d transitions",
+                cause,
+                state.fleet,
+                state.robot,
+                state.session,
+                state.frames_applied,
+                state.transitions,
+                extra={
+                    "event": "session_closed",
+                    "cause": cause,
+                    "fleet": state.fleet,
+                    "robot": state.robot,
+                    "session": state.session,
+                    "frames_applied": state.frames_applied,
+                    "transitions": state.transitions,
+                },
+            )
             self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
 
     def _count_rejection(self, code: ErrorCode) -> None:
@@ -141,10 +167,15 @@ class Outbox:
             return
         log.warning("rejected a sample on %r: %s", key[:200], exc)
         error = Error(
-            fleet=None, robot=None, session=None, code=exc.code,
-            detail=_detail(f"key {key[:200]!r}: {exc}", suppressed), seq=None,
-            stamp_s=time.time(), instance=self._instance,
-        )  # fmt: skip
+            fleet=None,
+            robot=None,
+            session=None,
+            code=exc.code,
+            detail=_detail(f"key {key[:200]!r}: {exc}", suppressed),
+            seq=None,
+            stamp_s=time.time(),
+            instance=self._instance,
+        )
         self._put(self._service_errors_key, encode(error), _ERROR_ENCODING)
 
     # -- puts --------------------------------------------------------------------------------
@@ -152,8 +183,13 @@ class Outbox:
     def _put_transition(self, session: RobotSession, transition: CoreTransition) -> None:
         message = wire_transition(session, transition, self._instance)
         self.metrics.transitions.labels(reason=message.reason).inc()
-        log.debug("->> TRANSITION %s/%s seq=%d %s", session.fleet, session.robot,
-                  transition.seq, message.reason)  # fmt: skip
+        log.debug(
+            "->> TRANSITION %s/%s seq=%d %s",
+            session.fleet,
+            session.robot,
+            transition.seq,
+            message.reason,
+        )
         publisher = self._publisher(session.fleet, session.robot)
         try:
             publisher.put(encode(message))
@@ -190,8 +226,9 @@ class Outbox:
         if not allowed:
             self.metrics.errors_suppressed.inc()
             return
-        log.warning("%s/%s %s: %s", rejection.fleet, rejection.robot, rejection.code.value,
-                    rejection.detail)  # fmt: skip
+        log.warning(
+            "%s/%s %s: %s", rejection.fleet, rejection.robot, rejection.code.value, rejection.detail
+        )
         error = Error(
             fleet=rejection.fleet,
             robot=rejection.robot,

@@ -1,0 +1,29 @@
+from __future__ import annotations
+
+import json
+import logging
+
+from lessmap.logfmt import JsonFormatter
+
+
+def test_json_lines_carry_message_and_extra_fields() -> None:
+    record = logging.LogRecord("lessmap.x", logging.INFO, __file__, 1, "opened %s", ("r1",), None)
+    record.event = "session_opened"
+    line = JsonFormatter().format(record)
+    entry = json.loads(line)
+    assert entry["msg"] == "opened r1"
+    assert entry["level"] == "INFO"
+    assert entry["event"] == "session_opened"
+    assert entry["ts"].endswith("Z")
+    assert "\n" not in line
+
+
+def test_json_lines_include_tracebacks() -> None:
+    try:
+        1 / 0  # noqa: B018
+    except ZeroDivisionError:
+        import sys
+
+        record = logging.LogRecord("x", logging.ERROR, __file__, 1, "boom", (), sys.exc_info())
+    entry = json.loads(JsonFormatter().format(record))
+    assert "ZeroDivisionError" in entry["exc"]
