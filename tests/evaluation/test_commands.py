@@ -10,6 +10,7 @@ import pytest
 
 from lessmap.errors import ConfigError, DatasetError
 from lessmap.evaluation.commands import add_commands
+from lessmap_client.adapters.sim import simulate, write_run
 from tests.evaluation.helpers import write_dataset
 
 if TYPE_CHECKING:
@@ -74,3 +75,50 @@ def test_plot_with_sweep(tmp_path: Path) -> None:
             "--sweep-lambda2", "0.2", "0.4"]  # fmt: skip
     assert run(*argv) == 0
     assert (tmp_path / "png" / "sweep.png").stat().st_size > 0
+
+
+def test_eval_of_a_sim_run_adds_consistency(
+    sim_frames: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    argv = ["eval", str(sim_frames), "--out", str(out), "--plots", "--no-sweep",
+            "--tolerance-frames", "6"]  # fmt: skip
+    assert run(*argv) == 0
+    text = capsys.readouterr().out
+    assert "robot robot0" in text  # a sim run defaults to its first robot
+    assert "consistency with the ground truth" in text
+    markdown = (out / "eval.md").read_text()
+    assert "H synthesized from the simulator" in markdown
+    assert "## Consistency with the ground truth (all robots)" in markdown
+    assert "Windows ±6 frames" in markdown
+    assert "| fixed-50 features |" in markdown
+    assert "![consistency.png](consistency.png)" in markdown
+    assert "![trajectory.png](trajectory.png)" in markdown
+    assert (out / "consistency.png").read_bytes().startswith(b"\x89PNG")
+    report = json.loads((out / "eval.json").read_text())
+    assert [c["method"] for c in report["consistency"]][1] == "fixed-50 features"
+    assert report["information"]["source"].startswith("H synthesized")
+
+
+def test_eval_options_reach_the_partitioner_and_h(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = write_dataset(tmp_path)
+    out = tmp_path / "out"
+    argv = ["eval", str(frames), "--no-sweep", "--min-cluster-size", "50",
+            "--min-frames-between", "3", "--odometry-scale", "0.5", "--out", str(out)]  # fmt: skip
+    assert run(*argv) == 0
+    capsys.readouterr()
+    report = json.loads((out / "eval.json").read_text())
+    assert report["methods"][0]["submaps"] == 1  # no side of 50 features: never split
+    assert report["information"]["source"].endswith("odometry information scaled by 0.5")
+    markdown = (out / "eval.md").read_text()
+    assert "Consistency" not in markdown  # no truth next to the file
+    with pytest.raises(ConfigError, match="--odometry-scale"):
+        run("eval", str(frames), "--odometry-scale", "0")
+    with pytest.raises(ConfigError, match="--tolerance-frames"):
+        run("eval", str(write_sim_copy(tmp_path)), "--no-sweep", "--tolerance-frames", "-1")
+
+
+def write_sim_copy(folder: Path) -> Path:
+    return write_run(simulate(1, rooms=2, robots=1, frames_per_robot=30), folder, "s").frames

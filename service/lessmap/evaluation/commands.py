@@ -5,16 +5,28 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from lessmap.core import PROFILES, PartitionParams, SeedMode
 from lessmap.errors import ConfigError
+from lessmap.evaluation.consistency import DEFAULT_DOOR_DISTANCE_M, DEFAULT_TOLERANCE_FRAMES
 from lessmap.evaluation.infoloss import DEFAULT_ANCHOR_INFORMATION
+
+if TYPE_CHECKING:
+    from lessmap.evaluation.consistency import Consistency, Detection
+    from lessmap.evaluation.dataset import Dataset
+    from lessmap.evaluation.simrun import SimTruth
 
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE", type=Path, help="frames file (.frames.jsonl)")
-    parser.add_argument("--robot", help="robot to evaluate (needed when the file has several)")
+    parser.add_argument(
+        "--robot",
+        help="robot to evaluate (needed when a recorded file has several; a simulated run "
+        "defaults to its first robot)",
+    )
     group = parser.add_argument_group("partitioning (LESS-mapping Eq. 4)")
     group.add_argument(
         "--profile",
@@ -29,6 +41,20 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
         choices=[m.value for m in SeedMode],
         default=SeedMode.SEED.value,
         help="CovGraph after a transition",
+    )
+    group.add_argument(
+        "--min-cluster-size",
+        type=int,
+        default=1,
+        metavar="N",
+        help="guard: smallest side a transition may cut off (default 1: off)",
+    )
+    group.add_argument(
+        "--min-frames-between",
+        type=int,
+        default=0,
+        metavar="K",
+        help="guard: frames after a transition without a test (default 0: off)",
     )
     sweep = parser.add_argument_group("threshold sweep")
     sweep.add_argument(
@@ -52,7 +78,11 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
 
 
 def _params(args: argparse.Namespace) -> PartitionParams:
-    overrides: dict[str, object] = {"seed_mode": SeedMode(args.seed_mode)}
+    overrides: dict[str, object] = {
+        "seed_mode": SeedMode(args.seed_mode),
+        "min_cluster_size": args.min_cluster_size,
+        "min_frames_between": args.min_frames_between,
+    }
     if args.ncut_min is not None:
         overrides["ncut_min"] = args.ncut_min
     if args.lambda2_min is not None:
@@ -70,9 +100,14 @@ def _grid(args: argparse.Namespace) -> tuple[list[float], list[float]]:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    """Print e of LESS-mapping and the baselines, and the sweep; write files with --out."""
-    from lessmap.evaluation.dataset import load_dataset
+    """Print e of LESS-mapping and the baselines, and the sweep; write files with --out.
+
+    On a simulated run (``<name>.truth.jsonl`` next to FILE) it also scores the transitions
+    of every robot against the true room changes (``lessmap.evaluation.consistency``).
+    """
+    from lessmap.evaluation.markdown import describe, eval_markdown
     from lessmap.evaluation.report import evaluate
+    from lessmap.evaluation.simrun import is_sim_run, load_for_eval
 
     params = _params(args)
     if args.plots and args.out is None:
@@ -85,7 +120,10 @@ def run_eval(args: argparse.Namespace) -> int:
     if not args.anchor_information > 0:
         msg = f"--anchor-information must be positive, got {args.anchor_information}"
         raise ConfigError(msg)
-    dataset = load_dataset(args.file, args.robot)
+    if not args.odometry_scale > 0:
+        msg = f"--odometry-scale must be positive, got {args.odometry_scale}"
+        raise ConfigError(msg)
+    dataset = scale_odometry(load_for_eval(args.file, args.robot), args.odometry_scale)
     ncuts, lams = _grid(args)
     report = evaluate(
         dataset,
@@ -98,39 +136,96 @@ def run_eval(args: argparse.Namespace) -> int:
         anchor_information=args.anchor_information,
     )
     sys.stdout.write(report.to_text())
+    truth: SimTruth | None = None
+    consistency: list[Consistency] = []
+    detections: dict[str, list[Detection]] = {}
+    if is_sim_run(args.file):
+        truth, consistency, detections = _consistency(args, params)
+        sys.stdout.write("\nconsistency with the ground truth (all robots):\n")
+        sys.stdout.write("".join(describe(result) + "\n" for result in consistency))
     if args.out is not None:
         out: Path = args.out
         out.mkdir(parents=True, exist_ok=True)
-        (out / "eval.json").write_text(json.dumps(report.as_dict(), indent=1) + "\n", "utf-8")
-        (out / "eval.md").write_text(report.to_markdown(), "utf-8")
-        written = [out / "eval.json", out / "eval.md"]
+        document = report.as_dict() | {"consistency": [c.as_dict() for c in consistency]}
+        (out / "eval.json").write_text(json.dumps(document, indent=1) + "\n", "utf-8")
+        figures: list[Path] = []
         if args.plots:
             from lessmap.evaluation.plots import write_plots
 
-            written += write_plots(out, dataset.frames, report.lessmap, report.sweep)
+            figures += write_plots(out, dataset.frames, report.lessmap, report.sweep)
+            if truth is not None:
+                from lessmap.evaluation.charts import write_consistency_figure
+
+                path = out / "consistency.png"
+                figures.append(write_consistency_figure(path, truth, detections))
+        markdown = eval_markdown(report, consistency, [path.name for path in figures])
+        (out / "eval.md").write_text(markdown, "utf-8")
+        written = [out / "eval.json", out / "eval.md", *figures]
         sys.stdout.write("".join(f"wrote {path}\n" for path in written))
     return 0
 
 
+def _consistency(
+    args: argparse.Namespace, params: PartitionParams
+) -> tuple[SimTruth, list[Consistency], dict[str, list[Detection]]]:
+    """Score LESS-mapping and the first fixed-features baseline on every robot of a sim run.
+
+    Returns:
+        The truth, the scores (LESS-mapping first) and each method's detections.
+    """
+    from lessmap.evaluation.consistency import (
+        fixed_feature_detections,
+        lessmap_detections,
+        score,
+    )
+    from lessmap.evaluation.simrun import load_truth
+    from lessmap.frames_file import read_frames
+
+    if args.tolerance_frames < 0 or not args.door_distance >= 0:
+        msg = "--tolerance-frames and --door-distance must not be negative"
+        raise ConfigError(msg)
+    truth = load_truth(args.file)
+    frames = list(read_frames(args.file))
+    options = {"tolerance_frames": args.tolerance_frames, "door_distance_m": args.door_distance}
+    name = f"lessmap (Ncut≤{params.ncut_min:g}, λ2≤{params.lambda2_min:g})"
+    detections = {name: lessmap_detections(frames, params)}
+    for limit in args.fixed_features[:1]:
+        detections[f"fixed-{limit} features"] = fixed_feature_detections(frames, limit)
+    results = [
+        score(truth, found, method=method, **options) for method, found in detections.items()
+    ]
+    return truth, results, detections
+
+
+def scale_odometry(dataset: Dataset, scale: float) -> Dataset:
+    """Return the data set with its odometry information multiplied by ``scale``."""
+    if scale == 1.0:
+        return dataset
+    problem = replace(dataset.problem, odo_information=dataset.problem.odo_information * scale)
+    note = f"odometry information scaled by {scale:g}"
+    return replace(dataset, problem=problem, note="; ".join(filter(None, [dataset.note, note])))
+
+
 def run_plot(args: argparse.Namespace) -> int:
     """Write the PNG figures of one LESS-mapping run (and of the sweep unless --no-sweep)."""
-    from lessmap.evaluation.dataset import load_dataset, load_frames
+    from lessmap.evaluation.dataset import load_frames
     from lessmap.evaluation.infoloss import landmark_information
     from lessmap.evaluation.plots import write_plots
     from lessmap.evaluation.segmentation import run_lessmap
+    from lessmap.evaluation.simrun import choose_robot, load_for_eval
     from lessmap.evaluation.sweep import sweep
 
     params = _params(args)
     ncuts, lams = _grid(args)
     if ncuts and lams:
-        dataset = load_dataset(args.file, args.robot)  # the sweep's e needs edges + odometry
+        dataset = load_for_eval(args.file, args.robot)  # the sweep's e needs H
         frames = dataset.frames
         info = landmark_information(dataset.problem)
         main = {(params.ncut_min, params.lambda2_min): run_lessmap(frames, params)}
         rows = sweep(frames, info, params, ncuts, lams, jobs=args.jobs, known=main)
         run = next(iter(main.values()))
     else:
-        frames = load_frames(args.file, args.robot)[1]
+        frames = load_frames(args.file, choose_robot(args.file, args.robot))[1]
         run, rows = run_lessmap(frames, params), []
     written = write_plots(args.out, frames, run, rows)
     sys.stdout.write("".join(f"wrote {path}\n" for path in written))
@@ -165,6 +260,28 @@ def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) 
         metavar="K",
         help="frames per submap of the fixed-frames baseline (default: as many "
         "submaps as LESS-mapping makes)",
+    )
+    ev.add_argument(
+        "--odometry-scale",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="multiply the odometry information by S before forming H (default 1)",
+    )
+    truth = ev.add_argument_group("consistency (simulated runs: <name>.truth.jsonl next to FILE)")
+    truth.add_argument(
+        "--tolerance-frames",
+        type=int,
+        default=DEFAULT_TOLERANCE_FRAMES,
+        metavar="K",
+        help=f"matching window, frames (default {DEFAULT_TOLERANCE_FRAMES})",
+    )
+    truth.add_argument(
+        "--door-distance",
+        type=float,
+        default=DEFAULT_DOOR_DISTANCE_M,
+        metavar="M",
+        help=f"'near a door' radius, metres (default {DEFAULT_DOOR_DISTANCE_M:g})",
     )
     ev.add_argument(
         "--anchor-information",

@@ -67,6 +67,7 @@ class Dataset:
     robot: str
     frames: tuple[FrameRow, ...]
     problem: SlamProblem
+    note: str = ""  # where H comes from, when not from the data set's own files
 
 
 def companion_path(frames_path: Path, kind: str) -> Path:

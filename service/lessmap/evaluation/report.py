@@ -64,6 +64,7 @@ class EvalReport:
     lessmap: LessmapRun
     sweep: tuple[SweepRow, ...]
     elapsed_s: float
+    source_note: str = ""  # where H comes from when not from the data set's files
 
     def as_dict(self) -> dict[str, Any]:
         """Return the report as JSON-ready values."""
@@ -81,6 +82,7 @@ class EvalReport:
                 "anchor_information": self.info.anchor_information,
                 "unit_information_edges": self.info.unit_information_edges,
                 "diagonal_blocks_in_denominator": True,
+                "source": self.source_note or "edges and odometry files of the data set",
                 "membership": "e: a landmark belongs to every submap that observed it; a pair "
                 "is lost when the two share no submap. e_exclusive: a landmark belongs to the "
                 "one submap that observed it most often",
@@ -90,11 +92,13 @@ class EvalReport:
             "elapsed_s": round(self.elapsed_s, 2),
         }
 
-    def _notes(self) -> list[str]:
+    def notes(self) -> list[str]:
+        """Return the lines that say what was measured and how H was built."""
         unit = self.info.unit_information_edges
         return [
             f"data set {self.dataset} (robot {self.robot}): {self.frames} frames, "
             f"{self.landmarks} landmarks",
+            *([self.source_note] if self.source_note else []),
             "H: poses marginalized (Schur complement), first pose anchored with prior "
             f"{self.info.anchor_information:g}·I; diagonal blocks count in the denominator",
             f"unit information used for {unit} edges without noise"
@@ -107,7 +111,7 @@ class EvalReport:
         width = max(len(m.name) for m in self.methods)
         header = f"{'method':<{width}} {'e %':>8} {'e excl %':>8} {'submaps':>7} "
         header += f"{'feat mean':>9} {'min':>4} {'max':>4} {'frames mean':>11}"
-        lines = [*self._notes(), "", header, "-" * len(header)]
+        lines = [*self.notes(), "", header, "-" * len(header)]
         for m in self.methods:
             s = m.stats
             lines.append(
@@ -122,7 +126,7 @@ class EvalReport:
     def to_markdown(self) -> str:
         """Return the report as Markdown tables."""
         lines = [f"# Information loss on {self.dataset}", ""]
-        lines += [f"- {note}" for note in self._notes()]
+        lines += [f"- {note}" for note in self.notes()]
         lines += [
             "",
             "| method | e (%) | e exclusive (%) | submaps | features mean | min | max | "
@@ -216,4 +220,5 @@ def evaluate(
         lessmap=main,
         sweep=tuple(rows),
         elapsed_s=time.perf_counter() - started,
+        source_note=dataset.note,
     )
