@@ -165,7 +165,7 @@ def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     part.add_argument("--ncut-min", type=float)
     part.add_argument("--lambda2-min", type=float)
     part.add_argument("--seed-mode", choices=[m.value for m in SeedMode])
-    part.add_argument("--workers", type=int, help="shards (worker threads); default 2")
+    part.add_argument("--workers", type=int, help="shards (worker threads); default 1")
     part.add_argument("--metrics-port", type=int, help="serve Prometheus /metrics on this port")
     part.add_argument("--instance", help="instance name (default: host-pid)")
     part.add_argument("--idle-timeout", type=float, help="seconds before an idle session closes")
@@ -207,10 +207,12 @@ def build_parser() -> argparse.ArgumentParser:
     seg.set_defaults(run=_cmd_segment)
     _add_serve(commands)
     from lessmap.evaluation.commands import add_commands as add_evaluation_commands
+    from lessmap.tools.bench import add_commands as add_bench_commands
     from lessmap.tools.demo import add_commands as add_demo_command
     from lessmap_client.cli_client import add_commands as add_client_commands
 
     add_demo_command(commands)
+    add_bench_commands(commands)
     add_client_commands(commands)
     add_evaluation_commands(commands)
     return parser

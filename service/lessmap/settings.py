@@ -65,7 +65,9 @@ class ServiceSettings(BaseSettings):
     max_batch_frames: int = Field(256, ge=1, description="1 = decide at every frame")
 
     # -- receive path --
-    workers: int = Field(2, ge=1, le=64, description="shards; a robot always maps to one")
+    # One shard by default: shards are threads sharing one GIL, and a second one measured
+    # slower, not faster (docs/BENCHMARKS.md); more shards only isolate robots from each other.
+    workers: int = Field(1, ge=1, le=64, description="shards; a robot always maps to one")
     queue_depth: int = Field(50_000, ge=1, description="pending messages per shard")
 
     # -- outputs --

@@ -55,7 +55,7 @@ def test_defaults() -> None:
     assert settings.profile == "laser"
     assert (settings.ncut_min, settings.lambda2_min) == (None, None)
     assert settings.seed_mode is SeedMode.SEED
-    assert settings.workers == 2
+    assert settings.workers == 1
     assert settings.max_batch_frames == 256
     assert settings.max_sessions == 10_000
     assert settings.limits.max_features_per_frame == 4096

@@ -11,6 +11,13 @@ Invariants kept by this module:
 - The CovRate values W_ij = a_ij / min(n_i, n_j) (Eq. 1) are kept aligned with the CSR
   structure. A frame changes n_i and a_ij only for its own features, so only entries with an
   endpoint among the touched nodes are recomputed; untouched entries keep their values.
+- Small graphs (at most ``dense_max_nodes`` nodes, the size of a room's features) keep a
+  dense symmetric count matrix and a dense CovRate matrix instead: a frame adds to its
+  k x k block, and reading refreshes only the touched rows and columns of W. On graphs of
+  tens of nodes this avoids rebuilding scipy.sparse containers at every decision, which
+  cost several times the eigen-solve itself (profiled under fleet load). A graph that
+  outgrows the limit switches to the sparse form for good (``keep_only`` may switch back).
+  Both forms hold the same integer counts and compute W with the same formula.
 - Node indices follow first appearance and never change except through ``keep_only``;
   together with integer counts this makes the state reproducible bit for bit after a
   snapshot and restore.
@@ -49,7 +56,14 @@ class CovGraphState:
 class CovGraph:
     """Incremental covisibility counts n_i and a_ij with the CovRate similarity W."""
 
-    def __init__(self) -> None:
+    def __init__(self, dense_max_nodes: int = 400) -> None:
+        self._dense_max = dense_max_nodes
+        self._dense: NDArray[np.int32] | None = None  # counts a_ij, symmetric, zero diagonal
+        self._dense_rates: NDArray[np.float64] | None = None  # W, same shape
+        if dense_max_nodes > 0:
+            side = min(_INITIAL_CAPACITY, dense_max_nodes)
+            self._dense = np.zeros((side, side), dtype=np.int32)
+            self._dense_rates = np.zeros((side, side), dtype=np.float64)
         self._index: dict[int, int] = {}
         self._ids = np.zeros(_INITIAL_CAPACITY, dtype=np.int64)
         self._counts = np.zeros(_INITIAL_CAPACITY, dtype=np.int64)
@@ -70,8 +84,16 @@ class CovGraph:
         return self._size
 
     @property
+    def is_dense(self) -> bool:
+        """Whether the graph is held in the dense small-graph form."""
+        return self._dense is not None
+
+    @property
     def edge_count(self) -> int:
         """Number of covisible pairs (undirected edges)."""
+        if self._dense is not None:
+            n = self._size
+            return int(np.count_nonzero(self._dense[:n, :n])) // 2
         self._flush()
         return int(self._edges.nnz)
 
@@ -117,7 +139,11 @@ class CovGraph:
         self._counts[nodes] += 1
         self._touched[nodes] = True
         self._rates_stale = True
-        if nodes.size >= 2:
+        if self._dense is not None:
+            block = np.ix_(nodes, nodes)
+            self._dense[block] += 1
+            self._dense[nodes, nodes] -= 1  # a feature is not its own neighbour
+        elif nodes.size >= 2:
             # All pairs i < j of the frame; nodes is sorted, so triu indices give i < j.
             left, right = np.triu_indices(nodes.size, k=1)
             self._pending_rows.append(nodes[left])
@@ -135,6 +161,11 @@ class CovGraph:
         return np.fromiter(sorted(nodes), dtype=np.int64, count=len(nodes))
 
     def _new_node(self, feature: int, seq: int) -> int:
+        if self._dense is not None:
+            if self._size == self._dense_max:
+                self._to_sparse()
+            elif self._size == self._dense.shape[0]:
+                self._grow_dense(min(2 * self._dense.shape[0], self._dense_max))
         if self._size == self._ids.size:
             self._grow(2 * self._ids.size)
         node = self._size
@@ -153,8 +184,58 @@ class CovGraph:
             new[: old.size] = old
             setattr(self, name, new)
 
+    def _grow_dense(self, side: int) -> None:
+        assert self._dense is not None
+        assert self._dense_rates is not None
+        old = self._dense.shape[0]
+        counts = np.zeros((side, side), dtype=np.int32)
+        counts[:old, :old] = self._dense
+        rates = np.zeros((side, side), dtype=np.float64)
+        rates[:old, :old] = self._dense_rates
+        self._dense, self._dense_rates = counts, rates
+
+    def _to_sparse(self) -> None:
+        """Move the counts into the CSR form, for good (the graph outgrew the dense limit)."""
+        assert self._dense is not None
+        n = self._size
+        upper = sparse.csr_array(np.triu(self._dense[:n, :n], k=1).astype(np.int64))
+        upper.sort_indices()
+        self._edges = sparse.csr_array(
+            (
+                upper.data.astype(np.int64),
+                upper.indices.astype(np.int64),
+                upper.indptr.astype(np.int64),
+            ),
+            shape=(n, n),
+        )
+        self._dense = None
+        self._dense_rates = None
+        self._pending_rows.clear()
+        self._pending_cols.clear()
+        self._rates = np.zeros(0, dtype=np.float64)
+        self._rates_stale = True
+
+    def _flush_dense(self) -> None:
+        """Refresh W (Eq. 1) in the rows and columns of the nodes touched since last read."""
+        assert self._dense is not None
+        assert self._dense_rates is not None
+        if not self._rates_stale:
+            return
+        n = self._size
+        touched = np.flatnonzero(self._touched[:n])
+        if touched.size:
+            counts = self._counts[:n]
+            rows = self._dense[touched, :n] / np.minimum(counts[touched, None], counts[None, :])
+            self._dense_rates[touched, :n] = rows
+            self._dense_rates[:n, touched] = rows.T
+        self._touched[:n] = False
+        self._rates_stale = False
+
     def _flush(self) -> None:
         """Merge pending pairs into the CSR counts and refresh the touched CovRates."""
+        if self._dense is not None:
+            self._flush_dense()
+            return
         n = self._size
         if self._edges.shape[0] != n:
             # Growing a CSR matrix is padding its indptr: new rows are empty.
@@ -207,8 +288,22 @@ class CovGraph:
 
     # -- read ------------------------------------------------------------------------------
 
+    def covrate_dense(self) -> NDArray[np.float64]:
+        """Return W (Eq. 1) as a dense (n, n) array (a read-only view in the dense form)."""
+        if self._dense_rates is None:
+            dense: NDArray[np.float64] = self.covrate().toarray()
+            return dense
+        self._flush()
+        view = self._dense_rates[: self._size, : self._size]
+        view.flags.writeable = False
+        return view
+
     def covrate(self) -> sparse.csr_array:
         """Return W (Eq. 1): symmetric CSR float64, shape (n, n), zero diagonal, in [0, 1]."""
+        if self._dense_rates is not None:
+            self._flush()
+            n = self._size
+            return sparse.csr_array(self._dense_rates[:n, :n])
         self._flush()
         upper = sparse.csr_array(
             (self._rates.copy(), self._edges.indices, self._edges.indptr), shape=self._edges.shape
@@ -217,6 +312,9 @@ class CovGraph:
 
     def edge_counts(self) -> sparse.csr_array:
         """Return a_ij as a symmetric CSR int64 matrix, shape (n, n)."""
+        if self._dense is not None:
+            n = self._size
+            return sparse.csr_array(self._dense[:n, :n].astype(np.int64))
         self._flush()
         return (self._edges + self._edges.T).tocsr()
 
@@ -225,6 +323,8 @@ class CovGraph:
         i, j = self._index.get(feature_a), self._index.get(feature_b)
         if i is None or j is None or i == j:
             return 0
+        if self._dense is not None:
+            return int(self._dense[i, j])
         self._flush()
         lo, hi = min(i, j), max(i, j)
         start, stop = self._edges.indptr[lo], self._edges.indptr[lo + 1]
@@ -249,7 +349,10 @@ class CovGraph:
         keep = np.zeros(self._size, dtype=bool)
         keep[nodes] = True
         kept = np.flatnonzero(keep)
-        sub = self._edges[kept][:, kept].tocsr()
+        if self._dense is not None:
+            sub = sparse.csr_array(np.triu(self._dense[np.ix_(kept, kept)], k=1).astype(np.int64))
+        else:
+            sub = self._edges[kept][:, kept].tocsr()
         sub.sort_indices()
         state = CovGraphState(
             feature_ids=self._ids[kept].copy(),
@@ -264,7 +367,19 @@ class CovGraph:
     # -- snapshot --------------------------------------------------------------------------
 
     def state(self) -> CovGraphState:
-        """Return a copy of the whole graph as arrays."""
+        """Return a copy of the whole graph as arrays (always the CSR form)."""
+        if self._dense is not None:
+            n = self._size
+            upper = sparse.csr_array(np.triu(self._dense[:n, :n], k=1).astype(np.int64))
+            upper.sort_indices()
+            return CovGraphState(
+                feature_ids=self._ids[:n].copy(),
+                counts=self._counts[:n].copy(),
+                first_seen=self._first_seen[:n].copy(),
+                edge_indptr=upper.indptr.astype(np.int64),
+                edge_indices=upper.indices.astype(np.int64),
+                edge_counts=upper.data.astype(np.int64),
+            )
         self._flush()
         return CovGraphState(
             feature_ids=self._ids[: self._size].copy(),
@@ -276,9 +391,9 @@ class CovGraph:
         )
 
     @classmethod
-    def from_state(cls, state: CovGraphState) -> CovGraph:
+    def from_state(cls, state: CovGraphState, dense_max_nodes: int = 400) -> CovGraph:
         """Rebuild a graph from ``state()``; later updates match the original exactly."""
-        graph = cls()
+        graph = cls(dense_max_nodes)
         graph._load(state)
         return graph
 
@@ -326,3 +441,13 @@ class CovGraph:
         self._pending_cols = []
         self._rates = np.zeros(0, dtype=np.float64)
         self._rates_stale = True  # recomputed in full: same formula, same values
+        self._dense = self._dense_rates = None
+        if n <= self._dense_max and self._dense_max > 0:
+            side = min(max(_INITIAL_CAPACITY, n), self._dense_max)
+            counts = np.zeros((side, side), dtype=np.int32)
+            coo = self._edges.tocoo()
+            counts[coo.row, coo.col] = coo.data
+            counts[coo.col, coo.row] = coo.data
+            self._dense = counts
+            self._dense_rates = np.zeros((side, side), dtype=np.float64)
+            self._touched[:n] = True  # every row of W is computed on first read

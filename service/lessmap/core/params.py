@@ -35,8 +35,8 @@ class PartitionParams:
     min_frames_between: int = 0  # guard, off by default: frames after a transition with no test
     min_cluster_size: int = 1  # guard, off by default: smallest side a transition may cut off
     dense_max_nodes: int = 400  # LAPACK up to this many nodes, ARPACK above
-    history_frames: int = 5000  # frames kept to estimate the boundary frame
-    keep_closed_submaps: int = 10_000  # closed submaps remembered per session (oldest go)
+    history_frames: int = 2000  # frames kept to estimate the boundary frame
+    keep_closed_submaps: int = 1000  # closed submaps remembered per session (oldest go)
 
     def __post_init__(self) -> None:
         checks = {

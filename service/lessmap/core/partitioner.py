@@ -32,7 +32,8 @@ if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from numpy.typing import NDArray
-    from scipy import sparse
+
+    from lessmap.core.spectral import Similarity
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,7 +91,7 @@ class Partitioner:
 
     def __init__(self, params: PartitionParams | None = None) -> None:
         self.params = params if params is not None else PartitionParams()
-        self._graph = CovGraph()
+        self._graph = CovGraph(self.params.dense_max_nodes)
         self._history: deque[FrameRecord] = deque(maxlen=self.params.history_frames)
         self._closed: deque[Submap] = deque(maxlen=self.params.keep_closed_submaps)
         self._submap_id = 0
@@ -201,7 +202,8 @@ class Partitioner:
                 transition=False,
             )  # fmt: skip
             return None
-        w = self._graph.covrate()
+        # A small graph is decided on dense arrays, a large one on CSR (same formulas).
+        w = self._graph.covrate_dense() if self._graph.is_dense else self._graph.covrate()
         count, component_of = components(w)
         if count > 1:
             new_side = self._new_component(component_of)
@@ -253,7 +255,7 @@ class Partitioner:
     def _conclude(
         self,
         seq: int,
-        w: sparse.csr_array,
+        w: Similarity,
         new_side: NDArray[np.bool_],
         reason: Reason,
         ncut: float | None,
@@ -271,9 +273,14 @@ class Partitioner:
         ids = self._graph.feature_ids
         new_ids = np.sort(ids[new_side])
         old_ids = np.sort(ids[~new_side])
-        coo = w.tocoo()
-        crossing = new_side[coo.row] != new_side[coo.col]
-        boundary = np.unique(ids[np.concatenate([coo.row[crossing], coo.col[crossing]])])
+        if isinstance(w, np.ndarray):
+            rows, cols = np.nonzero(w[np.ix_(new_side, ~new_side)])
+            ends = np.concatenate([np.flatnonzero(new_side)[rows], np.flatnonzero(~new_side)[cols]])
+        else:
+            coo = w.tocoo()
+            crossing = new_side[coo.row] != new_side[coo.col]
+            ends = np.concatenate([coo.row[crossing], coo.col[crossing]])
+        boundary = np.unique(ids[ends])
 
         boundary_seq = self._boundary_seq(new_ids)
         opened_frames = sum(1 for record in self._history if record.seq >= boundary_seq)
@@ -334,7 +341,7 @@ class Partitioner:
         if self.params.seed_mode is SeedMode.SEED:
             self._graph.keep_only(np.flatnonzero(new_side))
         else:
-            self._graph = CovGraph()
+            self._graph = CovGraph(self.params.dense_max_nodes)
         kept = [record for record in self._history if record.seq >= opened.first_seq]
         self._history.clear()
         self._history.extend(kept)
@@ -370,7 +377,7 @@ class Partitioner:
     def from_state(cls, state: PartitionerState) -> Partitioner:
         """Rebuild a partitioner that makes exactly the decisions the original would."""
         partitioner = cls(state.params)
-        partitioner._graph = CovGraph.from_state(state.graph)
+        partitioner._graph = CovGraph.from_state(state.graph, state.params.dense_max_nodes)
         partitioner._history.extend(state.history)
         partitioner._closed.extend(state.closed_submaps)
         partitioner._submap_id = state.submap_id

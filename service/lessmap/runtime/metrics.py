@@ -54,6 +54,12 @@ class ServiceMetrics:
             buckets=(0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
             registry=r,
         )
+        self.frame_latency_seconds = Histogram(
+            "lessmap_frame_latency_seconds",
+            "Receipt of an inbound sample to the end of the decision covering it (published)",
+            buckets=(0.001, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0),
+            registry=r,
+        )
         self.queue_latency_seconds = Histogram(
             "lessmap_queue_latency_seconds",
             "Time from receipt to processing of an inbound sample",

@@ -292,8 +292,10 @@ class SessionTable:
         session.last_seen_seq = frame.seq
         if frame.seq > expected:
             self._count_gap(session, expected, frame.seq - 1, frame.seq, out)
-        unknown = sum(1 for f in set(frame.features) if p.graph.count(f) == 0)
-        if p.graph.node_count + unknown > self._max_nodes:
+        if p.graph.node_count + len(frame.features) > self._max_nodes and (
+            p.graph.node_count + sum(1 for f in set(frame.features) if p.graph.count(f) == 0)
+            > self._max_nodes
+        ):  # counting the new features only when the cheap bound says it could matter
             session.frames_rejected += 1
             out.reject(
                 session.fleet,

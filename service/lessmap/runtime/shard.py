@@ -185,4 +185,8 @@ class Shard:
             outcome = self.table.handle_batch(decoded, now)
         outcome.rejections[:0] = rejections
         self._outbox.publish(outcome, now)
+        done = time.monotonic()
+        frame_latency = self._outbox.metrics.frame_latency_seconds
+        for item in batch:
+            frame_latency.observe(done - item.received_s)
         self._outbox.metrics.queue_depth.set(len(self._queue))
