@@ -17,13 +17,14 @@ import zenoh
 from zenoh import ext
 
 from lessmap.runtime.ratelimit import RateLimiter
+from lessmap.runtime.sessions import summary_of
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode
-from lessmap_schemas.messages import Error, SessionState, SubmapSummary as WireSubmap, Transition
+from lessmap_schemas.messages import Error, SessionState, Transition
 
 if TYPE_CHECKING:
-    from lessmap.core import Submap, Transition as CoreTransition
+    from lessmap.core import Transition as CoreTransition
     from lessmap.runtime.metrics import ServiceMetrics
     from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
     from lessmap_schemas.errors import WireError
@@ -49,21 +50,11 @@ def wire_transition(session: RobotSession, transition: CoreTransition, instance:
         reason=transition.reason.value,
         ncut=transition.ncut,
         lambda2=transition.lambda2,
-        closed=_summary(transition.closed),
-        opened=_summary(transition.opened),
+        closed=summary_of(transition.closed),
+        opened=summary_of(transition.opened),
         boundary_features=list(transition.boundary_features),
         batch_frames=transition.batch_frames,
         instance=instance,
-    )
-
-
-def _summary(submap: Submap) -> WireSubmap:
-    return WireSubmap(
-        id=submap.id,
-        first_seq=submap.first_seq,
-        last_seq=submap.last_seq,
-        frame_count=submap.frame_count,
-        features=list(submap.features),
     )
 
 

@@ -1208,7 +1208,7 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         help="load generator processes (default 2)",
     )
     parser.add_argument("--rooms", type=int, default=12, help="rooms per building (12)")
-    parser.add_argument("--workers", type=int, help="service shards (default: its own, 2)")
+    parser.add_argument("--workers", type=int, help="service shards (default: its own, 1)")
     parser.add_argument(
         "--max-batch-frames",
         type=int,
