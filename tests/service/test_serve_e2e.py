@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
 import threading
 import time
 from typing import TYPE_CHECKING, Any
@@ -277,3 +279,21 @@ def test_sigterm_during_replay_exits_zero_and_publishes_final_state(
     assert "stopped" in service.log()
     state_sub.undeclare()
     robot.close()
+
+
+def test_a_taken_port_is_a_one_line_error(serve: Callable[..., ServeProcess]) -> None:
+    first = serve()
+    wait_until(lambda: "serving as" in first.log(), 30.0, "the first service to start")
+    port = first.endpoint.rsplit(":", 1)[1]
+    second = subprocess.run(
+        [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", first.endpoint],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert second.returncode == 1
+    last = second.stderr.strip().splitlines()[-1]
+    assert last.startswith("lessmap serve: Zenoh could not start on tcp/127.0.0.1:" + port)
+    assert "Traceback" not in second.stderr
+    assert first.terminate() == 0

@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING
 import zenoh
 from threadpoolctl import threadpool_limits
 
-from lessmap.errors import ConfigError
 from lessmap.runtime.service import Service
 
 if TYPE_CHECKING:
@@ -48,11 +47,7 @@ def _serve(settings: ServiceSettings, zenoh_cfg: Sequence[str]) -> int:
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     service = Service(settings, zenoh_cfg)
     try:
-        try:
-            service.start()
-        except zenoh.ZError as exc:
-            msg = f"Zenoh could not start: {exc}"
-            raise ConfigError(msg) from exc
+        service.start()
         # Park on an Event, not on a Zenoh receive: signals are handled between waits.
         while not stop.wait(0.5):
             pass

@@ -18,11 +18,13 @@ import zenoh
 from prometheus_client import start_http_server
 
 from lessmap import __version__
+from lessmap.errors import ConfigError
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import Inbound, Shard
 from lessmap.runtime.zenoh_config import service_config
+from lessmap.settings import EMBEDDED_ENDPOINT
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
@@ -66,12 +68,17 @@ class Service:
         """Open Zenoh, declare everything and start the workers.
 
         Raises:
-            ConfigError: the Zenoh configuration is invalid.
-            zenoh.ZError: Zenoh could not open (for example the port is taken).
+            ConfigError: the Zenoh configuration is invalid, or Zenoh could not open (for
+                example the port is taken).
         """
         s = self.settings
         conf = service_config(s, self._zenoh_cfg)
-        self._session = session = zenoh.open(conf)
+        try:
+            self._session = session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            where = EMBEDDED_ENDPOINT if s.embedded else ", ".join(s.listen) or "its endpoints"
+            msg = f"Zenoh could not start on {where}: {exc}"
+            raise ConfigError(msg) from exc
         per_shard_sessions = max(1, -(-s.max_sessions // s.workers))
         self._outbox = Outbox(
             session, self.metrics, instance=s.instance, transition_cache=s.transition_cache,
