@@ -13,6 +13,8 @@ from lessmap import __version__
 from lessmap.core import PROFILES, GraphError, PartitionParams, SeedMode
 from lessmap.errors import ConfigError, DatasetError
 from lessmap.logfmt import configure as configure_logging
+from lessmap_client.adapters.replay import ReplayError
+from lessmap_schemas.errors import WireError
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -29,6 +31,9 @@ KNOWN_EXCEPTIONS: tuple[type[Exception], ...] = (
     FileNotFoundError,
     IsADirectoryError,
     PermissionError,
+    ConnectionError,  # the client commands could not reach a router
+    WireError,  # a frame breaks the wire contract (replay of a bad file)
+    ReplayError,  # a malformed frames file given to replay
 )
 
 

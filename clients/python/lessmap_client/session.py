@@ -43,15 +43,19 @@ def open_session(
     ``timeout_s`` so a client started next to the service does not race it.
 
     Raises:
-        zenoh.ZError: no router could be reached within ``timeout_s``.
+        ConnectionError: no router could be reached within ``timeout_s``.
     """
     deadline = time.monotonic() + timeout_s
     while True:
         try:
             return zenoh.open(client_config(connect, mode))
-        except zenoh.ZError:
+        except zenoh.ZError as exc:
             if time.monotonic() >= deadline:
-                raise
+                msg = (
+                    f"no Zenoh router reachable at {', '.join(connect)} within {timeout_s:g} s "
+                    f"(is `lessmap serve` running?): {str(exc).split(' at /')[0]}"
+                )
+                raise ConnectionError(msg) from exc
             time.sleep(0.1)
 
 
