@@ -19,7 +19,13 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from lessmap.core import PROFILES, PartitionParams, SeedMode
 from lessmap.errors import ConfigError
 from lessmap_schemas.keys import validate_name
-from lessmap_schemas.limits import WireLimits
+from lessmap_schemas.limits import (
+    MAX_DETAIL_LEN,
+    MAX_FEATURE_ID,
+    MAX_NAME_LEN,
+    MAX_SEQ,
+    WireLimits,
+)
 
 #: Where the embedded router listens when no Zenoh option is given.
 EMBEDDED_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -30,17 +36,19 @@ class LimitSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
+    # Receiver policy: raise or lower freely.
     max_payload_bytes: int = Field(1_048_576, ge=64)
     max_features_per_frame: int = Field(4096, ge=1)
-    max_name_len: int = Field(64, ge=1, le=64)
+    max_list_len: int = Field(100_000, ge=1)
+    # Format bounds of v1: may only be lowered (schemas/README.md §8).
+    max_name_len: int = Field(MAX_NAME_LEN, ge=1, le=MAX_NAME_LEN)
+    max_seq: int = Field(MAX_SEQ, ge=1, le=MAX_SEQ)
+    max_feature_id: int = Field(MAX_FEATURE_ID, ge=1, le=MAX_FEATURE_ID)
+    max_detail_len: int = Field(MAX_DETAIL_LEN, ge=1, le=MAX_DETAIL_LEN)
 
     def wire_limits(self) -> WireLimits:
         """Return the codec's limits."""
-        return WireLimits(
-            max_payload_bytes=self.max_payload_bytes,
-            max_features_per_frame=self.max_features_per_frame,
-            max_name_len=self.max_name_len,
-        )
+        return WireLimits(**self.model_dump())
 
 
 class ServiceSettings(BaseSettings):

@@ -303,3 +303,15 @@ def test_cfg_items_are_applied_last() -> None:
 def test_bad_cfg_item_is_a_config_error(item: str) -> None:
     with pytest.raises(ConfigError):
         service_config(load_settings(), [item])
+
+
+def test_every_wire_limit_is_a_setting_and_format_bounds_only_tighten(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("LESSMAP_LIMITS__MAX_SEQ", "1000")
+    monkeypatch.setenv("LESSMAP_LIMITS__MAX_LIST_LEN", "10")
+    limits = load_settings().limits.wire_limits()
+    assert (limits.max_seq, limits.max_list_len, limits.max_detail_len) == (1000, 10, 1024)
+    monkeypatch.setenv("LESSMAP_LIMITS__MAX_FEATURE_ID", str(2**64))
+    with pytest.raises(ConfigError, match="max_feature_id"):
+        load_settings()
