@@ -120,8 +120,21 @@ def serve(tmp_path: Path) -> Iterator[Callable[..., ServeProcess]]:
         port = free_port()
         endpoint = f"tcp/127.0.0.1:{port}"
         instance = f"test-{uuid.uuid4().hex[:8]}"
-        args = [sys.executable, "-m", "lessmap", "-v", "serve", "-m", "router", "-l", endpoint,
-                "--cfg", "scouting/multicast/enabled:false", "--instance", instance]  # fmt: skip
+        args = [
+            sys.executable,
+            "-m",
+            "lessmap",
+            "-v",
+            "serve",
+            "-m",
+            "router",
+            "-l",
+            endpoint,
+            "--cfg",
+            "scouting/multicast/enabled:false",
+            "--instance",
+            instance,
+        ]
         metrics_port = None
         if metrics:
             metrics_port = free_port()

@@ -152,8 +152,9 @@ def test_user_errors_exit_1_with_one_line(
     argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     frames = str(write_frames(tmp_path / "rooms.frames.jsonl"))
-    argv = [frames if a == "FRAMES" else str(tmp_path / a) if a.endswith(".jsonl") else a
-            for a in argv]  # fmt: skip
+    argv = [
+        frames if a == "FRAMES" else str(tmp_path / a) if a.endswith(".jsonl") else a for a in argv
+    ]
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1

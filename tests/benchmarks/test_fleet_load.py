@@ -21,9 +21,17 @@ pytestmark = pytest.mark.timeout(120)
 # (seed 2: all five do, offline). With --max-batch-frames 1 the service decides at every
 # frame, so its transitions are exactly the core's on the same streams.
 SPEC = LoadSpec(
-    robots=5, rate_hz=10.0, features=10, duration_s=5.0, seed=2, generators=2,
-    speed_mps=2.0, dwell_s=(0.0, 1.0), max_batch_frames=1, baseline_robots=1,
-)  # fmt: skip
+    robots=5,
+    rate_hz=10.0,
+    features=10,
+    duration_s=5.0,
+    seed=2,
+    generators=2,
+    speed_mps=2.0,
+    dwell_s=(0.0, 1.0),
+    max_batch_frames=1,
+    baseline_robots=1,
+)
 
 
 def offline_transitions(spec: LoadSpec, spacing: float) -> dict[str, list[int]]:

@@ -55,19 +55,30 @@ def write_dataset(folder: Path, name: str = "rooms", *, unit_edges: bool = False
         for lid in features:
             dx, dy = marks[lid][0] - x, marks[lid][1] - y
             edge_lines.append(
-                {"robot": "r1", "seq": seq, "pose_id": pose_ids[seq], "landmark_id": lid,
-                 "measurement": [c * dx + s * dy, -s * dx + c * dy],
-                 "information": None if unit_edges else [50.0, 0.0, 50.0]}
-            )  # fmt: skip
+                {
+                    "robot": "r1",
+                    "seq": seq,
+                    "pose_id": pose_ids[seq],
+                    "landmark_id": lid,
+                    "measurement": [c * dx + s * dy, -s * dx + c * dy],
+                    "information": None if unit_edges else [50.0, 0.0, 50.0],
+                }
+            )
         if seq:
             (x0, y0, t0), (x1, y1, t1) = poses[seq - 1], pose
             c0, s0 = math.cos(t0), math.sin(t0)
             odo_lines.append(
-                {"from_pose_id": pose_ids[seq - 1], "to_pose_id": pose_ids[seq],
-                 "measurement": [c0 * (x1 - x0) + s0 * (y1 - y0),
-                                 -s0 * (x1 - x0) + c0 * (y1 - y0), t1 - t0],
-                 "information": ODOMETRY_INFORMATION}
-            )  # fmt: skip
+                {
+                    "from_pose_id": pose_ids[seq - 1],
+                    "to_pose_id": pose_ids[seq],
+                    "measurement": [
+                        c0 * (x1 - x0) + s0 * (y1 - y0),
+                        -s0 * (x1 - x0) + c0 * (y1 - y0),
+                        t1 - t0,
+                    ],
+                    "information": ODOMETRY_INFORMATION,
+                }
+            )
     for kind, lines in (("frames", frame_lines), ("edges", edge_lines), ("odometry", odo_lines)):
         text = "".join(json.dumps(line) + "\n" for line in lines)
         (folder / f"{name}.{kind}.jsonl").write_text(text, encoding="utf-8")
@@ -91,8 +102,9 @@ def small_problem(
     mark_arr = np.asarray(marks, dtype=np.float64)
     t = pose_arr[pose_index, 2]
     d = mark_arr[mark_index] - pose_arr[pose_index, :2]
-    meas = np.column_stack([np.cos(t) * d[:, 0] + np.sin(t) * d[:, 1],
-                            -np.sin(t) * d[:, 0] + np.cos(t) * d[:, 1]])  # fmt: skip
+    meas = np.column_stack(
+        [np.cos(t) * d[:, 0] + np.sin(t) * d[:, 1], -np.sin(t) * d[:, 0] + np.cos(t) * d[:, 1]]
+    )
 
     def info(dim: int, count: int) -> np.ndarray:
         rows, cols = np.triu_indices(dim)

@@ -27,8 +27,38 @@ def test_fixed_features_counts_reobserved_features_again() -> None:
     # Features 0..9 cycle: each submap of 4 features re-sees what earlier submaps held.
     frames = [[k % 10, (k + 1) % 10] for k in range(30)]
     labels = fixed_features(frames, 4)
-    assert labels.tolist() == [0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 3, 3, 4, 4, 4, 5, 5, 5,
-                               6, 6, 6, 7, 7, 7, 8, 8, 8, 9, 9, 9]  # fmt: skip
+    assert labels.tolist() == [
+        0,
+        0,
+        0,
+        1,
+        1,
+        1,
+        2,
+        2,
+        2,
+        3,
+        3,
+        3,
+        4,
+        4,
+        4,
+        5,
+        5,
+        5,
+        6,
+        6,
+        6,
+        7,
+        7,
+        7,
+        8,
+        8,
+        8,
+        9,
+        9,
+        9,
+    ]
 
 
 def test_fixed_features_keeps_empty_frames_in_the_open_submap() -> None:

@@ -28,12 +28,32 @@ def run(*argv: str) -> int:
 def test_eval_prints_and_writes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     frames = write_dataset(tmp_path)
     out = tmp_path / "out"
-    argv = ["eval", str(frames), "--out", str(out), "--plots", "--fixed-features", "5", "8",
-            "--sweep-ncut", "0.1", "0.25", "--sweep-lambda2", "0.2"]  # fmt: skip
+    argv = [
+        "eval",
+        str(frames),
+        "--out",
+        str(out),
+        "--plots",
+        "--fixed-features",
+        "5",
+        "8",
+        "--sweep-ncut",
+        "0.1",
+        "0.25",
+        "--sweep-lambda2",
+        "0.2",
+    ]
     assert run(*argv) == 0
     text = capsys.readouterr().out
-    for name in ("lessmap (Ncut≤0.25, λ2≤0.2)", "fixed-5 features", "fixed-8 features",
-                 "fixed-30 frames", "no partition", "threshold sweep", "wrote"):  # fmt: skip
+    for name in (
+        "lessmap (Ncut≤0.25, λ2≤0.2)",
+        "fixed-5 features",
+        "fixed-8 features",
+        "fixed-30 frames",
+        "no partition",
+        "threshold sweep",
+        "wrote",
+    ):
         assert name in text
     report = json.loads((out / "eval.json").read_text())
     assert [m["method"] for m in report["methods"]][1:3] == ["fixed-5 features", "fixed-8 features"]
@@ -71,8 +91,17 @@ def test_plot_without_sweep_needs_only_frames(
 
 def test_plot_with_sweep(tmp_path: Path) -> None:
     frames = write_dataset(tmp_path)
-    argv = ["plot", str(frames), "--out", str(tmp_path / "png"), "--sweep-ncut", "0.25",
-            "--sweep-lambda2", "0.2", "0.4"]  # fmt: skip
+    argv = [
+        "plot",
+        str(frames),
+        "--out",
+        str(tmp_path / "png"),
+        "--sweep-ncut",
+        "0.25",
+        "--sweep-lambda2",
+        "0.2",
+        "0.4",
+    ]
     assert run(*argv) == 0
     assert (tmp_path / "png" / "sweep.png").stat().st_size > 0
 
@@ -81,8 +110,16 @@ def test_eval_of_a_sim_run_adds_consistency(
     sim_frames: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "out"
-    argv = ["eval", str(sim_frames), "--out", str(out), "--plots", "--no-sweep",
-            "--tolerance-frames", "6"]  # fmt: skip
+    argv = [
+        "eval",
+        str(sim_frames),
+        "--out",
+        str(out),
+        "--plots",
+        "--no-sweep",
+        "--tolerance-frames",
+        "6",
+    ]
     assert run(*argv) == 0
     text = capsys.readouterr().out
     assert "robot robot0" in text  # a sim run defaults to its first robot
@@ -105,8 +142,19 @@ def test_eval_options_reach_the_partitioner_and_h(
 ) -> None:
     frames = write_dataset(tmp_path)
     out = tmp_path / "out"
-    argv = ["eval", str(frames), "--no-sweep", "--min-cluster-size", "50",
-            "--min-frames-between", "3", "--odometry-scale", "0.5", "--out", str(out)]  # fmt: skip
+    argv = [
+        "eval",
+        str(frames),
+        "--no-sweep",
+        "--min-cluster-size",
+        "50",
+        "--min-frames-between",
+        "3",
+        "--odometry-scale",
+        "0.5",
+        "--out",
+        str(out),
+    ]
     assert run(*argv) == 0
     capsys.readouterr()
     report = json.loads((out / "eval.json").read_text())

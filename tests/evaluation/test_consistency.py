@@ -85,8 +85,11 @@ def test_fixed_feature_detections_mark_each_new_submap() -> None:
     frames = [FrameRow(robot, k, float(k), (k,), None) for robot in ("r", "s") for k in range(7)]
     found = fixed_feature_detections(frames, 3)
     assert [(d.robot, d.seq, d.boundary_seq) for d in found] == [
-        ("r", 3, 3), ("r", 6, 6), ("s", 3, 3), ("s", 6, 6)
-    ]  # fmt: skip
+        ("r", 3, 3),
+        ("r", 6, 6),
+        ("s", 3, 3),
+        ("s", 6, 6),
+    ]
     assert {d.reason for d in found} == {"FIXED"}
 
 

@@ -201,9 +201,7 @@ def test_e_needs_every_landmark_in_a_submap() -> None:
 def test_landmark_submaps_rules() -> None:
     frames = [[1, 2], [2, 3], [3], [3, 4], [4]]
     labels = [0, 0, 1, 1, 1]
-    assert landmark_submaps(frames, labels) == {
-        1: {0}, 2: {0}, 3: {0, 1}, 4: {1}
-    }  # fmt: skip
+    assert landmark_submaps(frames, labels) == {1: {0}, 2: {0}, 3: {0, 1}, 4: {1}}
     exclusive = landmark_submaps(frames, labels, exclusive=True)
     assert exclusive == {1: {0}, 2: {0}, 3: {1}, 4: {1}}  # 3: once in 0, twice in 1
     tie = landmark_submaps([[7], [7]], [0, 1], exclusive=True)

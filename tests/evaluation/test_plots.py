@@ -23,8 +23,9 @@ def test_plots_are_written_as_png(tmp_path: Path) -> None:
     dataset = load_dataset(write_dataset(tmp_path))
     params = PartitionParams.from_profile("laser")
     run = run_lessmap(dataset.frames, params)
-    rows = sweep(dataset.frames, landmark_information(dataset.problem), params, [0.1, 0.3],
-                 [0.1, 0.3])  # fmt: skip
+    rows = sweep(
+        dataset.frames, landmark_information(dataset.problem), params, [0.1, 0.3], [0.1, 0.3]
+    )
     written = write_plots(tmp_path / "png", dataset.frames, run, rows)
     names = {path.name for path in written}
     assert names == {"trajectory.png", "ncut_lambda2.png", "similarity.png", "sweep.png"}

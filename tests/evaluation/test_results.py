@@ -32,8 +32,18 @@ def test_results_page_and_figures(
 ) -> None:
     recorded = write_dataset(tmp_path)
     out = tmp_path / "docs"
-    argv = ["--dataset", str(recorded), "--sim", str(sim_frames), "--out", str(out),
-            "--sweep", "0.25", "--jobs", "1"]  # fmt: skip
+    argv = [
+        "--dataset",
+        str(recorded),
+        "--sim",
+        str(sim_frames),
+        "--out",
+        str(out),
+        "--sweep",
+        "0.25",
+        "--jobs",
+        "1",
+    ]
     assert main(argv) == 0
     assert "wrote" in capsys.readouterr().out
     page = (out / "RESULTS.md").read_text()
@@ -61,8 +71,13 @@ def test_results_without_the_data_set_fail_in_one_line(
 
 @pytest.mark.parametrize(
     ("a", "b", "words"),
-    [(2.0, 1.0, "2.0× higher than"), (1.0, 4.0, "4.0× lower than"), (1.05, 1.0, "about equal to"),
-     (0.0, 0.0, "equal to"), (1.0, 0.0, "above")],
-)  # fmt: skip
+    [
+        (2.0, 1.0, "2.0× higher than"),
+        (1.0, 4.0, "4.0× lower than"),
+        (1.05, 1.0, "about equal to"),
+        (0.0, 0.0, "equal to"),
+        (1.0, 0.0, "above"),
+    ],
+)
 def test_ratio_words(a: float, b: float, words: str) -> None:
     assert ratio(a, b) == words

@@ -21,8 +21,13 @@ def test_sweep_rows_in_grid_order(tmp_path: Path) -> None:
     base = PartitionParams.from_profile("laser")
     rows = sweep(dataset.frames, info, base, [0.1, 0.3], [0.2, 0.4, 0.6])
     assert [(r.ncut_min, r.lambda2_min) for r in rows] == [
-        (0.1, 0.2), (0.1, 0.4), (0.1, 0.6), (0.3, 0.2), (0.3, 0.4), (0.3, 0.6)
-    ]  # fmt: skip
+        (0.1, 0.2),
+        (0.1, 0.4),
+        (0.1, 0.6),
+        (0.3, 0.2),
+        (0.3, 0.4),
+        (0.3, 0.6),
+    ]
     for row in rows:
         assert 0.0 <= row.e <= 1.0
         assert 0.0 <= row.e_exclusive <= 1.0

@@ -198,28 +198,38 @@ class Partitioner:
         seq = self._last_seq
         if self._graph.node_count < 2:
             self.last_evaluation = Evaluation(
-                seq=seq, nodes=self._graph.node_count, components=1, ncut=None, lambda2=None,
+                seq=seq,
+                nodes=self._graph.node_count,
+                components=1,
+                ncut=None,
+                lambda2=None,
                 transition=False,
-            )  # fmt: skip
+            )
             return None
         # A small graph is decided on dense arrays, a large one on CSR (same formulas).
         w = self._graph.covrate_dense() if self._graph.is_dense else self._graph.covrate()
         count, component_of = components(w)
         if count > 1:
             new_side = self._new_component(component_of)
-            return self._conclude(seq, w, new_side, Reason.DISCONNECTED, None, None, count,
-                                  batch_frames)  # fmt: skip
+            return self._conclude(
+                seq, w, new_side, Reason.DISCONNECTED, None, None, count, batch_frames
+            )
         split = normalized_bisection(w, dense_max_nodes=self.params.dense_max_nodes)
         new_side = self._new_cluster(split.labels)
         valid = split.ncut <= self.params.ncut_min and split.lambda2 <= self.params.lambda2_min
         if not valid:
             self.last_evaluation = Evaluation(
-                seq=seq, nodes=w.shape[0], components=1, ncut=split.ncut, lambda2=split.lambda2,
+                seq=seq,
+                nodes=w.shape[0],
+                components=1,
+                ncut=split.ncut,
+                lambda2=split.lambda2,
                 transition=False,
-            )  # fmt: skip
+            )
             return None
-        return self._conclude(seq, w, new_side, Reason.SPECTRAL, split.ncut, split.lambda2, 1,
-                              batch_frames)  # fmt: skip
+        return self._conclude(
+            seq, w, new_side, Reason.SPECTRAL, split.ncut, split.lambda2, 1, batch_frames
+        )
 
     # -- deciding which side is new ---------------------------------------------------------
 
@@ -265,9 +275,13 @@ class Partitioner:
     ) -> Transition | None:
         small = min(int(new_side.sum()), int((~new_side).sum()))
         self.last_evaluation = Evaluation(
-            seq=seq, nodes=w.shape[0], components=component_count, ncut=ncut, lambda2=lambda2,
+            seq=seq,
+            nodes=w.shape[0],
+            components=component_count,
+            ncut=ncut,
+            lambda2=lambda2,
             transition=small >= self.params.min_cluster_size,
-        )  # fmt: skip
+        )
         if small < self.params.min_cluster_size:
             return None
         ids = self._graph.feature_ids

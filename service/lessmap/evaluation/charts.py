@@ -38,13 +38,28 @@ def consistency_figure(truth: SimTruth, detections: Mapping[str, Sequence[Detect
             path = sorted((row.seq, row.x, row.y) for row in truth.rows if row.robot == robot)
             ax.plot([p[1] for p in path], [p[2] for p in path], color="0.85", linewidth=0.5)
         for door in truth.doors:
-            ax.scatter([door.x], [door.y], marker="s", s=60, facecolors="none",
-                       edgecolors="tab:green", linewidths=1.2, zorder=3)  # fmt: skip
+            ax.scatter(
+                [door.x],
+                [door.y],
+                marker="s",
+                s=60,
+                facecolors="none",
+                edgecolors="tab:green",
+                linewidths=1.2,
+                zorder=3,
+            )
         for reason in sorted({d.reason for d in found}):
             xy = [where[(d.robot, d.boundary_seq)] for d in found if d.reason == reason]
-            ax.scatter([p[0] for p in xy], [p[1] for p in xy], marker=_MARKERS.get(reason, "o"),
-                       s=18, color="tab:red" if reason != "FIXED" else "tab:blue", alpha=0.7,
-                       zorder=4, label=f"{reason.lower()} ({len(xy)})")  # fmt: skip
+            ax.scatter(
+                [p[0] for p in xy],
+                [p[1] for p in xy],
+                marker=_MARKERS.get(reason, "o"),
+                s=18,
+                color="tab:red" if reason != "FIXED" else "tab:blue",
+                alpha=0.7,
+                zorder=4,
+                label=f"{reason.lower()} ({len(xy)})",
+            )
         ax.set_title(f"{method}: transition points (boundary frame)", fontsize="medium")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("x (m); green squares: doors")

@@ -120,9 +120,10 @@ def lessmap_detections(frames: Iterable[FrameRow], params: PartitionParams) -> l
         transition = partitioner.observe(frame.seq, frame.stamp_s, frame.features)
         if transition is not None:
             found.append(
-                Detection(frame.robot, transition.seq, transition.boundary_seq,
-                          str(transition.reason))
-            )  # fmt: skip
+                Detection(
+                    frame.robot, transition.seq, transition.boundary_seq, str(transition.reason)
+                )
+            )
     return found
 
 

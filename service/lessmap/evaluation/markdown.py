@@ -48,10 +48,21 @@ def consistency_lines(results: Sequence[Consistency]) -> list[str]:
         '"passage" = same door, same direction.',
         "",
     ]
-    header = ["method", "room changes", "transitions", "recall", "recall (boundary)",
-              "recall (any delay)", "precision", "precision (boundary)", "near a door",
-              "latency mean / median / max (frames)", "spread at boundary, by door (m)",
-              "by passage (m)", "spread at detection, by door (m)"]  # fmt: skip
+    header = [
+        "method",
+        "room changes",
+        "transitions",
+        "recall",
+        "recall (boundary)",
+        "recall (any delay)",
+        "precision",
+        "precision (boundary)",
+        "near a door",
+        "latency mean / median / max (frames)",
+        "spread at boundary, by door (m)",
+        "by passage (m)",
+        "spread at detection, by door (m)",
+    ]
     rows = []
     for r in results:
         latency = (
@@ -59,10 +70,23 @@ def consistency_lines(results: Sequence[Consistency]) -> list[str]:
             if r.latency_mean is None
             else f"{r.latency_mean:.1f} / {r.latency_median:g} / {r.latency_max}"
         )
-        rows.append([r.method, r.changes, r.transitions, pct(r.recall), pct(r.recall_boundary),
-                     pct(r.recall_any), pct(r.precision), pct(r.precision_boundary),
-                     pct(r.precision_door), latency, _spread_cell(r),
-                     _spread_cell(r, passages=True), _spread_cell(r, at="seq")])  # fmt: skip
+        rows.append(
+            [
+                r.method,
+                r.changes,
+                r.transitions,
+                pct(r.recall),
+                pct(r.recall_boundary),
+                pct(r.recall_any),
+                pct(r.precision),
+                pct(r.precision_boundary),
+                pct(r.precision_door),
+                latency,
+                _spread_cell(r),
+                _spread_cell(r, passages=True),
+                _spread_cell(r, at="seq"),
+            ]
+        )
     lines += table(header, rows, "l")
     lines += ["", f"Doors, {first.method}:", ""]
     lines += door_lines(first.doors)
@@ -71,14 +95,25 @@ def consistency_lines(results: Sequence[Consistency]) -> list[str]:
 
 def door_lines(spreads: Sequence[Spread]) -> list[str]:
     """Return the per-door spread table."""
-    header = ["door", "crossings", "with a transition", "spread at boundary mean / max (m)",
-              "spread at detection mean / max (m)", "boundary to door centre (m)"]  # fmt: skip
+    header = [
+        "door",
+        "crossings",
+        "with a transition",
+        "spread at boundary mean / max (m)",
+        "spread at detection mean / max (m)",
+        "boundary to door centre (m)",
+    ]
     rows = [
-        [s.door, s.crossings, s.matched,
-         f"{metres(s.boundary_mean_m)} / {metres(s.boundary_max_m)}",
-         f"{metres(s.seq_mean_m)} / {metres(s.seq_max_m)}", metres(s.boundary_to_door_m)]
+        [
+            s.door,
+            s.crossings,
+            s.matched,
+            f"{metres(s.boundary_mean_m)} / {metres(s.boundary_max_m)}",
+            f"{metres(s.seq_mean_m)} / {metres(s.seq_max_m)}",
+            metres(s.boundary_to_door_m),
+        ]
         for s in spreads
-    ]  # fmt: skip
+    ]
     return table(header, rows)
 
 
@@ -143,11 +178,23 @@ def method(report: EvalReport, prefix: str) -> MethodResult:
 
 def stream_table(named: Sequence[tuple[str, StreamStats]]) -> list[str]:
     """Return the stream-density table (``diagnosis.StreamStats`` per named stream)."""
-    header = ["stream", "frames", "features per frame mean / median", "empty frames",
-              "frames per landmark (median)",
-              "frames a landmark stays in view mean / median"]  # fmt: skip
-    rows = [[name, s.frames, f"{s.features_mean:.1f} / {s.features_median:g}",
-             pct(s.empty_share, 1), f"{s.sightings_median:g}",
-             f"{s.run_mean:.1f} / {s.run_median:g}"]
-            for name, s in named]  # fmt: skip
+    header = [
+        "stream",
+        "frames",
+        "features per frame mean / median",
+        "empty frames",
+        "frames per landmark (median)",
+        "frames a landmark stays in view mean / median",
+    ]
+    rows = [
+        [
+            name,
+            s.frames,
+            f"{s.features_mean:.1f} / {s.features_median:g}",
+            pct(s.empty_share, 1),
+            f"{s.sightings_median:g}",
+            f"{s.run_mean:.1f} / {s.run_median:g}",
+        ]
+        for name, s in named
+    ]
     return table(header, rows, "l")

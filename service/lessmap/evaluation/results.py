@@ -65,9 +65,12 @@ def variants(base: PartitionParams) -> list[tuple[str, str, PartitionParams]]:
         ("min_cluster_size=3", "--min-cluster-size 3", replace(base, min_cluster_size=3)),
         ("min_cluster_size=5", "--min-cluster-size 5", replace(base, min_cluster_size=5)),
         ("min_cluster_size=10", "--min-cluster-size 10", replace(base, min_cluster_size=10)),
-        ("Ncut≤0.1, λ2≤0.1", "--ncut-min 0.1 --lambda2-min 0.1",
-         replace(base, ncut_min=0.1, lambda2_min=0.1)),
-    ]  # fmt: skip
+        (
+            "Ncut≤0.1, λ2≤0.1",
+            "--ncut-min 0.1 --lambda2-min 0.1",
+            replace(base, ncut_min=0.1, lambda2_min=0.1),
+        ),
+    ]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

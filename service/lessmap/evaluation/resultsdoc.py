@@ -35,20 +35,58 @@ SIM_ONE_LINER = (
 
 
 def _methods_table(report: EvalReport) -> list[str]:
-    header = ["method", "e (%)", "e exclusive (%)", "submaps", "features per submap mean",
-              "min", "max", "frames per submap"]  # fmt: skip
-    rows = [[m.name, e3(m.e), e1(m.e_exclusive), m.stats.submaps, f"{m.stats.features_mean:.1f}",
-             m.stats.features_min, m.stats.features_max, f"{m.stats.frames_mean:.1f}"]
-            for m in report.methods]  # fmt: skip
+    header = [
+        "method",
+        "e (%)",
+        "e exclusive (%)",
+        "submaps",
+        "features per submap mean",
+        "min",
+        "max",
+        "frames per submap",
+    ]
+    rows = [
+        [
+            m.name,
+            e3(m.e),
+            e1(m.e_exclusive),
+            m.stats.submaps,
+            f"{m.stats.features_mean:.1f}",
+            m.stats.features_min,
+            m.stats.features_max,
+            f"{m.stats.frames_mean:.1f}",
+        ]
+        for m in report.methods
+    ]
     return table(header, rows, "l")
 
 
 def _sweep_table(report: EvalReport) -> list[str]:
-    header = ["Ncut_min", "λ2_min", "e (%)", "e exclusive (%)", "submaps", "spectral",
-              "disconnected", "features mean", "max"]  # fmt: skip
-    rows = [[f"{r.ncut_min:g}", f"{r.lambda2_min:g}", e3(r.e), e1(r.e_exclusive), r.stats.submaps,
-             r.spectral, r.disconnected, f"{r.stats.features_mean:.1f}", r.stats.features_max]
-            for r in report.sweep]  # fmt: skip
+    header = [
+        "Ncut_min",
+        "λ2_min",
+        "e (%)",
+        "e exclusive (%)",
+        "submaps",
+        "spectral",
+        "disconnected",
+        "features mean",
+        "max",
+    ]
+    rows = [
+        [
+            f"{r.ncut_min:g}",
+            f"{r.lambda2_min:g}",
+            e3(r.e),
+            e1(r.e_exclusive),
+            r.stats.submaps,
+            r.spectral,
+            r.disconnected,
+            f"{r.stats.features_mean:.1f}",
+            r.stats.features_max,
+        ]
+        for r in report.sweep
+    ]
     return table(header, rows)
 
 
@@ -100,30 +138,51 @@ def summary_lines(rec: RecordedResults, sim: SimResults | None) -> list[str]:
         spread = cons.spread()
         sim_cells = [
             "; ".join(f"{r.name}: {e3(r.lessmap.e)}%" for r in srow),
-            "; ".join(f"{r.robot}: {e3(method(r, 'fixed-50').e)}% / "
-                      f"{e3(method(r, 'fixed-60').e)}%" for r in sim.reports),
-            "; ".join(f"{r.name}: {e1(r.lessmap.e_exclusive)}% vs "
-                      f"{e1(r.fixed_frames.e_exclusive)}%" for r in srow),
+            "; ".join(
+                f"{r.robot}: {e3(method(r, 'fixed-50').e)}% / {e3(method(r, 'fixed-60').e)}%"
+                for r in sim.reports
+            ),
+            "; ".join(
+                f"{r.name}: {e1(r.lessmap.e_exclusive)}% vs {e1(r.fixed_frames.e_exclusive)}%"
+                for r in srow
+            ),
             f"{pct(cons.precision_door)} of transitions within {cons.door_distance_m:g} m of a "
             f"door; recall {pct(cons.recall)} (±{cons.tolerance_frames} frames)",
-            "n/a" if spread is None else f"transition points {spread[0]:.2f} m apart on average "
-            f"(max {spread[1]:.2f} m)",
-        ]  # fmt: skip
+            "n/a"
+            if spread is None
+            else f"transition points {spread[0]:.2f} m apart on average (max {spread[1]:.2f} m)",
+        ]
     rows = [
-        ["e, LESS-mapping at Ncut ≤ 0.25, λ2 ≤ 0.2", "< 0.2%",
-         f"{e3(less.e)}% ({less.stats.submaps} submaps)", sim_cells[0]],
+        [
+            "e, LESS-mapping at Ncut ≤ 0.25, λ2 ≤ 0.2",
+            "< 0.2%",
+            f"{e3(less.e)}% ({less.stats.submaps} submaps)",
+            sim_cells[0],
+        ],
         ["e, fixed 50 / 60 features", "≈ 2%", f"{e3(f50.e)}% / {e3(f60.e)}%", sim_cells[1]],
-        ["e exclusive, LESS vs fixed frames at equal submap count", "—",
-         f"{e1(paper.lessmap.e_exclusive)}% vs {e1(paper.fixed_frames.e_exclusive)}%",
-         sim_cells[2]],
-        ["transitions where the environment changes", "at doors and corridors",
-         "no ground truth", sim_cells[3]],
-        ["revisits give matching partitions", "frames 274 ↔ 2091, 422 ↔ 2265",
-         "no ground truth", sim_cells[4]],
-    ]  # fmt: skip
+        [
+            "e exclusive, LESS vs fixed frames at equal submap count",
+            "—",
+            f"{e1(paper.lessmap.e_exclusive)}% vs {e1(paper.fixed_frames.e_exclusive)}%",
+            sim_cells[2],
+        ],
+        [
+            "transitions where the environment changes",
+            "at doors and corridors",
+            "no ground truth",
+            sim_cells[3],
+        ],
+        [
+            "revisits give matching partitions",
+            "frames 274 ↔ 2091, 422 ↔ 2265",
+            "no ground truth",
+            sim_cells[4],
+        ],
+    ]
     lines = ["## Where lessmap stands against the paper", ""]
-    lines += table(["claim (paper §4)", "paper", f"ours: {rep.dataset}", "ours: simulated"], rows,
-                   "llll")  # fmt: skip
+    lines += table(
+        ["claim (paper §4)", "paper", f"ours: {rep.dataset}", "ours: simulated"], rows, "llll"
+    )
     order = "the same order as" if less.e < f50.e else "the opposite order to"
     verdict = "Reproduced" if less.e < f50.e else "Not reproduced"
     lines += [
@@ -226,8 +285,12 @@ def sim_lines(sim: SimResults, figures: Sequence[str]) -> list[str]:
         f"--fixed-features {r.features_limit} 50 60`"
         for r in sim.rows
     ]
-    lines += ["", "Commands: " + "; ".join(commands) + ". The true-room rows come from the "
-              "results command only (`lessmap.evaluation.diagnosis.room_labels`).", ""]  # fmt: skip
+    lines += [
+        "",
+        "Commands: " + "; ".join(commands) + ". The true-room rows come from the "
+        "results command only (`lessmap.evaluation.diagnosis.room_labels`).",
+        "",
+    ]
     lines += ["### Consistency with the true room changes (all robots)", ""]
     lines += [f"`lessmap eval {sim.path} --no-sweep --out /tmp/simeval --plots`", ""]
     lines += consistency_lines(sim.consistency)

@@ -174,11 +174,16 @@ def load_truth(frames_path: Path) -> SimTruth:
             changes_from_rows(rows)
             if listed is None
             else tuple(
-                RoomChange(str(c["robot"]), int(c["seq"]), int(c["from_room"]),
-                           int(c["to_room"]), None if c.get("door") is None else int(c["door"]))
+                RoomChange(
+                    str(c["robot"]),
+                    int(c["seq"]),
+                    int(c["from_room"]),
+                    int(c["to_room"]),
+                    None if c.get("door") is None else int(c["door"]),
+                )
                 for c in listed
             )
-        )  # fmt: skip
+        )
     except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
         msg = f"{building_path.name}: unexpected layout ({exc})"
         raise DatasetError(msg) from exc

@@ -76,21 +76,32 @@ def _partitioner(rec: RecordedResults) -> list[str]:
 
 
 def _variant_table(rows: Sequence[tuple[str, VariantRow]]) -> list[str]:
-    header = ["variant", "submaps", "spectral / disconnected", "features per submap median / max",
-              "median Ncut", "landmarks shared by consecutive submaps: LESS / fixed frames",
-              "e (%): LESS / fixed frames / fixed features",
-              "e exclusive (%): LESS / fixed frames / fixed features"]  # fmt: skip
+    header = [
+        "variant",
+        "submaps",
+        "spectral / disconnected",
+        "features per submap median / max",
+        "median Ncut",
+        "landmarks shared by consecutive submaps: LESS / fixed frames",
+        "e (%): LESS / fixed frames / fixed features",
+        "e exclusive (%): LESS / fixed frames / fixed features",
+    ]
     body = []
     for _, r in rows:
         ncut = "n/a" if r.ncut_median is None else f"{r.ncut_median:.3f}"
-        body.append([
-            r.name, r.lessmap.submaps, f"{r.spectral} / {r.disconnected}",
-            f"{r.size_median:g} / {r.size_max}", ncut,
-            f"{100 * r.overlap:.0f}% / {100 * r.frames_overlap:.0f}%",
-            f"{e3(r.lessmap.e)} / {e3(r.fixed_frames.e)} / {e3(r.fixed_features.e)}",
-            f"{e1(r.lessmap.e_exclusive)} / {e1(r.fixed_frames.e_exclusive)} / "
-            f"{e1(r.fixed_features.e_exclusive)}",
-        ])  # fmt: skip
+        body.append(
+            [
+                r.name,
+                r.lessmap.submaps,
+                f"{r.spectral} / {r.disconnected}",
+                f"{r.size_median:g} / {r.size_max}",
+                ncut,
+                f"{100 * r.overlap:.0f}% / {100 * r.frames_overlap:.0f}%",
+                f"{e3(r.lessmap.e)} / {e3(r.fixed_frames.e)} / {e3(r.fixed_features.e)}",
+                f"{e1(r.lessmap.e_exclusive)} / {e1(r.fixed_frames.e_exclusive)} / "
+                f"{e1(r.fixed_features.e_exclusive)}",
+            ]
+        )
     return table(header, body, "l")
 
 
@@ -159,7 +170,7 @@ def _membership(rec: RecordedResults, sim: SimResults | None) -> list[str]:
         f"LESS-mapping's e exclusive is {ex} "
         f"fixed frames at the paper's thresholds on {rec.report.dataset} "
         f"({e1(paper.lessmap.e_exclusive)}% vs {e1(paper.fixed_frames.e_exclusive)}%)."
-    )  # fmt: skip
+    )
     if sim is not None:
         less, (visits, merged) = sim.rows[0], sim.rooms[0]
         text += (
@@ -171,24 +182,45 @@ def _membership(rec: RecordedResults, sim: SimResults | None) -> list[str]:
             + "a low e under this rule does not mean a segmentation that follows the "
             "environment. Merging revisits of a room into one submap brings e exclusive from "
             f"{e1(visits.e_exclusive)}% to {e1(merged.e_exclusive)}%"
-            + (": revisits, each a new submap in LESS-mapping as in the paper, are most of "
-               "the exclusive loss." if merged.e_exclusive < 0.5 * visits.e_exclusive else ".")
-        )  # fmt: skip
-    return [*lines, text, "", "Measured by the results command (section 3 and the simulated "
-            "e table give the commands for the non-oracle rows).", ""]  # fmt: skip
+            + (
+                ": revisits, each a new submap in LESS-mapping as in the paper, are most of "
+                "the exclusive loss."
+                if merged.e_exclusive < 0.5 * visits.e_exclusive
+                else "."
+            )
+        )
+    return [
+        *lines,
+        text,
+        "",
+        "Measured by the results command (section 3 and the simulated "
+        "e table give the commands for the non-oracle rows).",
+        "",
+    ]
 
 
 def _scale(rec: RecordedResults) -> list[str]:
     name, path = rec.report.dataset, rec.path
     lines = ["### 5. The absolute level depends on how H was built", ""]
-    header = ["odometry information ×", "e LESS (%)", "e fixed-50 (%)", "e fixed frames (%)",
-              "LESS / fixed-50", "command"]  # fmt: skip
+    header = [
+        "odometry information ×",
+        "e LESS (%)",
+        "e fixed-50 (%)",
+        "e fixed frames (%)",
+        "LESS / fixed-50",
+        "command",
+    ]
     rows = [
-        [f"{scale:g}", e3(less.e), e3(f50.e), e3(frames.e),
-         f"{less.e / f50.e:.1f}" if f50.e else "n/a",
-         f"`lessmap eval {path} --no-sweep --odometry-scale {scale:g}`"]
+        [
+            f"{scale:g}",
+            e3(less.e),
+            e3(f50.e),
+            e3(frames.e),
+            f"{less.e / f50.e:.1f}" if f50.e else "n/a",
+            f"`lessmap eval {path} --no-sweep --odometry-scale {scale:g}`",
+        ]
         for scale, less, f50, frames in rec.scales
-    ]  # fmt: skip
+    ]
     lines += table(header, rows)
     first, last = rec.scales[0], rec.scales[-1]
     lines += [

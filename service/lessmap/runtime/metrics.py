@@ -24,9 +24,11 @@ class ServiceMetrics:
             "lessmap_frames_missing", "Frames never received (seq gaps)", registry=r
         )
         self.frames_rejected = Counter(
-            "lessmap_frames_rejected", "Inbound messages rejected, by reason", ["reason"],
+            "lessmap_frames_rejected",
+            "Inbound messages rejected, by reason",
+            ["reason"],
             registry=r,
-        )  # fmt: skip
+        )
         self.transitions = Counter(
             "lessmap_transitions", "Transitions published, by reason", ["reason"], registry=r
         )

@@ -55,8 +55,9 @@ class Service:
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
         self._token: zenoh.LivelinessToken | None = None
         self._queries: queue.SimpleQueue[zenoh.Query | None] = queue.SimpleQueue()
-        self._query_thread = threading.Thread(target=self._serve_queries, name="lessmap-queries",
-                                              daemon=True)  # fmt: skip
+        self._query_thread = threading.Thread(
+            target=self._serve_queries, name="lessmap-queries", daemon=True
+        )
         self._metrics_server: WSGIServer | None = None
         self._started_s = time.monotonic()
         self._last_sample_s = 0.0
@@ -81,20 +82,35 @@ class Service:
             raise ConfigError(msg) from exc
         per_shard_sessions = max(1, -(-s.max_sessions // s.workers))
         self._outbox = Outbox(
-            session, self.metrics, instance=s.instance, transition_cache=s.transition_cache,
-            max_publishers=s.max_sessions, error_rate_per_s=s.error_rate_per_s,
+            session,
+            self.metrics,
+            instance=s.instance,
+            transition_cache=s.transition_cache,
+            max_publishers=s.max_sessions,
+            error_rate_per_s=s.error_rate_per_s,
             error_burst=s.error_burst,
-        )  # fmt: skip
+        )
         params = s.partition_params()
         for index in range(s.workers):
             table = SessionTable(
-                params, max_sessions=per_shard_sessions, max_nodes=s.max_nodes_per_session,
-                max_batch_frames=s.max_batch_frames, idle_timeout_s=s.session_idle_timeout_s,
-                instance=s.instance, clock=time.perf_counter,
-            )  # fmt: skip
-            self._shards.append(Shard(index, table, self._outbox, limits=s.limits.wire_limits(),
-                                      queue_depth=s.queue_depth,
-                                      queue_bytes=_QUEUE_BYTES_PER_SHARD))  # fmt: skip
+                params,
+                max_sessions=per_shard_sessions,
+                max_nodes=s.max_nodes_per_session,
+                max_batch_frames=s.max_batch_frames,
+                idle_timeout_s=s.session_idle_timeout_s,
+                instance=s.instance,
+                clock=time.perf_counter,
+            )
+            self._shards.append(
+                Shard(
+                    index,
+                    table,
+                    self._outbox,
+                    limits=s.limits.wire_limits(),
+                    queue_depth=s.queue_depth,
+                    queue_bytes=_QUEUE_BYTES_PER_SHARD,
+                )
+            )
         for shard in self._shards:
             shard.start()
         self._query_thread.start()
@@ -113,12 +129,16 @@ class Service:
             self._metrics_server = server
             self.metrics_port = server.server_port
         log.info(
-            "lessmap %s serving as %s (%s, %d shard(s), profile %s)%s", __version__, s.instance,
+            "lessmap %s serving as %s (%s, %d shard(s), profile %s)%s",
+            __version__,
+            s.instance,
             "embedded router on tcp/127.0.0.1:7447" if s.embedded else "joined Zenoh network",
-            s.workers, s.profile,
+            s.workers,
+            s.profile,
             f", metrics on http://{s.metrics_addr}:{self.metrics_port}/metrics"
-            if self.metrics_port is not None else "",
-        )  # fmt: skip
+            if self.metrics_port is not None
+            else "",
+        )
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop taking frames, finish the queued ones, publish final states, close Zenoh."""
@@ -215,8 +235,9 @@ class Service:
                         continue
                     state = shard.table.state(fleet, robot)
                     if state is not None:
-                        query.reply(key, encode(state), encoding=zenoh.Encoding(
-                            encoding(SessionState)))  # fmt: skip
+                        query.reply(
+                            key, encode(state), encoding=zenoh.Encoding(encoding(SessionState))
+                        )
 
     def _reply_submaps(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
         state = shard.table.state(fleet, robot)
@@ -227,8 +248,9 @@ class Service:
         for summary, is_open in candidates:
             key = keys.submap(fleet, robot, summary.id)
             if query.key_expr.intersects(zenoh.KeyExpr(key)):
-                message = Submap(fleet=fleet, robot=robot, session=state.session,
-                                 summary=summary, open=is_open)  # fmt: skip
+                message = Submap(
+                    fleet=fleet, robot=robot, session=state.session, summary=summary, open=is_open
+                )
                 query.reply(key, encode(message), encoding=zenoh.Encoding(encoding(Submap)))
 
     def _reply_health(self, query: zenoh.Query) -> None:
@@ -239,8 +261,11 @@ class Service:
             uptime_s=time.monotonic() - self._started_s,
             frames_applied=self._outbox.frames_applied if self._outbox is not None else 0,
         )
-        query.reply(keys.health(self.settings.instance), encode(health),
-                    encoding=zenoh.Encoding(encoding(Health)))  # fmt: skip
+        query.reply(
+            keys.health(self.settings.instance),
+            encode(health),
+            encoding=zenoh.Encoding(encoding(Health)),
+        )
 
 
 __all__ = ["Service", "WireError"]

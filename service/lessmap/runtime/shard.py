@@ -178,8 +178,9 @@ class Shard:
             except WireError as exc:
                 rejections.append(Rejection(fleet, robot, None, exc.code, str(exc), None))
                 continue
-            log.debug("<<- %s %s seq=%s", item.key, type(message).__name__,
-                      getattr(message, "seq", None))  # fmt: skip
+            log.debug(
+                "<<- %s %s seq=%s", item.key, type(message).__name__, getattr(message, "seq", None)
+            )
             decoded.append((fleet, robot, message))
         with self.lock:
             outcome = self.table.handle_batch(decoded, now)

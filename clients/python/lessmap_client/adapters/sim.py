@@ -302,11 +302,16 @@ def write_run(run: SimRun, out_dir: str | Path, name: str) -> RunPaths:
     with paths.truth.open("w", encoding="utf-8") as stream:
         for row in run.truth:
             line = {
-                "robot": row.robot, "seq": row.seq, "stamp": row.stamp, "room": row.room,
-                "x": row.x, "y": row.y,
-                "door_near": None if row.door is None
+                "robot": row.robot,
+                "seq": row.seq,
+                "stamp": row.stamp,
+                "room": row.room,
+                "x": row.x,
+                "y": row.y,
+                "door_near": None
+                if row.door is None
                 else {"door": row.door, "distance_m": row.door_distance_m},
-            }  # fmt: skip
+            }
             stream.write(json.dumps(line, separators=(",", ":")) + "\n")
     document = {"seed": run.seed, "options": asdict(run.options), **run.building.to_json()}
     document["room_changes"] = [asdict(change) for change in run.room_changes]
