@@ -124,6 +124,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         "instance": args.instance,
         "session_idle_timeout_s": args.idle_timeout,
         "max_batch_frames": args.max_batch_frames,
+        **_shard_flags(args.shard),
         "mode": args.mode,
         "zenoh_config": args.zenoh_config,
         "connect": tuple(args.connect) if args.connect else None,
@@ -131,6 +132,17 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     }
     settings = load_settings(args.config, **{k: v for k, v in flags.items() if v is not None})
     return serve(settings, args.cfg or ())
+
+
+def _shard_flags(text: str | None) -> dict[str, int]:
+    """Parse ``--shard I/N`` into the two settings."""
+    if text is None:
+        return {}
+    index, sep, count = text.partition("/")
+    if not sep or not index.isdigit() or not count.isdigit():
+        msg = f"--shard expects I/N, e.g. 0/2, got {text!r}"
+        raise ConfigError(msg)
+    return {"shard_index": int(index), "shard_count": int(count)}
 
 
 def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -173,6 +185,11 @@ def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     part.add_argument("--workers", type=int, help="shards (worker threads); default 1")
     part.add_argument("--metrics-port", type=int, help="serve Prometheus /metrics on this port")
     part.add_argument("--instance", help="instance name (default: host-pid)")
+    part.add_argument(
+        "--shard",
+        metavar="I/N",
+        help="serve only the robots whose key hashes to I of N (run one instance per I)",
+    )
     part.add_argument("--idle-timeout", type=float, help="seconds before an idle session closes")
     part.add_argument(
         "--max-batch-frames",

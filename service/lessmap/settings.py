@@ -13,7 +13,14 @@ import socket
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from lessmap.core import PROFILES, PartitionParams, SeedMode
@@ -77,6 +84,10 @@ class ServiceSettings(BaseSettings):
     # slower, not faster (docs/BENCHMARKS.md); more shards only isolate robots from each other.
     workers: int = Field(1, ge=1, le=64, description="shards; a robot always maps to one")
     queue_depth: int = Field(50_000, ge=1, description="pending messages per shard")
+    # Static sharding across instances: this instance serves the robots whose frames key
+    # hashes (crc32) to shard_index modulo shard_count; run one instance per index.
+    shard_index: int = Field(0, ge=0)
+    shard_count: int = Field(1, ge=1, le=1024)
 
     # -- outputs --
     transition_cache: int = Field(
@@ -109,6 +120,13 @@ class ServiceSettings(BaseSettings):
             :64
         ]
         return validate_name(cleaned.lstrip(".-") or "lessmap", "instance")
+
+    @model_validator(mode="after")
+    def _shard_in_range(self) -> ServiceSettings:
+        if self.shard_index >= self.shard_count:
+            msg = f"shard_index {self.shard_index} must be below shard_count {self.shard_count}"
+            raise ValueError(msg)
+        return self
 
     @property
     def embedded(self) -> bool:

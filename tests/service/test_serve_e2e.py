@@ -297,3 +297,36 @@ def test_a_taken_port_is_a_one_line_error(serve: Callable[..., ServeProcess]) ->
     assert last.startswith("lessmap serve: Zenoh could not start on tcp/127.0.0.1:" + port)
     assert "Traceback" not in second.stderr
     assert first.terminate() == 0
+
+
+def test_two_instances_split_a_fleet_by_key_hash(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+) -> None:
+    fleet = "sharded"  # fixed, so the hash split below is known: r1, r4, r5 -> 0; r2, r3 -> 1
+    frames = list(read_frames(dataset("mrclam6.frames.jsonl")))[:2500]
+    robots = sorted({f.robot for f in frames})
+    expected = offline_transitions(frames)
+    first = start_service(serve, "--shard", "0/2")
+    second = start_service(serve, "--shard", "1/2", "-e", first.endpoint)
+    session = client_session(first.endpoint)
+    with FleetClient(fleet, session=session) as client:
+        wait_until(lambda: len(client.instances()) == 2, 30.0, "both instances to be alive")
+        publishers = {r: RobotPublisher(fleet, f"r{r}", session=session) for r in robots}
+        for frame in frames:
+            publishers[frame.robot].publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+        for robot, publisher in publishers.items():
+            publisher.close()
+            wait_closed(client, fleet, f"r{robot}", sum(f.robot == robot for f in frames))
+        got = drain(client)
+        states = client.states()
+    assert sorted(s.robot for s in states) == [f"r{r}" for r in robots]  # one answer each
+    owner = {s.robot: s.instance for s in states}
+    assert {owner["r1"], owner["r4"], owner["r5"]} == {first.instance}
+    assert {owner["r2"], owner["r3"]} == {second.instance}
+    for robot in robots:
+        mine = [t for t in got if t.robot == f"r{robot}"]
+        assert [as_record(t) for t in mine] == expected.get(robot, []), robot
+        assert {t.instance for t in mine} <= {owner[f"r{robot}"]}
+    assert second.terminate() == 0
+    assert first.terminate() == 0

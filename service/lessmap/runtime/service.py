@@ -183,24 +183,40 @@ class Service:
     # -- receive path (Zenoh callback: enqueue only) ----------------------------------------
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        shard = self._shard_of(key)
+        if shard is None:
+            return  # another instance's robot (static sharding of the fleet by key hash)
         self._last_sample_s = time.monotonic()
         self.metrics.frames_received.inc()
-        key = str(sample.key_expr)
-        shard = self._shards[zlib.crc32(key.encode()) % len(self._shards)]
         payload = sample.payload
         if len(payload) > self.settings.limits.max_payload_bytes:
             # Decided here, before copying the bytes: a huge sample never reaches a queue.
             limit = self.settings.limits.max_payload_bytes
-            self._outbox_reject(key, f"payload of {len(payload)} bytes exceeds {limit=}")
+            self._reject_on_receipt(shard, key, f"payload of {len(payload)} bytes exceeds {limit=}")
             return
         if not shard.offer(Inbound(time.monotonic(), key, payload.to_bytes())):
             depth = self.settings.queue_depth
-            self._outbox_reject(key, f"shard {shard.index} queue full ({depth=}); frame dropped")
+            self._reject_on_receipt(
+                shard, key, f"shard {shard.index} queue full ({depth=}); frame dropped"
+            )
 
-    def _outbox_reject(self, key: str, detail: str) -> None:
+    def _shard_of(self, key: str) -> Shard | None:
+        """Return the shard that owns a robot's key, or None when another instance does.
+
+        One hash decides both levels: ``h % shard_count`` picks the instance (``--shard I/N``),
+        the rest picks the worker inside it, so a robot always lands in the same place.
+        """
+        digest = zlib.crc32(key.encode())
+        count = self.settings.shard_count
+        if digest % count != self.settings.shard_index:
+            return None
+        return self._shards[(digest // count) % len(self._shards)]
+
+    @staticmethod
+    def _reject_on_receipt(shard: Shard, key: str, detail: str) -> None:
         # Runs on Zenoh's thread: no Zenoh calls here. Hand the note to the shard, whose
         # worker publishes it as an Error on the robot's key.
-        shard = self._shards[zlib.crc32(key.encode()) % len(self._shards)]
         shard.note_rejection(key, ErrorCode.LIMIT_EXCEEDED, detail)
 
     # -- queries -----------------------------------------------------------------------------
