@@ -60,7 +60,7 @@ from lessmap.tools.benchreport import (
 from lessmap.tools.loadgen import LoadSpec, calibrate_spacing, generator_main, simulated_streams
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Iterable, Sequence
 
     from lessmap_client import FleetClient
 
@@ -118,10 +118,18 @@ def run_load(
     with tempfile.TemporaryDirectory(prefix="lessmap-bench-") as tmp:
         work = Path(tmp)
         service = ServiceProcess(spec, work / "serve.log")
+        # More instances split the fleet by key hash (--shard I/N); they join the first
+        # instance's router, which the generators and the fleet client use.
+        others = [
+            ServiceProcess(spec, work / f"serve-{i}.log", shard=i, connect=service.endpoint)
+            for i in range(1, spec.instances)
+        ]
+        services = [service, *others]
         generators: list[subprocess.Popen[bytes]] = []
         pyspy: subprocess.Popen[bytes] | None = None
         try:
-            service.wait_ready()
+            for instance in services:
+                instance.wait_ready()
             say(f"service pid {service.pid} on {service.endpoint}")
             session = open_session([service.endpoint], timeout_s=30.0)
             try:
@@ -143,23 +151,23 @@ def run_load(
                         assert process.stdin is not None
                         process.stdin.write(f"{t0!r}\n".encode())
                         process.stdin.flush()
-                    sampler = Sampler(service.pid)
+                    sampler = Sampler(service.pid, [o.pid for o in others])
                     sampler.start(t0)
                     time.sleep(max(0.0, t0 - time.time()))
-                    cpu_start = proc_cpu_s(service.pid)
+                    cpu_start = _cpu(services)
                     if profile is not None:
                         time.sleep(min(10.0, spec.duration_s / 4))
                         pyspy = _start_pyspy(service.pid, profile, profile_duration_s)
                     results = _wait_generators(generators, spec, work)
                     load_end = time.time()
-                    cpu_load = proc_cpu_s(service.pid) - cpu_start
+                    cpu_load = _cpu(services) - cpu_start
                     say("load done; waiting for every session to close")
                     states, drained = _wait_closed(client, spec, 30.0 + 2 * spec.duration_s)
                     drain_s = time.time() - load_end
-                    service_cpu = proc_cpu_s(service.pid) - cpu_start
-                    metrics = parse_metrics(service.metrics_text())
-                    hwm = proc_status_kib(service.pid, "VmHWM")
-                    threads_cpu = thread_cpu_s(service.pid)
+                    service_cpu = _cpu(services) - cpu_start
+                    metrics = _summed(parse_metrics(i.metrics_text()) for i in services)
+                    hwm = sum(proc_status_kib(i.pid, "VmHWM") for i in services)
+                    threads_cpu = _summed(thread_cpu_s(i.pid) for i in services)
                     transitions.wait_for(sum(s.transitions for s in states), 10.0)
                     transitions.stop()
                     sampler.stop()
@@ -173,9 +181,10 @@ def run_load(
                 stop_process(pyspy)
             for process in generators:
                 stop_process(process)
-            code = stop_process(service.process, 30.0)
-            if code not in (0, None):
-                say(f"service exited with {code}: {service.log_tail()}")
+            for instance in reversed(services):  # the router-holding first instance last
+                code = stop_process(instance.process, 30.0)
+                if code not in (0, None):
+                    say(f"service exited with {code}: {instance.log_tail()}")
     report = _build_report(
         spec,
         spacing,
@@ -204,6 +213,19 @@ def run_load(
     report.baseline_frames = frames
     report.baseline_robots = len(baseline_streams)
     return report
+
+
+def _cpu(services: list[ServiceProcess]) -> float:
+    return sum(proc_cpu_s(instance.pid) for instance in services)
+
+
+def _summed(parts: Iterable[dict[str, float]]) -> dict[str, float]:
+    """Add samples of several instances key by key (counters and histogram buckets add up)."""
+    total: dict[str, float] = {}
+    for part in parts:
+        for key, value in part.items():
+            total[key] = total.get(key, 0.0) + value
+    return total
 
 
 def _start_generator(
@@ -393,6 +415,12 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rooms", type=int, default=12, help="rooms per building (12)")
     parser.add_argument("--workers", type=int, help="service shards (default: its own, 1)")
     parser.add_argument(
+        "--instances",
+        type=int,
+        default=1,
+        help="service processes splitting the fleet with --shard I/N (default 1)",
+    )
+    parser.add_argument(
         "--max-batch-frames",
         type=int,
         help="service coalescing bound (default: its own; 1 = decide per frame)",
@@ -437,6 +465,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         generators=args.generators,
         rooms=args.rooms,
         workers=args.workers,
+        instances=args.instances,
         max_batch_frames=args.max_batch_frames,
     )
 

@@ -101,10 +101,12 @@ def load_average() -> tuple[float, float, float]:
 class ServiceProcess:
     """``python -m lessmap serve`` as a router on a fresh loopback port, with metrics."""
 
-    def __init__(self, spec: LoadSpec, log_path: Path) -> None:
+    def __init__(
+        self, spec: LoadSpec, log_path: Path, shard: int = 0, connect: str | None = None
+    ) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.metrics_port = free_port()
-        self.instance = f"bench-{os.getpid()}"
+        self.instance = f"bench-{os.getpid()}-{shard}"
         args = [
             sys.executable,
             "-m",
@@ -125,6 +127,10 @@ class ServiceProcess:
             args += ["--workers", str(spec.workers)]
         if spec.max_batch_frames is not None:
             args += ["--max-batch-frames", str(spec.max_batch_frames)]
+        if spec.instances > 1:
+            args += ["--shard", f"{shard}/{spec.instances}"]
+        if connect is not None:
+            args += ["-e", connect]  # a router joining the first instance's router
         self.log_path = log_path
         with log_path.open("wb") as log:
             self.process = subprocess.Popen(args, stdout=log, stderr=log)
@@ -167,6 +173,7 @@ class Sampler:
     """Samples the service's RSS and CPU every half second on a thread."""
 
     pid: int
+    extra_pids: list[int] = field(default_factory=list)  # more service processes, summed
     t0: float = 0.0
     samples: list[tuple[float, int, float]] = field(default_factory=list)  # (s, KiB, CPU s)
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -181,11 +188,12 @@ class Sampler:
     def _run(self) -> None:
         while not self._stop.wait(_SAMPLE_PERIOD_S):
             with contextlib.suppress(OSError, ValueError):
+                pids = [self.pid, *self.extra_pids]
                 self.samples.append(
                     (
                         time.time() - self.t0,
-                        proc_status_kib(self.pid, "VmRSS"),
-                        proc_cpu_s(self.pid),
+                        sum(proc_status_kib(pid, "VmRSS") for pid in pids),
+                        sum(proc_cpu_s(pid) for pid in pids),
                     )
                 )
 
