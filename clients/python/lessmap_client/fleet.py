@@ -76,6 +76,9 @@ class FleetClient:
                 keys.transitions(fleet, robot),
                 self._on_transition,
                 history=history_config,
+                # Gaps in a publisher's sequence are fetched from its cache, so a transition
+                # lost on the way (or raced by the history query) still arrives, in order.
+                recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
             )
         )
         if errors:

@@ -200,6 +200,11 @@ class Outbox:
                 encoding=_TRANSITION_ENCODING,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 cache=ext.CacheConfig(self._cache),
+                # Sequence numbers and heartbeats let an AdvancedSubscriber notice a missed
+                # transition and fetch it from the cache instead of silently skipping it.
+                sample_miss_detection=ext.MissDetectionConfig(
+                    heartbeat=None, sporadic_heartbeat=1.0
+                ),
                 publisher_detection=True,
             )
             self._publishers[key] = publisher
