@@ -149,6 +149,7 @@ def test_evaluation_builds_on_the_core_only(path: Path) -> None:
         "lessmap.errors",
         "lessmap.frames_file",
         "lessmap.offline",
+        "lessmap.partition_options",
     )
     assert all(within(m, *allowed) for m in project_imports(path)), project_imports(path)
     assert "zenoh" not in roots(imported_modules(path))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from lessmap.errors import DatasetError
 
@@ -26,8 +26,8 @@ class FrameRow:
     where: str = ""  # "file:line" when read from a file, for error messages
 
 
-def parse_frame_line(line: str, where: str) -> FrameRow:
-    """Parse one JSON line; ``where`` (file:line) goes into the error message."""
+def parse_object_line(line: str, where: str) -> dict[str, Any]:
+    """Parse one JSON-lines line that must hold an object; ``where`` names file:line."""
     try:
         row = json.loads(line)
     except json.JSONDecodeError as exc:
@@ -36,6 +36,25 @@ def parse_frame_line(line: str, where: str) -> FrameRow:
     if not isinstance(row, dict):
         msg = f"{where}: expected an object, got {type(row).__name__}"
         raise DatasetError(msg)
+    return row
+
+
+def read_objects(path: Path) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Yield (file:line, object) for every non-blank line of a JSON-lines file."""
+    with path.open(encoding="utf-8") as handle:
+        for number, line in enumerate(handle, start=1):
+            if line.strip():
+                where = f"{path.name}:{number}"
+                yield where, parse_object_line(line, where)
+
+
+def parse_frame_line(line: str, where: str) -> FrameRow:
+    """Parse one JSON line; ``where`` (file:line) goes into the error message."""
+    return frame_from_object(parse_object_line(line, where), where)
+
+
+def frame_from_object(row: dict[str, Any], where: str) -> FrameRow:
+    """Check and convert one frames-file object."""
     try:
         robot, seq, stamp, features = row["robot"], row["seq"], row["stamp"], row["features"]
     except KeyError as exc:
@@ -74,7 +93,5 @@ def read_frames(path: Path) -> Iterator[FrameRow]:
         DatasetError: a line is malformed (the message names file and line).
         FileNotFoundError: the file does not exist.
     """
-    with path.open(encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            if line.strip():
-                yield parse_frame_line(line, f"{path.name}:{number}")
+    for where, row in read_objects(path):
+        yield frame_from_object(row, where)

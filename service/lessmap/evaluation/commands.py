@@ -9,10 +9,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lessmap.core import PROFILES, PartitionParams, SeedMode
+from lessmap.core import PartitionParams
 from lessmap.errors import ConfigError
 from lessmap.evaluation.consistency import DEFAULT_DOOR_DISTANCE_M, DEFAULT_TOLERANCE_FRAMES
 from lessmap.evaluation.infoloss import DEFAULT_ANCHOR_INFORMATION
+from lessmap.partition_options import add_partition_options, partition_params
 
 if TYPE_CHECKING:
     from lessmap.evaluation.consistency import Consistency, Detection
@@ -27,35 +28,7 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
         help="robot to evaluate (needed when a recorded file has several; a simulated run "
         "defaults to its first robot)",
     )
-    group = parser.add_argument_group("partitioning (LESS-mapping Eq. 4)")
-    group.add_argument(
-        "--profile",
-        choices=sorted(PROFILES),
-        default="laser",
-        help="threshold profile (default: laser = Ncut 0.25, λ2 0.2)",
-    )
-    group.add_argument("--ncut-min", type=float, help="override the profile's Ncut threshold")
-    group.add_argument("--lambda2-min", type=float, help="override the profile's λ2 threshold")
-    group.add_argument(
-        "--seed-mode",
-        choices=[m.value for m in SeedMode],
-        default=SeedMode.SEED.value,
-        help="CovGraph after a transition",
-    )
-    group.add_argument(
-        "--min-cluster-size",
-        type=int,
-        default=1,
-        metavar="N",
-        help="guard: smallest side a transition may cut off (default 1: off)",
-    )
-    group.add_argument(
-        "--min-frames-between",
-        type=int,
-        default=0,
-        metavar="K",
-        help="guard: frames after a transition without a test (default 0: off)",
-    )
+    add_partition_options(parser)
     sweep = parser.add_argument_group("threshold sweep")
     sweep.add_argument(
         "--sweep-ncut",
@@ -78,19 +51,10 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
 
 
 def _params(args: argparse.Namespace) -> PartitionParams:
-    overrides: dict[str, object] = {
-        "seed_mode": SeedMode(args.seed_mode),
-        "min_cluster_size": args.min_cluster_size,
-        "min_frames_between": args.min_frames_between,
-    }
-    if args.ncut_min is not None:
-        overrides["ncut_min"] = args.ncut_min
-    if args.lambda2_min is not None:
-        overrides["lambda2_min"] = args.lambda2_min
     if args.jobs < 1:
         msg = f"--jobs must be at least 1, got {args.jobs}"
         raise ConfigError(msg)
-    return PartitionParams.from_profile(args.profile, **overrides)
+    return partition_params(args)
 
 
 def _grid(args: argparse.Namespace) -> tuple[list[float], list[float]]:

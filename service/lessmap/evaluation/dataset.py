@@ -20,7 +20,6 @@ Rules of this file (see ``../shared/datasets/README.md`` for the formats):
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lessmap.errors import DatasetError
-from lessmap.frames_file import read_frames
+from lessmap.frames_file import read_frames, read_objects
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -88,21 +87,7 @@ def companion_path(frames_path: Path, kind: str) -> Path:
 
 
 def _json_lines(path: Path) -> list[dict[str, Any]]:
-    rows: list[dict[str, Any]] = []
-    with path.open(encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            if not line.strip():
-                continue
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError as exc:
-                msg = f"{path.name}:{number}: not JSON ({exc.msg})"
-                raise DatasetError(msg) from exc
-            if not isinstance(row, dict):
-                msg = f"{path.name}:{number}: expected an object"
-                raise DatasetError(msg)
-            rows.append(row)
-    return rows
+    return [row for _where, row in read_objects(path)]
 
 
 def _vector(row: dict[str, Any], key: str, size: int, where: str) -> tuple[float, ...]:
