@@ -84,8 +84,21 @@ def test_evaluation_reports_each_decision() -> None:
     evaluation = partitioner.last_evaluation
     assert evaluation is not None
     assert (evaluation.seq, evaluation.nodes, evaluation.components) == (1, 3, 1)
-    assert evaluation.lambda2 == pytest.approx(1.5)  # K_3: λ2 = n / (n - 1)
+    # K_3 has λ2 = 1.5 > λ2_min: proven without the eigen-solve, so no figures.
+    assert (evaluation.ncut, evaluation.lambda2) == (None, None)
+    assert evaluation.lambda2_above == partitioner.params.lambda2_min
     assert evaluation.transition is False
+
+
+def test_always_solve_reports_the_figures_of_each_decision() -> None:
+    partitioner = Partitioner(always_solve=True)
+    partitioner.observe(0, 0.0, [1])
+    partitioner.observe(1, 1.0, [1, 2, 3])
+    evaluation = partitioner.last_evaluation
+    assert evaluation is not None
+    assert evaluation.lambda2 == pytest.approx(1.5)  # K_3: λ2 = n / (n - 1)
+    assert evaluation.ncut is not None
+    assert evaluation.lambda2_above is None
 
 
 def test_disconnected_graph_is_a_transition_without_figures() -> None:

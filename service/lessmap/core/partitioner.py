@@ -25,7 +25,7 @@ import numpy as np
 from lessmap.core.covgraph import CovGraph, CovGraphState
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.params import PartitionParams, SeedMode
-from lessmap.core.spectral import components, normalized_bisection
+from lessmap.core.spectral import Components, lambda2_exceeds, split_graph
 from lessmap.core.submaps import Evaluation, Reason, Submap, Transition
 
 if TYPE_CHECKING:
@@ -89,8 +89,20 @@ def _feature_array(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
 class Partitioner:
     """CovGraph and submap state of one robot session. No I/O."""
 
-    def __init__(self, params: PartitionParams | None = None) -> None:
+    def __init__(
+        self, params: PartitionParams | None = None, *, always_solve: bool = False
+    ) -> None:
+        """Start an empty session.
+
+        Args:
+            params: thresholds and guards (the laser profile by default).
+            always_solve: run the eigen-solve at every decision, for tools that plot Ncut
+                and λ2 over time. By default a decision that provably cannot pass Eq. 4
+                (λ2 > λ2_min, ``lambda2_exceeds``) skips it; the decisions are the same,
+                only ``last_evaluation`` then holds no Ncut and λ2 for it.
+        """
         self.params = params if params is not None else PartitionParams()
+        self.always_solve = always_solve
         self._graph = CovGraph(self.params.dense_max_nodes)
         self._history: deque[FrameRecord] = deque(maxlen=self.params.history_frames)
         self._closed: deque[Submap] = deque(maxlen=self.params.keep_closed_submaps)
@@ -208,13 +220,23 @@ class Partitioner:
             return None
         # A small graph is decided on dense arrays, a large one on CSR (same formulas).
         w = self._graph.covrate_dense() if self._graph.is_dense else self._graph.covrate()
-        count, component_of = components(w)
-        if count > 1:
-            new_side = self._new_component(component_of)
-            return self._conclude(
-                seq, w, new_side, Reason.DISCONNECTED, None, None, count, batch_frames
+        if not self.always_solve and lambda2_exceeds(w, self.params.lambda2_min):
+            self.last_evaluation = Evaluation(
+                seq=seq,
+                nodes=w.shape[0],
+                components=1,
+                ncut=None,
+                lambda2=None,
+                transition=False,
+                lambda2_above=self.params.lambda2_min,
             )
-        split = normalized_bisection(w, dense_max_nodes=self.params.dense_max_nodes)
+            return None
+        split = split_graph(w, dense_max_nodes=self.params.dense_max_nodes)
+        if isinstance(split, Components):
+            new_side = self._new_component(split.labels)
+            return self._conclude(
+                seq, w, new_side, Reason.DISCONNECTED, None, None, split.count, batch_frames
+            )
         new_side = self._new_cluster(split.labels)
         valid = split.ncut <= self.params.ncut_min and split.lambda2 <= self.params.lambda2_min
         if not valid:
@@ -388,9 +410,9 @@ class Partitioner:
         )
 
     @classmethod
-    def from_state(cls, state: PartitionerState) -> Partitioner:
+    def from_state(cls, state: PartitionerState, *, always_solve: bool = False) -> Partitioner:
         """Rebuild a partitioner that makes exactly the decisions the original would."""
-        partitioner = cls(state.params)
+        partitioner = cls(state.params, always_solve=always_solve)
         partitioner._graph = CovGraph.from_state(state.graph, state.params.dense_max_nodes)
         partitioner._history.extend(state.history)
         partitioner._closed.extend(state.closed_submaps)

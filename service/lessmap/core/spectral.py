@@ -14,10 +14,12 @@ for the normalized problem and the Shi–Malik Ncut.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 from scipy import linalg, sparse
+from scipy.linalg import lapack
 from scipy.sparse import csgraph
 from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
 
@@ -32,6 +34,12 @@ DENSE_MAX_NODES = 400
 #: W as the CovGraph hands it over: CSR in general, a dense array for small graphs.
 Similarity: TypeAlias = "sparse.csr_array | NDArray[np.float64]"
 
+#: λ2 above this proves a dense graph connected without a search (see ``split_graph``).
+CONNECTED_LAMBDA2 = 1e-9
+
+#: ``lambda2_exceeds`` certifies λ2 > bound + this, far above Cholesky's rounding (~1e-13).
+CERTIFICATE_MARGIN = 1e-9
+
 
 @dataclass(frozen=True, slots=True)
 class Bisection:
@@ -41,6 +49,84 @@ class Bisection:
     ncut: float  # Shi–Malik Ncut of this split
     lambda2: float  # second smallest eigenvalue of L v = λ D v
     fiedler: NDArray[np.float64]  # (n,) v2, the generalized eigenvector (sign arbitrary)
+
+
+@dataclass(frozen=True, slots=True)
+class Components:
+    """A graph that falls apart: how many components, and each node's component."""
+
+    count: int  # > 1
+    labels: NDArray[np.int32]  # (n,) numbered in order of their lowest node
+
+
+def lambda2_exceeds(w: Similarity, bound: float) -> bool:
+    """Return True when λ2 of L v = λ D v provably exceeds ``bound`` (dense W only).
+
+    A transition needs λ2 <= λ2_min (Eq. 4), and most decisions are nowhere near it: a
+    room being walked has λ2 around 0.9. Proving λ2 > λ2_min settles such a decision
+    without the eigen-solve, at the cost of one Cholesky factorization (~n³/3 flops against
+    dsyevr's ~4n³/3 and its Python wrapping): with u1 = D^1/2 1 / ‖D^1/2 1‖, the first
+    eigenvector of L_sym = I - D^-1/2 W D^-1/2 (eigenvalue 0), the matrix
+
+        M = L_sym - t I + (t + 1) u1 u1ᵀ,   t = bound + CERTIFICATE_MARGIN
+
+    has the eigenvalues 1 (on u1) and λk - t (k >= 2), so it is positive definite exactly
+    when λ2 > t. Cholesky is backward stable: success means M + E is positive definite for
+    an ‖E‖ of order n·ε·‖M‖ (about 1e-13 at 400 nodes), which the margin covers. A graph
+    that falls apart has λ2 = 0 and never passes, nor does one with an isolated node.
+    False means "not proven": the caller solves as usual, so decisions never change.
+
+    Args:
+        w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n).
+        bound: the λ2 to beat (λ2_min).
+
+    Returns:
+        True when λ2 > bound is proven; False otherwise, and always for a sparse W.
+    """
+    if not isinstance(w, np.ndarray) or w.shape[0] < 2:
+        return False
+    n = w.shape[0]
+    degrees = w.sum(axis=1)
+    if not degrees.min() > 0.0:
+        return False
+    inv_sqrt = 1.0 / np.sqrt(degrees)
+    shift = bound + CERTIFICATE_MARGIN
+    u1 = np.sqrt(degrees / degrees.sum())
+    matrix = inv_sqrt[:, None] * w
+    matrix *= -inv_sqrt[None, :]
+    matrix += (shift + 1.0) * np.outer(u1, u1)
+    matrix.flat[:: n + 1] += 1.0 - shift
+    _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
+    return bool(info == 0)
+
+
+def split_graph(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bisection | Components:
+    """Return the components of W when it falls apart, else its normalized bisection.
+
+    Small (dense) graphs are solved first and searched only when needed: a graph of k
+    components has the eigenvalue 0 k times, which LAPACK's dsyevr returns within a few
+    ulps of 0 (|λ| ≲ 1e-15 on this spectrum in [0, 2]), so λ2 > ``CONNECTED_LAMBDA2``
+    proves one component. That skips the breadth-first search, which cost as much as the
+    2-means under fleet load, in every decision but the rare ones near disconnection.
+    Sparse graphs keep the search first: ARPACK is not asked to converge on a repeated 0.
+
+    Args:
+        w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2.
+        dense_max_nodes: solve with LAPACK up to this size, ARPACK above.
+    """
+    bisection: Bisection | None = None
+    if isinstance(w, np.ndarray):
+        degrees = w.sum(axis=1)
+        if degrees.min() > 0.0:
+            bisection = _bisection(w, degrees, dense_max_nodes)
+            if bisection.lambda2 > CONNECTED_LAMBDA2:
+                return bisection
+    count, labels = components(w)
+    if count > 1:
+        return Components(count=count, labels=labels)
+    if bisection is not None:
+        return bisection
+    return normalized_bisection(w, dense_max_nodes=dense_max_nodes)
 
 
 def components(w: Similarity) -> tuple[int, NDArray[np.int32]]:
@@ -77,14 +163,18 @@ def _dense_components(adjacent: NDArray[np.bool_]) -> tuple[int, NDArray[np.int3
     return count, labels
 
 
-def normalized_cut(w: Similarity, labels: NDArray[np.integer]) -> float:
+def normalized_cut(
+    w: Similarity, labels: NDArray[np.integer], degrees: NDArray[np.float64] | None = None
+) -> float:
     """Return Ncut(A, B) = cut/assoc(A, V) + cut/assoc(B, V) (Shi–Malik, PAPER.md Eq. 3).
 
     Args:
         w: symmetric similarity, shape (n, n).
         labels: (n,) 0/1 membership; both sides must be non-empty with positive degree.
+        degrees: the row sums of W when the caller has them already.
     """
-    degrees = np.asarray(w.sum(axis=1)).ravel()
+    if degrees is None:
+        degrees = np.asarray(w.sum(axis=1)).ravel()
     side = np.asarray(labels) != 0
     assoc_b = float(degrees[side].sum())
     assoc_a = float(degrees[~side].sum())
@@ -92,7 +182,7 @@ def normalized_cut(w: Similarity, labels: NDArray[np.integer]) -> float:
         msg = f"Ncut needs two sides of positive degree, got assoc {assoc_a} and {assoc_b}"
         raise GraphError(msg)
     if isinstance(w, np.ndarray):
-        cut = float(w[np.ix_(~side, side)].sum())
+        cut = float(w[~side][:, side].sum())  # the same block as np.ix_, at half the cost
     else:
         coo = w.tocoo()
         crossing = side[coo.row] != side[coo.col]
@@ -114,27 +204,31 @@ def two_means_1d(values: NDArray[np.float64]) -> NDArray[np.int8]:
     if n < 2:
         msg = f"2-means needs at least 2 points, got {n}"
         raise GraphError(msg)
-    order = np.argsort(values, kind="stable")
-    ordered = values[order] - values.mean()  # centring keeps the prefix sums well conditioned
+    centred = values - values.mean()  # centring keeps the prefix sums well conditioned
+    ordered = np.sort(centred)
     prefix = np.cumsum(ordered)[:-1]  # sum of the k smallest, k = 1 .. n-1
     total = prefix[-1] + ordered[-1]
     k = np.arange(1, n, dtype=np.float64)
     # SSE = Σx² - S_left²/k - S_right²/(n-k); Σx² is constant, so maximize the rest.
     score = prefix**2 / k + (total - prefix) ** 2 / (n - k)
     score[ordered[1:] <= ordered[:-1]] = -np.inf  # no threshold between equal values
-    if not np.isfinite(score).any():
+    split = int(np.argmax(score)) + 1
+    if not np.isfinite(score[split - 1]):
         msg = "2-means needs at least two distinct values"
         raise GraphError(msg)
-    split = int(np.argmax(score)) + 1
-    labels = np.zeros(n, dtype=np.int8)
-    labels[order[split:]] = 1
+    # The split lies between two distinct sorted values, so a threshold on the centred
+    # values gives the same clusters as labelling positions in the sorted order.
+    labels: NDArray[np.int8] = (centred >= ordered[split]).astype(np.int8)
     if labels[0] != 0:
         labels ^= 1
     return labels
 
 
 def fiedler_pair(
-    w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES
+    w: Similarity,
+    *,
+    dense_max_nodes: int = DENSE_MAX_NODES,
+    degrees: NDArray[np.float64] | None = None,
 ) -> tuple[float, NDArray[np.float64]]:
     """Return λ2 and v2 of L v = λ D v for a connected similarity graph.
 
@@ -142,6 +236,7 @@ def fiedler_pair(
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2,
             connected (check components first: D is singular on an isolated node).
         dense_max_nodes: solve with LAPACK up to this size, ARPACK above.
+        degrees: the row sums of W when the caller has them already.
 
     Returns:
         λ2 (clipped at 0 against round-off) and the generalized eigenvector v2, shape (n,).
@@ -150,7 +245,8 @@ def fiedler_pair(
     if n < 2:
         msg = f"a bisection needs at least 2 nodes, got {n}"
         raise GraphError(msg)
-    degrees = np.asarray(w.sum(axis=1)).ravel()
+    if degrees is None:
+        degrees = np.asarray(w.sum(axis=1)).ravel()
     if not (degrees > 0).all():
         msg = f"node {int(np.argmin(degrees))} has no edge: split the components first"
         raise GraphError(msg)
@@ -158,7 +254,11 @@ def fiedler_pair(
     if isinstance(w, np.ndarray):
         # Small graphs arrive dense: no sparse containers to build (they cost more than the
         # solve itself at tens of nodes).
-        lambda2, u2 = _dense_second_pair(inv_sqrt[:, None] * w * inv_sqrt[None, :])
+        lsym = inv_sqrt[:, None] * w
+        lsym *= inv_sqrt[None, :]
+        np.negative(lsym, out=lsym)
+        lsym.flat[:: n + 1] = 1.0  # I - D^-1/2 W D^-1/2, W's diagonal being 0
+        lambda2, u2 = _lapack_second_pair(lsym)
         return max(lambda2, 0.0), u2 * inv_sqrt
     scaled = sparse.csr_array(sparse.diags_array(inv_sqrt) @ w @ sparse.diags_array(inv_sqrt))
     if n <= dense_max_nodes:
@@ -173,9 +273,35 @@ def fiedler_pair(
 
 def _dense_second_pair(scaled: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
     n = scaled.shape[0]
-    lsym = np.eye(n) - scaled
-    values, vectors = linalg.eigh(lsym, subset_by_index=[0, 1])
+    return _lapack_second_pair(np.eye(n) - scaled)
+
+
+def _lapack_second_pair(lsym: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+    """The second smallest eigenpair of a symmetric matrix (overwritten), by LAPACK dsyevr.
+
+    The same routine and arguments as ``scipy.linalg.eigh(lsym, subset_by_index=[0, 1])``,
+    called directly: on room-sized graphs eigh's argument checks and workspace query cost
+    about a third of the solve, at every decision.
+    """
+    lwork, liwork = _dsyevr_workspace(lsym.shape[0])
+    values, vectors, found, _, info = lapack.dsyevr(
+        lsym, compute_v=1, range="I", il=1, iu=2, lower=1,
+        lwork=lwork, liwork=liwork, overwrite_a=1,
+    )  # fmt: skip
+    if info != 0 or found != 2:
+        # Let scipy report what went wrong (it raises LinAlgError with the reason).
+        values, vectors = linalg.eigh(lsym, subset_by_index=[0, 1])
     return float(values[1]), np.asarray(vectors[:, 1], dtype=np.float64)
+
+
+@lru_cache(maxsize=512)
+def _dsyevr_workspace(n: int) -> tuple[int, int]:
+    """Return the optimal dsyevr workspace for order n (a LAPACK query; depends on n only)."""
+    work, iwork, info = lapack.dsyevr_lwork(n, lower=1)
+    if info != 0:
+        msg = f"LAPACK dsyevr workspace query failed for order {n} (info {info})"
+        raise GraphError(msg)
+    return int(work), int(iwork)
 
 
 def _sparse_second_pair(
@@ -216,8 +342,12 @@ def normalized_bisection(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODE
         Shi, Malik. "Normalized cuts and image segmentation." TPAMI 22 (2000).
         Vázquez-Martín et al. "LESS-mapping." RAS 60 (2012), Eqs. 2-4.
     """
-    lambda2, fiedler = fiedler_pair(w, dense_max_nodes=dense_max_nodes)
+    return _bisection(w, np.asarray(w.sum(axis=1)).ravel(), dense_max_nodes)
+
+
+def _bisection(w: Similarity, degrees: NDArray[np.float64], dense_max_nodes: int) -> Bisection:
+    lambda2, fiedler = fiedler_pair(w, dense_max_nodes=dense_max_nodes, degrees=degrees)
     labels = two_means_1d(fiedler)
     return Bisection(
-        labels=labels, ncut=normalized_cut(w, labels), lambda2=lambda2, fiedler=fiedler
+        labels=labels, ncut=normalized_cut(w, labels, degrees), lambda2=lambda2, fiedler=fiedler
     )

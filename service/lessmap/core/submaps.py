@@ -50,3 +50,6 @@ class Evaluation:
     ncut: float | None  # None when no bisection was computed
     lambda2: float | None
     transition: bool
+    # Set instead of ncut and λ2 when the decision was settled by proving λ2 > this bound
+    # (λ2_min) without the eigen-solve; see ``Partitioner(always_solve=...)``.
+    lambda2_above: float | None = None

@@ -82,8 +82,11 @@ def labels_from_transitions(
 
 
 def run_lessmap(frames: Sequence[FrameRow], params: PartitionParams) -> LessmapRun:
-    """Run one partitioner over the frames (one robot), deciding at every frame."""
-    partitioner = Partitioner(params)
+    """Run one partitioner over the frames (one robot), deciding at every frame.
+
+    Every decision is solved in full, so the evaluations carry Ncut and λ2 for plots.
+    """
+    partitioner = Partitioner(params, always_solve=True)
     transitions: list[Transition] = []
     evaluations: list[Evaluation] = []
     for frame in frames:

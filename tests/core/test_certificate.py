@@ -1,0 +1,100 @@
+"""The λ2 certificate: decisions settled by a Cholesky proof are the decisions of a full solve."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from lessmap.core import Partitioner, PartitionParams
+from lessmap.core.spectral import Bisection, Components, fiedler_pair, lambda2_exceeds, split_graph
+from lessmap.frames_file import read_frames
+from tests.conftest import dataset
+from tests.core.helpers import random_connected, room_walk, two_cliques
+
+if TYPE_CHECKING:
+    from tests.core.helpers import Frames
+
+
+def decisions(partitioner: Partitioner, frames: Frames) -> list[tuple[object, ...]]:
+    """Every decision's outcome and, for transitions, everything they publish."""
+    found: list[tuple[object, ...]] = []
+    for seq, frame in enumerate(frames):
+        transition = partitioner.observe(seq, float(seq), frame)
+        evaluation = partitioner.last_evaluation
+        assert evaluation is not None
+        found.append((seq, evaluation.nodes, evaluation.components, evaluation.transition))
+        if transition is not None:
+            t = transition
+            found.append((t.boundary_seq, t.reason, t.ncut, t.lambda2, t.closed, t.opened))
+            found.append(t.boundary_features)
+    return found
+
+
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 60),
+    density=st.floats(0.05, 1.0),
+    bound=st.sampled_from([0.0, 0.1, 0.2, 0.5, 1.0]),
+)
+@settings(max_examples=300, deadline=None)
+def test_the_certificate_is_sound_and_tight(
+    seed: int, n: int, density: float, bound: float
+) -> None:
+    w = random_connected(np.random.default_rng(seed), n, density).toarray()
+    lambda2, _ = fiedler_pair(w)
+    proven = lambda2_exceeds(w, bound)
+    if proven:
+        assert lambda2 > bound
+    if lambda2 > bound + 1e-6:
+        assert proven, f"λ2 = {lambda2} > {bound} not proven"
+
+
+@pytest.mark.parametrize("weak", [0.0, 1e-3, 0.05, 0.3])
+def test_the_certificate_fails_near_a_split_and_on_a_disconnected_graph(weak: float) -> None:
+    order = np.arange(20, dtype=np.int64)
+    w = two_cliques(10, weak, order).toarray()
+    lambda2, _ = fiedler_pair(w) if weak > 0 else (0.0, None)
+    assert lambda2_exceeds(w, 0.2) is (lambda2 > 0.2)
+    assert not lambda2_exceeds(w, lambda2 + 1e-6)
+
+
+def test_an_isolated_node_or_a_sparse_matrix_is_never_certified() -> None:
+    w = np.zeros((3, 3))
+    w[0, 1] = w[1, 0] = 1.0
+    assert not lambda2_exceeds(w, 0.0)
+    dense = random_connected(np.random.default_rng(0), 10, 1.0)
+    assert not lambda2_exceeds(dense, 0.0)  # CSR: not handled, so not proven
+
+
+def test_split_graph_finds_components_without_searching_connected_graphs() -> None:
+    order = np.arange(8, dtype=np.int64)
+    apart = split_graph(two_cliques(4, 0.0, order).toarray())
+    assert isinstance(apart, Components)
+    assert apart.count == 2
+    assert apart.labels.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    joined = split_graph(two_cliques(4, 0.01, order).toarray())
+    assert isinstance(joined, Bisection)
+    assert joined.labels.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("profile", ["laser", "monocular"])
+def test_certified_decisions_equal_full_solves_on_room_walks(seed: int, profile: str) -> None:
+    walk = room_walk(seed, rooms=5, back=True, door_frames=2, door_share=0.2)
+    params = PartitionParams.from_profile(profile)
+    fast = Partitioner(params)
+    full = Partitioner(params, always_solve=True)
+    assert decisions(fast, walk.frames) == decisions(full, walk.frames)
+    assert fast.transitions >= 1
+
+
+def test_certified_decisions_equal_full_solves_on_dlr() -> None:
+    path = dataset("dlr.frames.jsonl")
+    frames = [list(row.features) for row in read_frames(path)]
+    fast = Partitioner(PartitionParams.from_profile("laser"))
+    full = Partitioner(PartitionParams.from_profile("laser"), always_solve=True)
+    assert decisions(fast, frames) == decisions(full, frames)
+    assert full.transitions == 115
