@@ -140,9 +140,11 @@ class CovGraph:
         self._touched[nodes] = True
         self._rates_stale = True
         if self._dense is not None:
-            block = np.ix_(nodes, nodes)
-            self._dense[block] += 1
-            self._dense[nodes, nodes] -= 1  # a feature is not its own neighbour
+            # The k x k block through flat indices: half the cost of np.ix_ at k ~ 20.
+            side = self._dense.shape[1]
+            flat = self._dense.reshape(-1)  # a view: the matrix is C-contiguous
+            flat[(nodes * side)[:, None] + nodes] += 1  # nodes are distinct: no lost updates
+            flat[nodes * (side + 1)] -= 1  # a feature is not its own neighbour
         elif nodes.size >= 2:
             # All pairs i < j of the frame; nodes is sorted, so triu indices give i < j.
             left, right = np.triu_indices(nodes.size, k=1)

@@ -37,8 +37,8 @@ Similarity: TypeAlias = "sparse.csr_array | NDArray[np.float64]"
 #: λ2 above this proves a dense graph connected without a search (see ``split_graph``).
 CONNECTED_LAMBDA2 = 1e-9
 
-#: ``lambda2_exceeds`` certifies λ2 > bound + this, far above Cholesky's rounding (~1e-13).
-CERTIFICATE_MARGIN = 1e-9
+#: ``lambda2_exceeds`` certifies λ2 > bound + this, far above Cholesky's rounding (~1e-10).
+CERTIFICATE_MARGIN = 1e-8
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,16 +65,18 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     A transition needs λ2 <= λ2_min (Eq. 4), and most decisions are nowhere near it: a
     room being walked has λ2 around 0.9. Proving λ2 > λ2_min settles such a decision
     without the eigen-solve, at the cost of one Cholesky factorization (~n³/3 flops against
-    dsyevr's ~4n³/3 and its Python wrapping): with u1 = D^1/2 1 / ‖D^1/2 1‖, the first
-    eigenvector of L_sym = I - D^-1/2 W D^-1/2 (eigenvalue 0), the matrix
+    dsyevr's ~4n³/3 and its Python wrapping). With d the degrees, S = Σd and t = bound +
+    ``CERTIFICATE_MARGIN``, the matrix
 
-        M = L_sym - t I + (t + 1) u1 u1ᵀ,   t = bound + CERTIFICATE_MARGIN
+        M = (1 - t) D - W + (t + 1)/S · d dᵀ = D^1/2 (L_sym - t I + (t + 1) u1 u1ᵀ) D^1/2
 
-    has the eigenvalues 1 (on u1) and λk - t (k >= 2), so it is positive definite exactly
-    when λ2 > t. Cholesky is backward stable: success means M + E is positive definite for
-    an ‖E‖ of order n·ε·‖M‖ (about 1e-13 at 400 nodes), which the margin covers. A graph
-    that falls apart has λ2 = 0 and never passes, nor does one with an isolated node.
-    False means "not proven": the caller solves as usual, so decisions never change.
+    is congruent to a matrix with the eigenvalues 1 (on u1 = D^1/2 1 / √S, the eigenvector
+    of L_sym = I - D^-1/2 W D^-1/2 for λ1 = 0) and λk - t (k >= 2), so by Sylvester's law
+    of inertia M is positive definite exactly when λ2 > t. Cholesky is backward stable
+    with a componentwise error |E_ij| <= c·n·ε·√(M_ii M_jj); scaled back by D^-1/2 that
+    moves λ2 by at most about 2·c·n²·ε (~1e-10 at 400 nodes), which the margin covers.
+    A graph that falls apart has λ2 = 0 and never passes, nor does one with an isolated
+    node. False means "not proven": the caller solves as usual, so decisions never change.
 
     Args:
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n).
@@ -89,13 +91,10 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     degrees = w.sum(axis=1)
     if not degrees.min() > 0.0:
         return False
-    inv_sqrt = 1.0 / np.sqrt(degrees)
     shift = bound + CERTIFICATE_MARGIN
-    u1 = np.sqrt(degrees / degrees.sum())
-    matrix = inv_sqrt[:, None] * w
-    matrix *= -inv_sqrt[None, :]
-    matrix += (shift + 1.0) * np.outer(u1, u1)
-    matrix.flat[:: n + 1] += 1.0 - shift
+    matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
+    matrix -= w
+    matrix.flat[:: n + 1] += (1.0 - shift) * degrees
     _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
     return bool(info == 0)
 
