@@ -78,6 +78,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         "instance": args.instance,
         "session_idle_timeout_s": args.idle_timeout,
         "max_batch_frames": args.max_batch_frames,
+        "batch_linger_ms": args.batch_linger_ms,
         **_shard_flags(args.shard),
         "mode": args.mode,
         "zenoh_config": args.zenoh_config,
@@ -149,6 +150,11 @@ def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--max-batch-frames",
         type=int,
         help="frames coalesced per decision under load (1 = decide every frame)",
+    )
+    part.add_argument(
+        "--batch-linger-ms",
+        type=float,
+        help="after waking on a quiet queue, wait this long for more frames (default 0 = off)",
     )
     srv.set_defaults(run=_cmd_serve)
 

@@ -8,6 +8,7 @@ holds on a loaded two-core machine.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -51,18 +52,24 @@ def offline_transitions(spec: LoadSpec, spacing: float) -> dict[str, list[int]]:
     return found
 
 
-def test_small_fleet_loses_nothing_and_every_crossing_robot_gets_its_transitions() -> None:
-    report = run_load(SPEC)
+@pytest.mark.parametrize("linger_ms", [None, 5.0], ids=["no-linger", "linger-5ms"])
+def test_small_fleet_loses_nothing_and_every_crossing_robot_gets_its_transitions(
+    linger_ms: float | None,
+) -> None:
+    # With lingering, the shard waits for more frames after each wake-up: a different
+    # batching path that must lose nothing and, deciding per frame, find the same transitions.
+    spec = dataclasses.replace(SPEC, batch_linger_ms=linger_ms)
+    report = run_load(spec)
     summary = format_report(report)
 
     assert report.drained, summary
-    assert report.sessions_reported == SPEC.robots, summary
-    assert report.offered == SPEC.robots * SPEC.frames_per_robot, summary
+    assert report.sessions_reported == spec.robots, summary
+    assert report.offered == spec.robots * spec.frames_per_robot, summary
     assert report.lost == 0, summary
     assert (report.missing, report.duplicate, report.rejected) == (0, 0, 0), summary
     assert report.applied_by_robot == report.offered_by_robot, summary
 
-    expected = offline_transitions(SPEC, report.landmark_spacing_m)
+    expected = offline_transitions(spec, report.landmark_spacing_m)
     assert expected, "the seed should make robots cross rooms within the run"
     assert report.transitions_by_robot == expected, summary
     assert report.transitions_service == report.transitions_received, summary

@@ -57,6 +57,7 @@ def test_defaults() -> None:
     assert settings.seed_mode is SeedMode.SEED
     assert settings.workers == 1
     assert settings.max_batch_frames == 256
+    assert settings.batch_linger_ms == 0.0  # latency first; lingering is opt-in
     assert settings.max_sessions == 10_000
     assert settings.limits.max_features_per_frame == 4096
     assert settings.limits.max_payload_bytes == 1_048_576
@@ -136,6 +137,8 @@ def test_file_values_without_environment(tmp_path: Path) -> None:
         ({"workers": 65}, "workers"),
         ({"profile": "sonar"}, "profile"),
         ({"max_batch_frames": 0}, "max_batch_frames"),
+        ({"batch_linger_ms": -1.0}, "batch_linger_ms"),
+        ({"batch_linger_ms": 500.0}, "batch_linger_ms"),
         ({"session_idle_timeout_s": 0.0}, "session_idle_timeout_s"),
         ({"seed_mode": "sometimes"}, "seed_mode"),
         ({"mode": "broker"}, "mode"),

@@ -109,6 +109,7 @@ class Service:
                     limits=s.limits.wire_limits(),
                     queue_depth=s.queue_depth,
                     queue_bytes=_QUEUE_BYTES_PER_SHARD,
+                    linger_s=s.batch_linger_ms / 1000.0,
                 )
             )
         for shard in self._shards:

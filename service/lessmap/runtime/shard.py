@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _BATCH_MAX = 4096  # messages taken from the queue per round: bounds one round's latency
+_LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
 
 
@@ -54,6 +55,7 @@ class Shard:
         limits: WireLimits,
         queue_depth: int,
         queue_bytes: int,
+        linger_s: float = 0.0,
     ) -> None:
         self.index = index
         self.table = table
@@ -64,6 +66,7 @@ class Shard:
         self._queue_depth = queue_depth
         self._queue_bytes = queue_bytes
         self._queued_bytes = 0
+        self._linger_s = linger_s
         self._ready = threading.Condition()
         self._stopping = False
         self._thread = threading.Thread(
@@ -122,6 +125,12 @@ class Shard:
                 self._ready.wait(timeout=_IDLE_SWEEP_S / 2)
                 if not self._queue:
                     break
+            linger = 0 < len(self._queue) < _LINGER_BELOW and not self._stopping
+        if linger and self._linger_s > 0:
+            # Woken by one frame: let the next few milliseconds of frames join this round.
+            # A wake-up per frame costs as much CPU as the frame's own work at fleet rates.
+            time.sleep(self._linger_s)
+        with self._ready:
             batch: list[Inbound] = []
             while self._queue and len(batch) < _BATCH_MAX:
                 item = self._queue.popleft()

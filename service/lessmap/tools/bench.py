@@ -425,6 +425,11 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         type=int,
         help="service coalescing bound (default: its own; 1 = decide per frame)",
     )
+    parser.add_argument(
+        "--batch-linger-ms",
+        type=float,
+        help="service wait for more frames after a wake-up (default: its own; 0 = off)",
+    )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument(
         "--find-knee",
@@ -467,6 +472,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         workers=args.workers,
         instances=args.instances,
         max_batch_frames=args.max_batch_frames,
+        batch_linger_ms=args.batch_linger_ms,
     )
 
 

@@ -127,6 +127,8 @@ class ServiceProcess:
             args += ["--workers", str(spec.workers)]
         if spec.max_batch_frames is not None:
             args += ["--max-batch-frames", str(spec.max_batch_frames)]
+        if spec.batch_linger_ms is not None:
+            args += ["--batch-linger-ms", str(spec.batch_linger_ms)]
         if spec.instances > 1:
             args += ["--shard", f"{shard}/{spec.instances}"]
         if connect is not None:

@@ -259,6 +259,11 @@ def _ms(seconds: float, *, bound: bool = False) -> str:
     return f"{'≤ ' if bound else ''}{1000 * seconds:.1f} ms"
 
 
+def _own(value: float | None) -> str:
+    """A service option as given, or the service's own default."""
+    return "default" if value is None else f"{value:g}"
+
+
 def format_report(r: LoadReport) -> str:
     """Human-readable report: figures, targets, and the offline baseline side by side."""
     s = r.spec
@@ -274,6 +279,8 @@ def format_report(r: LoadReport) -> str:
         f"for {s.duration_s:g} s; {s.generators} generator process(es); seed {s.seed}",
         f"machine: {r.cpus} CPUs, load average {r.load_before[0]:.2f} before, "
         f"{r.load_after[0]:.2f} after (1 min)",
+        f"service: {s.instances} instance(s); {_own(s.workers)} shard(s), max batch frames "
+        f"{_own(s.max_batch_frames)}, batch linger {_own(s.batch_linger_ms)} ms",
         "",
         f"frames      offered {r.offered}  applied {r.applied}  LOST {r.lost}  missing "
         f"{r.missing}  duplicate {r.duplicate}  rejected {r.rejected}  "

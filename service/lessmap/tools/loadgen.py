@@ -41,6 +41,7 @@ class LoadSpec:
     fleet: str = "bench"
     workers: int | None = None  # service shards (None: the service default)
     max_batch_frames: int | None = None  # None: the service default (coalescing on)
+    batch_linger_ms: float | None = None  # None: the service default
     instances: int = 1  # service processes splitting the fleet (`lessmap serve --shard I/N`)
     baseline_robots: int = _BASELINE_ROBOTS
     speed_mps: float = 0.5  # the simulator's walking speed (its default)
