@@ -75,6 +75,13 @@ def test_split_graph_finds_components_without_searching_connected_graphs() -> No
     assert isinstance(apart, Components)
     assert apart.count == 2
     assert apart.labels.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    three = np.zeros((9, 9))
+    for block in (slice(0, 3), slice(3, 6), slice(6, 9)):
+        three[block, block] = 1.0
+    np.fill_diagonal(three, 0.0)
+    apart3 = split_graph(three)
+    assert isinstance(apart3, Components)
+    assert (apart3.count, apart3.labels.tolist()) == (3, [0, 0, 0, 1, 1, 1, 2, 2, 2])
     joined = split_graph(two_cliques(4, 0.01, order).toarray())
     assert isinstance(joined, Bisection)
     assert joined.labels.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]

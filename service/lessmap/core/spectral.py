@@ -117,9 +117,13 @@ def split_graph(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bis
     if isinstance(w, np.ndarray):
         degrees = w.sum(axis=1)
         if degrees.min() > 0.0:
-            bisection = _bisection(w, degrees, dense_max_nodes)
-            if bisection.lambda2 > CONNECTED_LAMBDA2:
-                return bisection
+            try:
+                bisection = _bisection(w, degrees, dense_max_nodes)
+            except GraphError:
+                bisection = None  # a degenerate split of a graph that fell apart: search
+            else:
+                if bisection.lambda2 > CONNECTED_LAMBDA2:
+                    return bisection
     count, labels = components(w)
     if count > 1:
         return Components(count=count, labels=labels)
