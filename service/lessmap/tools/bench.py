@@ -444,7 +444,11 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         help="fleet sizes for --find-knee, comma separated",
     )
     parser.add_argument(
-        "--knee-duration", type=float, default=20.0, help="seconds per --find-knee step (20)"
+        "--knee-duration",
+        type=float,
+        default=40.0,
+        help="seconds per --find-knee step (40: shorter steps end before the CovGraphs of "
+        "200+ robots have grown, and the RSS rule then fails on warm-up)",
     )
     parser.add_argument(
         "--profile",
