@@ -6,6 +6,8 @@ on it without zenoh or numpy. The language-neutral specification is `schemas/REA
 
 from __future__ import annotations
 
+from importlib.metadata import version
+
 from lessmap_schemas import keys
 from lessmap_schemas.codec import MEDIA_TYPE, decode, decode_inbound, encode, encoding
 from lessmap_schemas.errors import ErrorCode, InvalidNameError, WireError
@@ -23,6 +25,8 @@ from lessmap_schemas.messages import (
     SubmapSummary,
     Transition,
 )
+
+__version__ = version("lessmap-schemas")  # one source: the repository's VERSION file
 
 __all__ = [
     "DEFAULT_LIMITS",
@@ -43,6 +47,7 @@ __all__ = [
     "Transition",
     "WireError",
     "WireLimits",
+    "__version__",
     "decode",
     "decode_inbound",
     "encode",

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import logging
+from importlib.metadata import version
 
-__version__ = "0.1.0"
+__version__ = version("lessmap")  # one source: the VERSION file at the repository root
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -188,14 +188,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_partition_options(seg)
     seg.set_defaults(run=_cmd_segment)
     _add_serve(commands)
+    from lessmap.demo import add_commands as add_demo_command
     from lessmap.evaluation.commands import add_commands as add_evaluation_commands
-    from lessmap.tools.bench import add_commands as add_bench_commands
-    from lessmap.tools.demo import add_commands as add_demo_command
+    from lessmap.sim.command import add_command as add_sim_command
     from lessmap_client.cli_client import add_commands as add_client_commands
 
     add_demo_command(commands)
-    add_bench_commands(commands)
     add_client_commands(commands)
+    add_sim_command(commands)
     add_evaluation_commands(commands)
     return parser
 

@@ -2,13 +2,12 @@
 
 Run from the repository root (docs/BENCHMARKS.md explains every figure):
 
-    python tests/benchmarks/fleet_load.py --robots 200 --rate 10 --features 20 --duration 60
-    python tests/benchmarks/fleet_load.py --find-knee
-    python tests/benchmarks/fleet_load.py --robots 150 --duration 40 --profile profile.txt
+    python -m tests.benchmarks.fleet_load --robots 200 --rate 10 --features 20 --duration 60
+    python -m tests.benchmarks.fleet_load --find-knee
+    python -m tests.benchmarks.fleet_load --robots 150 --duration 40 --profile profile.txt
 
-The same benchmark is ``lessmap bench fleet``; the machinery lives in ``lessmap.tools.bench``
-so the installed command has it too. Importable: ``run_load(LoadSpec(...))`` returns a
-``LoadReport``; ``format_report`` prints it.
+The machinery lives in ``tests/benchmarks/fleet/``, outside every wheel. Importable:
+``run_load(LoadSpec(...))`` returns a ``LoadReport``; ``format_report`` prints it.
 """
 
 from __future__ import annotations
@@ -17,7 +16,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from lessmap.tools.bench import (
+from tests.benchmarks.fleet.orchestrate import (
     LoadReport,
     LoadSpec,
     add_fleet_options,
@@ -45,9 +44,12 @@ __all__ = [
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse the options and run the benchmark; 0 when the bar is met, 2 when missed."""
     parser = argparse.ArgumentParser(
-        prog="fleet_load.py",
-        description="Fleet load benchmark of lessmap serve (same options as `lessmap bench "
-        "fleet`).",
+        prog="python -m tests.benchmarks.fleet_load",
+        description="Start `lessmap serve` on a free loopback port and 1-2 load generator "
+        "processes that publish simulated robots in real time; print frames offered, applied "
+        "and lost, latencies, service CPU and RSS, and an in-process baseline of the core on "
+        "the same streams. Exit code 2 when the bar is missed: 0 lost, p99 service latency "
+        "≤ 250 ms, flat RSS.",
     )
     add_fleet_options(parser)
     return run_fleet(parser.parse_args(argv))

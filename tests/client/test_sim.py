@@ -15,9 +15,9 @@ import pytest
 
 from lessmap.core import Partitioner, PartitionParams, Transition
 from lessmap.frames_file import read_frames
-from lessmap_client.adapters.building import FACE_OFFSET_M, Building, Door, generate_building
-from lessmap_client.adapters.groundtruth import Score, changes_from_truth, score
-from lessmap_client.adapters.sim import SimRun, iter_frames, simulate, write_run
+from lessmap.sim.building import FACE_OFFSET_M, Building, Door, generate_building
+from lessmap.sim.groundtruth import Score, changes_from_truth, score
+from lessmap.sim.simulator import SimRun, iter_frames, simulate, write_run
 
 if TYPE_CHECKING:
     from pathlib import Path

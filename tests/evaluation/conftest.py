@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from lessmap_client.adapters.sim import SimRun, simulate, write_run
+from lessmap.sim.simulator import SimRun, simulate, write_run
 
 if TYPE_CHECKING:
     from pathlib import Path

@@ -10,7 +10,7 @@ import pytest
 
 from lessmap.errors import ConfigError, DatasetError
 from lessmap.evaluation.commands import add_commands
-from lessmap_client.adapters.sim import simulate, write_run
+from lessmap.sim.simulator import simulate, write_run
 from tests.evaluation.helpers import write_dataset
 
 if TYPE_CHECKING:

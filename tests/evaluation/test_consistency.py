@@ -19,7 +19,7 @@ from lessmap.frames_file import FrameRow, read_frames
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from lessmap_client.adapters.sim import SimRun
+    from lessmap.sim.simulator import SimRun
 
 
 def corridor_truth() -> SimTruth:

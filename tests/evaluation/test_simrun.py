@@ -25,7 +25,7 @@ from tests.evaluation.helpers import write_dataset
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from lessmap_client.adapters.sim import SimRun
+    from lessmap.sim.simulator import SimRun
 
 
 def copy_run(sim_frames: Path, folder: Path) -> Path:

@@ -3,7 +3,7 @@
     python -m lessmap.evaluation.results --sim /tmp/sim/sim.frames.jsonl --out docs --jobs 2
 
 It evaluates a recorded data set (default: DLR from ``../shared/datasets``) and a simulated
-run (frames, truth and building files of ``lessmap_client.adapters.sim.write_run``; this
+run (frames, truth and building files of ``lessmap.sim.simulator.write_run``; this
 package may not import the simulator, so its files are the input), then renders the page
 with ``lessmap.evaluation.resultsdoc``. Every figure on the page is measured here; the page
 names, for each table, the ``lessmap eval`` command that gives the same numbers.

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from lessmap.evaluation.results import RecordedResults, SimResults
 
 SIM_ONE_LINER = (
-    'python -c "from lessmap_client.adapters.sim import simulate, write_run; '
+    'python -c "from lessmap.sim.simulator import simulate, write_run; '
     "write_run(simulate(0, rooms=8, robots=3, frames_per_robot=1000), '/tmp/sim', 'sim')\""
 )
 

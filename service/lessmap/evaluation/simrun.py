@@ -1,6 +1,6 @@
 """Read a simulated run's files: ground truth, building, and a SLAM problem to measure e.
 
-The simulator (``lessmap_client.adapters.sim.write_run``, formats in its docstring) writes
+The simulator (``lessmap.sim.simulator.write_run``, formats in its docstring) writes
 ``<name>.frames.jsonl``, ``<name>.truth.jsonl`` and ``<name>.building.json`` side by side.
 This package may not import the client, so the files are the interface. Rules:
 

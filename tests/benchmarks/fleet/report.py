@@ -1,4 +1,4 @@
-"""The report of ``lessmap bench fleet``: Prometheus histograms, figures, text and JSON.
+"""The report of the fleet load benchmark: Prometheus histograms, figures, text and JSON.
 
 ``LoadReport`` holds everything one load run measured; ``format_report`` and ``knee_row``
 print it, ``_json`` writes it as strict JSON. ``parse_metrics`` and ``histogram`` read the
@@ -13,7 +13,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from lessmap.tools.loadgen import LoadSpec
+from tests.benchmarks.fleet.loadgen import LoadSpec
 
 _QUEUE_P99_TARGET_S = 0.25
 _RSS_FLAT_FRACTION = 0.05  # growth over the load's second half above this share: not flat

@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from lessmap_client.adapters.building import Building, Door, Rect, generate_building
+from lessmap.sim.building import Building, Door, Rect, generate_building
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator

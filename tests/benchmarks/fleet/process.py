@@ -1,4 +1,4 @@
-"""Processes and measurements of ``lessmap bench fleet``: the service, /proc, samplers, py-spy.
+"""Processes and measurements of the fleet load benchmark: the service, /proc, samplers, py-spy.
 
 Every process is started on 127.0.0.1 and stopped by its PID (SIGTERM, then kill). The
 offline baseline times the core alone, in this process, on the same streams.
@@ -22,13 +22,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lessmap.tools.benchreport import summarize_profile
+from tests.benchmarks.fleet.report import summarize_profile
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from lessmap.tools.loadgen import LoadSpec
     from lessmap_client import FleetClient
+    from tests.benchmarks.fleet.loadgen import LoadSpec
 
 _SAMPLE_PERIOD_S = 0.5  # RSS and CPU samples
 _CLK_TCK = os.sysconf("SC_CLK_TCK")

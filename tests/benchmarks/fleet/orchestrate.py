@@ -1,15 +1,15 @@
-"""``lessmap bench fleet``: N simulated robots at R Hz over real Zenoh against ``lessmap serve``.
+"""Fleet load benchmark: N simulated robots at R Hz over real Zenoh against ``lessmap serve``.
 
 Processes, all on 127.0.0.1 and each stopped by its PID (SIGTERM, then kill):
 
 - the service: ``python -m lessmap serve -m router -l tcp/127.0.0.1:PORT`` with metrics;
-- 1-2 load generators, ``python -m lessmap.tools.bench SPEC.json``: one client Zenoh session
-  each and one ``RobotPublisher`` per robot, paced in real time (robot i of N publishes frame
-  k at ``t0 + k/R + i/(N R)``: phases spread evenly over the period);
+- 1-2 load generators, ``python -m tests.benchmarks.fleet.orchestrate SPEC.json``: one
+  client Zenoh session each and one ``RobotPublisher`` per robot, paced in real time (robot i
+  of N publishes frame k at ``t0 + k/R + i/(N R)``: phases spread evenly over the period);
 - this process: the fleet app (a ``FleetClient`` that timestamps every transition), the RSS
   and CPU sampler, the offline baseline and the report.
 
-Streams come from the seeded building simulator (``lessmap_client.adapters.sim``): robots walk
+Streams come from the seeded building simulator (``lessmap.sim.simulator``): robots walk
 through offices, so CovGraphs grow and transitions happen. The features-per-frame target F is
 met by landmark density: the wall landmark spacing is scaled until a short calibration run
 averages F features per frame (frames keep their natural spread around F; none is padded or
@@ -35,7 +35,13 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
-from lessmap.tools.benchproc import (
+from tests.benchmarks.fleet.loadgen import (
+    LoadSpec,
+    calibrate_spacing,
+    generator_main,
+    simulated_streams,
+)
+from tests.benchmarks.fleet.process import (
     Sampler,
     ServiceProcess,
     TransitionLog,
@@ -48,7 +54,7 @@ from lessmap.tools.benchproc import (
     stop_process,
     thread_cpu_s,
 )
-from lessmap.tools.benchreport import (
+from tests.benchmarks.fleet.report import (
     KNEE_HEADER,
     LoadReport,
     _json,
@@ -57,7 +63,6 @@ from lessmap.tools.benchreport import (
     knee_row,
     parse_metrics,
 )
-from lessmap.tools.loadgen import LoadSpec, calibrate_spacing, generator_main, simulated_streams
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -67,7 +72,6 @@ if TYPE_CHECKING:
 __all__ = [
     "LoadReport",
     "LoadSpec",
-    "add_commands",
     "add_fleet_options",
     "find_knee",
     "format_report",
@@ -77,6 +81,7 @@ __all__ = [
     "simulated_streams",
 ]
 
+REPO_ROOT = Path(__file__).resolve().parents[3]
 _KNEE_ROBOTS = (25, 50, 100, 150, 200, 300, 400, 600, 800, 1000)
 
 
@@ -243,10 +248,11 @@ def _start_generator(
     log = (work / f"generator-{generator}.log").open("wb")
     with log:
         return subprocess.Popen(
-            [sys.executable, "-m", "lessmap.tools.bench", str(path)],
+            [sys.executable, "-m", "tests.benchmarks.fleet.orchestrate", str(path)],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=log,
+            cwd=REPO_ROOT,  # the generator runs as `python -m tests.benchmarks.fleet...`
         )
 
 
@@ -399,7 +405,7 @@ def find_knee(
 
 
 def add_fleet_options(parser: argparse.ArgumentParser) -> None:
-    """Add the options of ``lessmap bench fleet`` (shared with tests/benchmarks/fleet_load.py)."""
+    """Add the options of the fleet load benchmark (shared with tests/benchmarks/fleet_load.py)."""
     parser.add_argument("--robots", type=int, default=200, help="robots N (default 200)")
     parser.add_argument("--rate", type=float, default=10.0, help="frames/s per robot (10)")
     parser.add_argument("--features", type=int, default=20, help="mean features per frame (20)")
@@ -481,7 +487,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
 
 
 def run_fleet(args: argparse.Namespace) -> int:
-    """Run ``lessmap bench fleet``; exit code 0 when the bar is met, 2 when missed."""
+    """Run the fleet load benchmark; exit code 0 when the bar is met, 2 when missed."""
     log = None if args.quiet else sys.stderr
     spec = spec_from_args(args)
     if args.find_knee:
@@ -507,28 +513,6 @@ def run_fleet(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(format_report(report))
     return 0 if report.passes() else 2
-
-
-def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add ``bench`` with its ``fleet`` subcommand."""
-    bench = commands.add_parser(
-        "bench",
-        help="benchmarks of the running service",
-        description="Benchmarks that run the real service.",
-    )
-    kinds = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
-    fleet = kinds.add_parser(
-        "fleet",
-        help="N robots × R Hz × F features over real Zenoh: frames lost, latency, CPU, RSS",
-        description="Start `lessmap serve` on a free loopback port and 1-2 load generator "
-        "processes that publish simulated robots in real time; print frames offered, applied "
-        "and lost, latencies, service CPU and RSS, and an in-process baseline of the core on "
-        "the same streams. Exit code 2 when the bar is missed: 0 lost, p99 service latency "
-        "≤ 250 ms (receipt to decision if the service exports lessmap_frame_latency_seconds, "
-        "else its queue wait), flat RSS.",
-    )
-    add_fleet_options(fleet)
-    fleet.set_defaults(run=run_fleet)
 
 
 if __name__ == "__main__":

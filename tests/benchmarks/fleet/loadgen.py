@@ -1,10 +1,10 @@
-"""The load generator of ``lessmap bench fleet``: specs, simulated streams, paced publishing.
+"""The load generator of the fleet load benchmark: specs, simulated streams, paced publishing.
 
-One generator process (``python -m lessmap.tools.bench SPEC.json``) opens one client Zenoh
-session and one ``RobotPublisher`` per robot, paced in real time (robot i of N publishes frame
-k at ``t0 + k/R + i/(N R)``: phases spread evenly over the period).
+One generator process (``python -m tests.benchmarks.fleet.orchestrate SPEC.json``) opens one
+client Zenoh session and one ``RobotPublisher`` per robot, paced in real time (robot i
+of N publishes frame k at ``t0 + k/R + i/(N R)``: phases spread evenly over the period).
 
-Streams come from the seeded building simulator (``lessmap_client.adapters.sim``); the
+Streams come from the seeded building simulator (``lessmap.sim.simulator``); the
 features-per-frame target F is met by landmark density (``calibrate_spacing``). Generator g
 simulates its robots in its own building (seed ``1000 * seed + g``).
 """
@@ -95,7 +95,7 @@ def calibrate_spacing(
 
 
 def _sim_mean_features(spacing: float, *, seed: int, rooms: int, rate_hz: float) -> float:
-    from lessmap_client.adapters.sim import simulate
+    from lessmap.sim.simulator import simulate
 
     run = simulate(
         seed=stream_seed(seed, 0),
@@ -112,7 +112,7 @@ def simulated_streams(
     spec: LoadSpec, generator: int, spacing: float, robots: int | None = None
 ) -> list[list[list[int]]]:
     """Return the feature lists, per local robot and frame, of a generator's robots."""
-    from lessmap_client.adapters.sim import simulate
+    from lessmap.sim.simulator import simulate
 
     count = len(spec.robots_of(generator)) if robots is None else robots
     run = simulate(
@@ -134,7 +134,7 @@ def simulated_streams(
 
 
 def generator_main(spec_path: str) -> int:
-    """Run one load generator (``python -m lessmap.tools.bench SPEC.json``).
+    """Run one load generator (``python -m tests.benchmarks.fleet.orchestrate SPEC.json``).
 
     Protocol on stdio: writes ``ready`` once its publishers are declared and the service is
     alive, reads the start time t0 (Unix seconds) as one line, publishes, ends every session,

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from lessmap.settings import EMBEDDED_ENDPOINT, load_settings
 
 if TYPE_CHECKING:
-    from lessmap_client.adapters.sim import SimRun
+    from lessmap.sim.simulator import SimRun
     from lessmap_schemas.messages import Transition
 
 _RATE_HZ = 2.0  # the simulated sensor's frame rate (sim default)
@@ -68,7 +68,7 @@ class DemoResult:
 def run_demo(args: argparse.Namespace) -> int:
     """Run the demo; return 0 when every robot's frames were all applied."""
     from lessmap.runtime.service import Service
-    from lessmap_client.adapters.sim import simulate
+    from lessmap.sim.simulator import simulate
 
     frames_per_robot = max(10, int(args.duration * _RATE_HZ * args.speed))
     run = simulate(
@@ -135,7 +135,7 @@ def _stream_and_watch(run: SimRun, args: argparse.Namespace) -> DemoResult:
 
 
 def _score(run: SimRun, result: DemoResult) -> None:
-    from lessmap_client.adapters.groundtruth import score
+    from lessmap.sim.groundtruth import score
 
     positions = {(row.robot, row.seq): (row.x, row.y) for row in run.truth}
     changes = [{"robot": c.robot, "seq": c.seq} for c in run.room_changes]

@@ -1,1 +1,0 @@
-"""Tools that drive the service and the client together (demo, benchmarks)."""
