@@ -46,7 +46,13 @@ class ServiceMetrics:
         self.sessions_closed = Counter(
             "lessmap_sessions_closed", "Sessions closed, by cause", ["cause"], registry=r
         )
-        self.sessions = Gauge("lessmap_sessions", "Open sessions", registry=r)
+        self.sessions_resumed = Counter(
+            "lessmap_sessions_resumed", "Sessions brought back from the state store", registry=r
+        )
+        self.sessions_evicted = Counter(
+            "lessmap_sessions_evicted", "Idle sessions moved to the state store", registry=r
+        )
+        self.sessions = Gauge("lessmap_sessions", "Sessions in memory", registry=r)
         self.queue_depth = Gauge(
             "lessmap_queue_depth", "Messages waiting in the shard queues", registry=r
         )

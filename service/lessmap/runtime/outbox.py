@@ -115,6 +115,28 @@ class Outbox:
                     "session": session.session,
                 },
             )
+        for session in outcome.resumed:
+            m.sessions_resumed.inc()
+            m.sessions.inc()
+            log.info(
+                "session resumed from the state store: %s/%s %s at seq %s",
+                session.fleet,
+                session.robot,
+                session.session,
+                session.last_seen_seq,
+                extra={
+                    "event": "session_resumed",
+                    "fleet": session.fleet,
+                    "robot": session.robot,
+                    "session": session.session,
+                },
+            )
+        if outcome.evicted:
+            m.sessions_evicted.inc(outcome.evicted)
+            m.sessions.dec(outcome.evicted)
+        for state in outcome.suspended:  # stop with a store: the session lives on
+            m.sessions.dec()
+            self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
         for session, transition in outcome.transitions:
             self._put_transition(session, transition)
         for rejection in outcome.rejections:

@@ -14,15 +14,27 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    ``lessmap segment`` does offline.
 4. Limits never grow memory unbounded: at most ``max_sessions`` open sessions per shard and
    ``max_nodes`` features per CovGraph; past either, the message is rejected with an error.
+5. Durable sessions (with a ``CheckpointStore`` that reaches a file): a session is checkpointed
+   every ``checkpoint_every_frames`` applied frames or ``checkpoint_interval_s``, whichever
+   comes first, when it closes and when the service stops. A session that is not in memory
+   is looked up in the store on its next frame and resumes exactly where its checkpoint
+   stands (the partitioner snapshot, its counters and gap ranges). Idle sessions are evicted
+   to the store instead of being closed. Without a file, idle sessions close as before.
+   Frames at or below the seq a session was restored at are redeliveries (a robot's cache
+   answering a catch-up query): counted as duplicates, never reported as errors.
 """
 
 from __future__ import annotations
 
+import logging
+import sqlite3
+import time
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from lessmap.core import GraphError, Partitioner, PartitionParams
+from lessmap.core import GraphError, Partitioner, PartitionParams, snapshot
+from lessmap.runtime.store import SessionRecord
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame, SessionEnd, SessionState, SubmapSummary
 
@@ -30,6 +42,9 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
     from lessmap.core import Submap, Transition
+    from lessmap.runtime.store import CheckpointStore
+
+log = logging.getLogger(__name__)
 
 RobotKey = tuple[str, str]  # (fleet, robot)
 
@@ -63,6 +78,28 @@ class RobotSession:
     frames_rejected: int = 0
     last_seen_seq: int | None = None  # highest seq received, applied or refused
     gaps: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=_GAPS_KEPT))
+    restored_seq: int | None = None  # last_seen_seq of the checkpoint it resumed from
+    frames_since_checkpoint: int = 0
+    checkpoint_s: float = 0.0  # activity time of the last checkpoint
+
+    def counters(self) -> dict[str, Any]:
+        """The non-partitioner part of the session, for its checkpoint (JSON-ready)."""
+        return {
+            "frames_duplicate": self.frames_duplicate,
+            "frames_missing": self.frames_missing,
+            "frames_rejected": self.frames_rejected,
+            "last_seen_seq": self.last_seen_seq,
+            "gaps": [list(g) for g in self.gaps],
+        }
+
+    def restore_counters(self, meta: dict[str, Any]) -> None:
+        """Take back the counters of a checkpoint."""
+        self.frames_duplicate = int(meta["frames_duplicate"])
+        self.frames_missing = int(meta["frames_missing"])
+        self.frames_rejected = int(meta["frames_rejected"])
+        seen = meta["last_seen_seq"]
+        self.last_seen_seq = self.restored_seq = None if seen is None else int(seen)
+        self.gaps.extend((int(lo), int(hi)) for lo, hi in meta["gaps"])
 
     def state(self, instance: str, *, is_open: bool) -> SessionState:
         """Return the session's state as the wire message."""
@@ -104,7 +141,10 @@ class Outcome:
     transitions: list[tuple[RobotSession, Transition]] = field(default_factory=list)
     rejections: list[Rejection] = field(default_factory=list)
     opened: list[RobotSession] = field(default_factory=list)
+    resumed: list[RobotSession] = field(default_factory=list)  # restored from the store
     closed: list[tuple[SessionState, str]] = field(default_factory=list)  # (final state, cause)
+    suspended: list[SessionState] = field(default_factory=list)  # checkpointed at stop
+    evicted: int = 0  # idle sessions moved to the store
     frames_applied: int = 0
     frames_duplicate: int = 0
     frames_missing: int = 0
@@ -137,8 +177,16 @@ class SessionTable:
         idle_timeout_s: float,
         instance: str,
         clock: Callable[[], float],
+        store: CheckpointStore | None = None,
+        checkpoint_every_frames: int = 100,
+        checkpoint_interval_s: float = 5.0,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
         self._params = params
+        self._store = store if store is not None and store.path is not None else None
+        self._checkpoint_every_frames = checkpoint_every_frames
+        self._checkpoint_interval_s = checkpoint_interval_s
+        self._wall_clock = wall_clock
         self._instance = instance
         self._max_sessions = max_sessions
         self._max_nodes = max_nodes
@@ -164,7 +212,16 @@ class SessionTable:
         session = self._open.get(key)
         if session is not None:
             return session.state(self._instance, is_open=True)
-        return self._final_states.get(key)
+        final = self._final_states.get(key)
+        if final is not None or self._store is None:
+            return final
+        try:
+            record = self._store.load(key)
+        except sqlite3.Error:
+            return None
+        if record is None or "state" not in record.meta:
+            return None
+        return SessionState.model_validate(record.meta["state"])
 
     def submap(
         self, fleet: str, robot: str, submap_id: int
@@ -230,6 +287,8 @@ class SessionTable:
         fleet, robot = key
         session_id = run[0].session
         current = self._open.get(key)
+        if current is None and self._store is not None:
+            current = self._resume(key, out, now_s)
         if current is None or current.session != session_id:
             if session_id in self._closed_ids.get(key, ()):
                 for frame in run:
@@ -255,6 +314,7 @@ class SessionTable:
                 )
                 return
             current = RobotSession(fleet, robot, session_id, Partitioner(self._params), now_s)
+            current.checkpoint_s = now_s
             self._open[key] = current
             out.opened.append(current)
         current.last_activity_s = now_s
@@ -262,21 +322,101 @@ class SessionTable:
         for frame in sorted(run, key=lambda f: f.seq):
             if self._apply_frame(current, frame, out):
                 pending += 1
+                current.frames_since_checkpoint += 1
                 if pending >= self._max_batch_frames:
                     self._decide(current, out)
                     pending = 0
         if pending:
             self._decide(current, out)
+        if self._store is not None and (
+            current.frames_since_checkpoint >= self._checkpoint_every_frames
+            or (
+                current.frames_since_checkpoint
+                and now_s - current.checkpoint_s >= self._checkpoint_interval_s
+            )
+        ):
+            self._checkpoint(current, "open", now_s)
+
+    # -- durable sessions ------------------------------------------------------------------
+
+    def _record(self, session: RobotSession, status: str, *, is_open: bool) -> SessionRecord:
+        closed_ids = list(self._closed_ids.get((session.fleet, session.robot), ()))
+        keep_graph = status != "closed"
+        return SessionRecord(
+            fleet=session.fleet,
+            robot=session.robot,
+            session=session.session,
+            status=status,
+            last_seq=session.last_seen_seq,
+            meta={
+                **session.counters(),
+                "closed_ids": closed_ids,
+                "state": session.state(self._instance, is_open=is_open).model_dump(mode="json"),
+            },
+            snapshot=snapshot.to_bytes(session.partitioner) if keep_graph else None,
+            updated_s=self._wall_clock(),
+        )
+
+    def _checkpoint(self, session: RobotSession, status: str, now_s: float) -> None:
+        assert self._store is not None
+        self._store.save(self._record(session, status, is_open=True))
+        session.frames_since_checkpoint = 0
+        session.checkpoint_s = now_s
+
+    def _resume(self, key: RobotKey, out: Outcome, now_s: float) -> RobotSession | None:
+        """Bring a robot's checkpointed session back into memory, if the store has one."""
+        assert self._store is not None
+        fleet, robot = key
+        try:
+            record = self._store.load(key)
+        except sqlite3.Error as exc:
+            out.reject(
+                fleet, robot, None, ErrorCode.INTERNAL, f"state store unreadable: {exc}", None
+            )
+            return None
+        if record is None:
+            return None
+        ids = self._closed_ids.setdefault(key, deque(maxlen=_CLOSED_IDS_KEPT))
+        for closed_id in record.meta.get("closed_ids", ()):
+            if closed_id not in ids:
+                ids.append(closed_id)
+        if record.status == "closed":
+            if record.session not in ids:
+                ids.append(record.session)
+            return None
+        try:
+            assert record.snapshot is not None, "an open record without a snapshot"
+            partitioner = snapshot.from_bytes(record.snapshot)
+            session = RobotSession(fleet, robot, record.session, partitioner, now_s)
+            session.restore_counters(record.meta)
+        except Exception as exc:  # a damaged checkpoint must cost only its own session
+            log.error("checkpoint of %s/%s %s unreadable: %s", fleet, robot, record.session, exc)
+            out.reject(
+                fleet,
+                robot,
+                record.session,
+                ErrorCode.INTERNAL,
+                f"checkpoint unreadable ({type(exc).__name__}); the session starts fresh",
+                None,
+            )
+            self._store.delete(key)
+            return None
+        session.checkpoint_s = now_s
+        self._open[key] = session
+        out.resumed.append(session)
+        return session
 
     def _apply_frame(self, session: RobotSession, frame: Frame, out: Outcome) -> bool:
         p = session.partitioner
         seen = session.last_seen_seq
         if seen is not None and frame.seq <= seen:
+            session.frames_duplicate += 1
+            out.frames_duplicate += 1
+            if session.restored_seq is not None and frame.seq <= session.restored_seq:
+                return False  # a redelivery from the robot's cache after a restore
             late = any(lo <= frame.seq <= hi for lo, hi in session.gaps)
             code = ErrorCode.OUT_OF_ORDER if late else ErrorCode.DUPLICATE_SEQ
             what = "arrived after later frames" if late else "was already received"
-            session.frames_duplicate += 1
-            out.frames_duplicate += 1
             out.reject(
                 session.fleet,
                 session.robot,
@@ -369,6 +509,8 @@ class SessionTable:
         while len(self._closed_ids) > 4 * self._max_sessions:
             self._closed_ids.popitem(last=False)
         final = session.state(self._instance, is_open=False)
+        if self._store is not None:
+            self._store.save(self._record(session, "closed", is_open=False))
         self._final_states[key] = final
         self._final_states.move_to_end(key)
         while len(self._final_states) > self._max_sessions:
@@ -376,16 +518,29 @@ class SessionTable:
         out.closed.append((final, cause))
 
     def expire_idle(self, now_s: float) -> Outcome:
-        """Close every session idle for longer than the timeout."""
+        """Evict (with a store) or close (without) every session idle past the timeout."""
         out = Outcome()
         for key, session in list(self._open.items()):
             if now_s - session.last_activity_s > self._idle_timeout_s:
-                self._close(key, "idle", out)
+                if self._store is None:
+                    self._close(key, "idle", out)
+                    continue
+                # The robot may only be paused: keep its session, free the memory.
+                self._checkpoint(session, "evicted", now_s)
+                del self._open[key]
+                out.evicted += 1
         return out
 
     def close_all(self, cause: str) -> Outcome:
-        """Close every open session (shutdown)."""
+        """Stop: checkpoint every open session (with a store) or close it (without)."""
         out = Outcome()
-        for key in list(self._open):
-            self._close(key, cause, out)
+        for key, session in list(self._open.items()):
+            if self._store is None:
+                self._close(key, cause, out)
+                continue
+            if session.partitioner.pending_frames:
+                self._decide(session, out)
+            self._checkpoint(session, "open", session.last_activity_s)
+            out.suspended.append(session.state(self._instance, is_open=True))
+            del self._open[key]
         return out
