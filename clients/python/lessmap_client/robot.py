@@ -7,10 +7,8 @@ import time
 import uuid
 from typing import TYPE_CHECKING
 
-import zenoh
-from zenoh import ext
-
-from lessmap_client.session import DEFAULT_ENDPOINT, open_session, wait_for_service
+from lessmap_client.connection import Connection, connect
+from lessmap_client.session import DEFAULT_ENDPOINT
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
@@ -21,10 +19,12 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
     from types import TracebackType
 
+    import zenoh
+
 log = logging.getLogger(__name__)
 
-_FRAME_ENCODING = zenoh.Encoding(encoding(Frame))
-_END_ENCODING = zenoh.Encoding(encoding(SessionEnd))
+_FRAME_ENCODING = encoding(Frame)
+_END_ENCODING = encoding(SessionEnd)
 
 
 def new_session_id() -> str:
@@ -35,14 +35,16 @@ def new_session_id() -> str:
 class RobotPublisher:
     """Publishes the frames of one robot session, numbered from 0.
 
-    Frames go through an ``AdvancedPublisher`` with a cache, so a service instance that
-    takes the session over can fetch recent frames it missed. ``close`` ends the session
-    explicitly (a ``SessionEnd`` with the last seq), so the service frees it at once.
+    Declare one with ``conn.robot(fleet, robot)``. Frames go through an ``AdvancedPublisher``
+    with a cache, so a service instance that takes the session over can fetch recent frames
+    it missed. ``close`` ends the session explicitly (a ``SessionEnd`` with the last seq), so
+    the service frees it at once.
 
     Args:
         fleet: fleet name (letters, digits, ``_ . -``; up to 64 characters).
         robot: robot name, same rule.
-        session: a Zenoh session to reuse; by default one is opened to ``connect``.
+        session: the ``Connection`` to publish on, or a Zenoh session to reuse; by default a
+            connection is opened to ``connect`` and closed with the publisher.
         connect: endpoints of the lessmap router (used only when ``session`` is None).
         session_id: the session id; a new random one by default (a restarted robot must
             use a new id so the service starts a new CovGraph).
@@ -55,7 +57,7 @@ class RobotPublisher:
         fleet: str,
         robot: str,
         *,
-        session: zenoh.Session | None = None,
+        session: Connection | zenoh.Session | None = None,
         connect: Sequence[str] = (DEFAULT_ENDPOINT,),
         session_id: str | None = None,
         cache: int = 1000,
@@ -65,16 +67,16 @@ class RobotPublisher:
         self.robot = keys.validate_name(robot, "robot", limits)
         self.session_id = keys.validate_name(session_id or new_session_id(), "session", limits)
         self._limits = limits
-        self._owns_session = session is None
-        self._session = session if session is not None else open_session(connect)
-        self._publisher = ext.declare_advanced_publisher(
-            self._session,
-            keys.frames(self.fleet, self.robot),
-            encoding=_FRAME_ENCODING,
-            congestion_control=zenoh.CongestionControl.BLOCK,  # never drop a frame silently
-            cache=ext.CacheConfig(cache),
-            publisher_detection=True,
-        )
+        self._key = keys.frames(self.fleet, self.robot)
+        if isinstance(session, Connection):
+            self._connection, self._owns_connection = session, False
+        elif session is not None:
+            self._connection, self._owns_connection = Connection.from_session(session), True
+        else:
+            self._connection, self._owns_connection = _open(connect), True
+        self._connection._check_open()
+        self._publisher = self._connection.transport.publisher(self._key, _FRAME_ENCODING, cache)
+        self._connection._adopt(self)
         self._next_seq = 0
         self._closed = False
 
@@ -83,9 +85,14 @@ class RobotPublisher:
         """Seq the next frame will carry."""
         return self._next_seq
 
+    @property
+    def closed(self) -> bool:
+        """Whether the session was ended."""
+        return self._closed
+
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
         """Wait until a lessmap service instance is alive on the network."""
-        return wait_for_service(self._session, timeout_s)
+        return self._connection.wait_for_service(timeout_s)
 
     def publish(
         self,
@@ -141,24 +148,21 @@ class RobotPublisher:
         return frame_seq
 
     def close(self) -> None:
-        """End the session explicitly, then release Zenoh resources (idempotent)."""
+        """End the session explicitly, then release the publisher (idempotent)."""
         if self._closed:
             return
         self._closed = True
         last = self._next_seq - 1 if self._next_seq else None
         end = SessionEnd(session=self.session_id, last_seq=last, stamp_s=time.time())
         try:
-            self._session.put(
-                keys.frames(self.fleet, self.robot),
-                encode(end),
-                encoding=_END_ENCODING,
-                congestion_control=zenoh.CongestionControl.BLOCK,
-            )
-        except zenoh.ZError:
+            # Same key as the frames: Zenoh keeps the order of puts on one key.
+            self._connection.transport.put(self._key, encode(end), _END_ENCODING)
+        except Exception:  # zenoh.ZError, or a transport already closed
             log.warning("could not send the end of session %s", self.session_id)
-        self._publisher.undeclare()
-        if self._owns_session:
-            self._session.close()
+        self._publisher.close()
+        self._connection._release(self)
+        if self._owns_connection:
+            self._connection.close()
 
     def __enter__(self) -> RobotPublisher:
         return self
@@ -170,3 +174,7 @@ class RobotPublisher:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def _open(endpoints: Sequence[str]) -> Connection:
+    return connect(list(endpoints))

@@ -35,7 +35,10 @@ def client_config(
 
 
 def open_session(
-    connect: Sequence[str] = (DEFAULT_ENDPOINT,), mode: str = "client", timeout_s: float = 10.0
+    connect: Sequence[str] = (DEFAULT_ENDPOINT,),
+    mode: str = "client",
+    timeout_s: float = 10.0,
+    config_file: str | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session for a lessmap client (the caller closes it).
 
@@ -48,7 +51,7 @@ def open_session(
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return zenoh.open(client_config(connect, mode))
+            return zenoh.open(client_config(connect, mode, config_file))
         except zenoh.ZError as exc:
             if time.monotonic() >= deadline:
                 msg = (

@@ -1,0 +1,321 @@
+"""``connect()`` and ``Connection``: everything a robot or a fleet app declares, in one place.
+
+The shape of zenoh-python's ``with zenoh.open(conf) as session`` and nats.py's
+``nc = await nats.connect()``: open once, declare robots and subscriptions from the
+connection, each subscription owning its queue or handler, and query through it. Closing the
+connection closes everything declared from it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import TYPE_CHECKING, Any, TypeVar
+
+from lessmap_client.session import DEFAULT_ENDPOINT, open_session
+from lessmap_client.subscription import DEFAULT_MAXSIZE, Subscription
+from lessmap_client.transport import ZenohTransport
+from lessmap_schemas import keys
+from lessmap_schemas.codec import decode
+from lessmap_schemas.errors import WireError
+from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
+from lessmap_schemas.messages import Error, Health, SessionState, Submap, Transition
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+    from types import TracebackType
+
+    import zenoh
+
+    from lessmap_client.robot import RobotPublisher
+    from lessmap_client.transport import Transport
+
+log = logging.getLogger(__name__)
+
+M = TypeVar("M", SessionState, Submap, Health)
+
+#: Recent transitions per robot recovered on joining when ``history=True``.
+DEFAULT_HISTORY = 64
+
+
+def connect(
+    endpoints: str | Sequence[str] = DEFAULT_ENDPOINT,
+    *,
+    mode: str = "client",
+    timeout_s: float = 10.0,
+    config_file: str | None = None,
+) -> Connection:
+    """Open a connection to a lessmap network (use it as a context manager).
+
+    Args:
+        endpoints: Zenoh endpoint(s) of the lessmap router, by default the embedded router of
+            ``lessmap serve`` on this machine (``tcp/127.0.0.1:7447``).
+        mode: Zenoh mode, ``"client"`` (through the router) or ``"peer"``.
+        timeout_s: how long to retry while no router answers.
+        config_file: a Zenoh JSON5 config to start from (TLS, credentials, ...).
+
+    Multicast scouting is always off: the endpoints are explicit.
+
+    Raises:
+        ConnectionError: no router could be reached within ``timeout_s``.
+    """
+    targets = [endpoints] if isinstance(endpoints, str) else list(endpoints)
+    session = open_session(targets, mode, timeout_s, config_file)
+    log.info("connected to %s (%s mode)", ", ".join(targets), mode)
+    return Connection(ZenohTransport(session, owned=True))
+
+
+class Connection:
+    """An open connection to a lessmap network, from which everything is declared.
+
+    Made by ``connect()`` (Zenoh), ``Connection.from_session`` (a Zenoh session you own) or
+    ``lessmap_client.testing.FakeBus.connect()`` (in-process, for your tests).
+
+    Args:
+        transport: the network under the connection.
+    """
+
+    def __init__(self, transport: Transport) -> None:
+        self.transport = transport
+        self.undecodable = 0  # query replies that were not valid messages (logged, skipped)
+        self._lock = threading.Lock()
+        self._children: dict[int, Any] = {}
+        self._closed = False
+
+    @classmethod
+    def from_session(cls, session: zenoh.Session) -> Connection:
+        """Wrap an open Zenoh session; closing the connection leaves the session open."""
+        return cls(ZenohTransport(session, owned=False))
+
+    # -- robots ------------------------------------------------------------------------------
+
+    def robot(
+        self,
+        fleet: str,
+        robot: str,
+        *,
+        session_id: str | None = None,
+        cache: int = 1000,
+        limits: WireLimits = DEFAULT_LIMITS,
+    ) -> RobotPublisher:
+        """Declare a robot publisher: frames numbered from 0 in a fresh session.
+
+        See ``RobotPublisher`` for the arguments. Closing it (or this connection) sends the
+        ``SessionEnd``.
+        """
+        from lessmap_client.robot import RobotPublisher  # robot.py imports this module
+
+        return RobotPublisher(
+            fleet, robot, session=self, session_id=session_id, cache=cache, limits=limits
+        )
+
+    # -- subscriptions -----------------------------------------------------------------------
+
+    def subscribe_transitions(
+        self,
+        fleet: str = "*",
+        robot: str = "*",
+        *,
+        history: bool | int = True,
+        handler: Callable[[Transition], None] | None = None,
+        maxsize: int = DEFAULT_MAXSIZE,
+    ) -> Subscription[Transition]:
+        """Subscribe to the transitions of one robot, a fleet (``robot="*"``) or everything.
+
+        Args:
+            fleet: fleet name or ``"*"``.
+            robot: robot name or ``"*"``.
+            history: recover recent transitions on joining: True for the last 64 per robot,
+                an int for that many, False or 0 for live ones only. Transitions lost in
+                transit are recovered from the service's cache either way.
+            handler: called with every transition on this subscription's own thread; without
+                it, read the subscription (``for t in sub``, ``recv``, ``try_recv``).
+            maxsize: events buffered before new ones are dropped and counted.
+        """
+        depth = DEFAULT_HISTORY if history is True else int(history)
+        return self._subscribe(
+            f"transitions {fleet}/{robot}",
+            _decode_transition,
+            [(keys.transitions(fleet, robot), depth)],
+            handler,
+            maxsize,
+        )
+
+    def subscribe_errors(
+        self,
+        fleet: str = "*",
+        robot: str = "*",
+        *,
+        handler: Callable[[Error], None] | None = None,
+        maxsize: int = DEFAULT_MAXSIZE,
+    ) -> Subscription[Error]:
+        """Subscribe to the service's ``Error`` reports about these robots' input (live only)."""
+        return self._subscribe(
+            f"errors {fleet}/{robot}",
+            _decode_error,
+            [(keys.errors(fleet, robot), None)],
+            handler,
+            maxsize,
+        )
+
+    def subscribe_events(
+        self,
+        fleet: str = "*",
+        robot: str = "*",
+        *,
+        history: bool | int = True,
+        handler: Callable[[Transition | Error], None] | None = None,
+        maxsize: int = DEFAULT_MAXSIZE,
+    ) -> Subscription[Transition | Error]:
+        """Subscribe to transitions and errors together, in one queue, in arrival order."""
+        depth = DEFAULT_HISTORY if history is True else int(history)
+        return self._subscribe(
+            f"events {fleet}/{robot}",
+            _decode_event,
+            [(keys.transitions(fleet, robot), depth), (keys.errors(fleet, robot), None)],
+            handler,
+            maxsize,
+        )
+
+    def _subscribe(
+        self,
+        name: str,
+        decoder: Callable[[bytes], Any],
+        sources: list[tuple[str, int | None]],
+        handler: Callable[[Any], None] | None,
+        maxsize: int,
+    ) -> Subscription[Any]:
+        self._check_open()
+        sub: Subscription[Any] = Subscription(
+            decoder, name=name, maxsize=maxsize, handler=handler, on_close=self._release
+        )
+        self._adopt(sub)
+        try:
+            for key, history in sources:
+                sub._attach(self.transport.subscribe(key, sub._push, history=history))
+        except BaseException:
+            sub.close()
+            raise
+        log.debug("subscribed: %s", name)
+        return sub
+
+    # -- queries -----------------------------------------------------------------------------
+
+    def state(self, fleet: str, robot: str, timeout_s: float = 2.0) -> SessionState | None:
+        """Return the robot's session state (its open session, else the last closed one)."""
+        found = self._get(keys.state(fleet, robot), SessionState, timeout_s)
+        return found[0] if found else None
+
+    def states(
+        self, fleet: str = "*", robot: str = "*", timeout_s: float = 2.0
+    ) -> list[SessionState]:
+        """Return the session state of every robot of a fleet (or of every fleet)."""
+        return self._get(keys.state(fleet, robot), SessionState, timeout_s)
+
+    def submap(
+        self, fleet: str, robot: str, submap_id: int, timeout_s: float = 2.0
+    ) -> Submap | None:
+        """Return one submap (closed or open) of the robot's session, None if unknown."""
+        found = self._get(keys.submap(fleet, robot, submap_id), Submap, timeout_s)
+        return found[0] if found else None
+
+    def submaps(self, fleet: str, robot: str, timeout_s: float = 2.0) -> list[Submap]:
+        """Return every submap the service remembers for the robot's session, by id."""
+        found = self._get(keys.submaps(fleet, robot), Submap, timeout_s)
+        return sorted(found, key=lambda s: s.summary.id)
+
+    def health(self, timeout_s: float = 2.0) -> list[Health]:
+        """Return the health of every service instance that answers."""
+        return self._get(keys.health(), Health, timeout_s)
+
+    def instances(self, timeout_s: float = 1.0) -> list[str]:
+        """Return the names of the service instances alive on the network."""
+        self._check_open()
+        return self.transport.instances(timeout_s)
+
+    def wait_for_service(self, timeout_s: float = 10.0) -> bool:
+        """Wait until a lessmap service instance is alive; False after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            if self.instances(timeout_s=min(1.0, max(0.1, remaining))):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.05)
+
+    def _get(self, key: str, expected: type[M], timeout_s: float) -> list[M]:
+        self._check_open()
+        results: list[M] = []
+        for reply_key, payload in self.transport.get(key, timeout_s):
+            try:
+                results.append(decode(payload, expected))
+            except WireError as exc:
+                self.undecodable += 1
+                log.warning("skipped an undecodable reply on %s: %s", reply_key, exc)
+        return results
+
+    # -- lifetime ----------------------------------------------------------------------------
+
+    @property
+    def closed(self) -> bool:
+        """Whether ``close`` was called."""
+        return self._closed
+
+    def _check_open(self) -> None:
+        if self._closed:
+            msg = "the connection is closed"
+            raise RuntimeError(msg)
+
+    def _adopt(self, child: object) -> None:
+        """Close ``child`` (a subscription or robot) when this connection closes."""
+        with self._lock:
+            self._children[id(child)] = child
+
+    def _release(self, child: object) -> None:
+        with self._lock:
+            self._children.pop(id(child), None)
+
+    def close(self) -> None:
+        """Close every robot (sending its ``SessionEnd``) and subscription, then the network.
+
+        Idempotent; never hangs.
+        """
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            children = list(self._children.values())
+            self._children.clear()
+        for child in children:
+            try:
+                child.close()
+            except Exception:
+                log.exception("closing %r failed", child)
+        self.transport.close()
+
+    def __enter__(self) -> Connection:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _decode_transition(payload: bytes) -> Transition:
+    return decode(payload, Transition)
+
+
+def _decode_error(payload: bytes) -> Error:
+    return decode(payload, Error)
+
+
+def _decode_event(payload: bytes) -> Transition | Error:
+    event = decode(payload, (Transition, Error))
+    assert isinstance(event, Transition | Error)  # decode returns one of the types asked for
+    return event
