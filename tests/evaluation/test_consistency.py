@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import pytest
@@ -13,8 +15,11 @@ from lessmap.evaluation.consistency import (
     lessmap_detections,
     score,
 )
-from lessmap.evaluation.simrun import Door, RoomChange, SimTruth, TruthRow, load_truth
+from lessmap.evaluation.simrun import load_truth
 from lessmap.frames_file import FrameRow, read_frames
+from lessmap.sim import groundtruth
+from lessmap.sim.building import Door
+from lessmap.sim.simulator import RoomChange, SimTruth, TruthRow
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -27,10 +32,11 @@ def corridor_truth() -> SimTruth:
     rows = []
     for seq in range(30):
         x = float(seq if seq <= 14 else 28 - seq)
-        rows.append(TruthRow("a", seq, 1 if x >= 9.5 else 0, x, 0.0, 7))
-    rows += [TruthRow("b", seq, 0, 0.0, 5.0, 7) for seq in range(5)]
+        rows.append(TruthRow("a", seq, seq / 2, 1 if x >= 9.5 else 0, x, 0.0, 7, abs(x - 9.5)))
+    rows += [TruthRow("b", seq, seq / 2, 0, 0.0, 5.0, 7, math.hypot(9.5, 5.0)) for seq in range(5)]
     changes = (RoomChange("a", 10, 0, 1, 7), RoomChange("a", 19, 1, 0, 7))
-    return SimTruth(rows=tuple(rows), doors=(Door(7, 9.5, 0.0, (0, 1)),), changes=changes)
+    door = Door(7, 9.5, 0.0, (0, 1), 1.0, vertical=True)
+    return SimTruth(rows=tuple(rows), doors=(door,), changes=changes)
 
 
 def test_counts_by_hand() -> None:
@@ -106,3 +112,38 @@ def test_lessmap_on_a_simulated_run(sim_run: SimRun, sim_frames: Path) -> None:
     assert result.precision_door is not None
     assert result.precision_door >= 0.8
     assert {s.door for s in result.doors} <= {d.id for d in sim_run.building.doors}
+
+
+def test_figures_are_those_of_the_simulator_scorer(sim_frames: Path) -> None:
+    truth = load_truth(sim_frames)
+    found = lessmap_detections(read_frames(sim_frames), PartitionParams.from_profile("laser"))
+    result = score(truth, found, tolerance_frames=4, door_distance_m=1.5)
+    by_robot: dict[str, list[Detection]] = {}
+    for detection in found:
+        by_robot.setdefault(detection.robot, []).append(detection)
+    doors = [(door.x, door.y) for door in truth.doors]
+    expected = groundtruth.score(
+        truth.changes,
+        by_robot,
+        positions=truth.positions(),
+        doors=doors,
+        tolerance_frames=4,
+        distance_m=1.5,
+    )
+    names = (
+        *("recall", "recall_boundary", "recall_any", "precision", "precision_boundary"),
+        *("precision_door", "latency_mean", "latency_max", "changes", "transitions"),
+    )
+    assert {n: getattr(result, n) for n in names} == {n: getattr(expected, n) for n in names}
+    assert result.latency_median == expected.latency_median
+    assert result.tolerance_frames == 4
+    assert result.door_distance_m == 1.5
+
+
+def test_a_building_without_doors_has_no_door_figure() -> None:
+    truth = corridor_truth()
+    result = score(replace(truth, doors=()), [Detection("a", 13, 10)], tolerance_frames=3)
+    assert result.precision_door is None  # not 0: there is no door to be near
+    assert result.doors == ()
+    assert result.recall == 0.5
+    assert score(truth, [Detection("a", 13, 10)], tolerance_frames=3).precision_door == 1.0

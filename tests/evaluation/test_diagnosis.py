@@ -19,8 +19,9 @@ from lessmap.evaluation.diagnosis import (
     variant_row,
 )
 from lessmap.evaluation.infoloss import landmark_information
-from lessmap.evaluation.simrun import Door, RoomChange, SimTruth, TruthRow
 from lessmap.frames_file import FrameRow
+from lessmap.sim.building import Door
+from lessmap.sim.simulator import RoomChange, SimTruth, TruthRow
 from tests.evaluation.helpers import write_dataset
 
 if TYPE_CHECKING:
@@ -67,8 +68,8 @@ def test_variant_row_sets_lessmap_against_equal_counts(tmp_path: Path) -> None:
 def test_room_labels_per_visit_and_merged() -> None:
     rooms = [0, 0, 1, 1, 0, 2]
     truth = SimTruth(
-        rows=tuple(TruthRow("r", k, room, 0.0, 0.0, None) for k, room in enumerate(rooms)),
-        doors=(Door(0, 0.0, 0.0, (0, 1)),),
+        rows=tuple(TruthRow("r", k, k / 2, room, 0.0, 0.0, 0, 1.0) for k, room in enumerate(rooms)),
+        doors=(Door(0, 0.0, 0.0, (0, 1), 1.0, vertical=True),),
         changes=(RoomChange("r", 2, 0, 1, 0),),
     )
     frames = [FrameRow("r", k, float(k), (), None) for k in range(len(rooms))]

@@ -12,7 +12,6 @@ import pytest
 from lessmap.errors import DatasetError
 from lessmap.evaluation.infoloss import information_loss, landmark_information, landmark_submaps
 from lessmap.evaluation.simrun import (
-    changes_from_rows,
     choose_robot,
     is_sim_run,
     load_for_eval,
@@ -45,26 +44,34 @@ def test_truth_matches_the_simulator(sim_run: SimRun, sim_frames: Path) -> None:
     }
     assert len(truth.landmarks) == len(sim_run.building.landmarks)
     assert truth.walls
-    # Without the building's list, the changes come from the truth rows (same frames).
-    derived = changes_from_rows(truth.rows)
-    assert [(c.robot, c.seq, c.to_room) for c in derived] == [
-        (c.robot, c.seq, c.to_room) for c in truth.changes
-    ]
+    assert truth.rows == tuple(sim_run.truth)  # the simulator's own types, read back
 
 
 def test_room_changes_fall_back_to_the_truth_rows(sim_frames: Path, tmp_path: Path) -> None:
     frames = copy_run(sim_frames, tmp_path)
     building = tmp_path / "sim.building.json"
     document = json.loads(building.read_text())
+    listed = load_truth(frames).changes
     del document["room_changes"]
     building.write_text(json.dumps(document))
-    assert load_truth(frames).changes == changes_from_rows(load_truth(frames).rows)
+    derived = load_truth(frames).changes
+    assert [(c.robot, c.seq, c.from_room, c.to_room) for c in derived] == [
+        (c.robot, c.seq, c.from_room, c.to_room) for c in listed
+    ]
+    assert {c.door for c in derived} <= {d.id for d in load_truth(frames).doors}
 
 
 def test_missing_or_broken_files_are_named(sim_frames: Path, tmp_path: Path) -> None:
     frames = copy_run(sim_frames, tmp_path)
     (tmp_path / "sim.truth.jsonl").write_text('{"robot": "robot0"}\n')
     with pytest.raises(DatasetError, match=r"sim\.truth\.jsonl:1"):
+        load_truth(frames)
+    shutil.copy(sim_frames.with_name("sim.truth.jsonl"), tmp_path / "sim.truth.jsonl")
+    (tmp_path / "sim.building.json").write_text("{")
+    with pytest.raises(DatasetError, match=r"sim\.building\.json: not JSON"):
+        load_truth(frames)
+    (tmp_path / "sim.building.json").write_text('{"rooms": []}')
+    with pytest.raises(DatasetError, match=r"sim\.building\.json: unexpected layout"):
         load_truth(frames)
     (tmp_path / "sim.building.json").unlink()
     with pytest.raises(DatasetError, match=r"sim\.building\.json not found"):

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from lessmap.evaluation.consistency import Detection
-    from lessmap.evaluation.simrun import SimTruth
+    from lessmap.sim.simulator import SimTruth
 
 DPI = 100
 _MARKERS = {"SPECTRAL": "o", "DISCONNECTED": "x", "FIXED": "^"}

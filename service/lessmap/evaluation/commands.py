@@ -18,7 +18,7 @@ from lessmap.partition_options import add_partition_options, partition_params
 if TYPE_CHECKING:
     from lessmap.evaluation.consistency import Consistency, Detection
     from lessmap.evaluation.dataset import Dataset
-    from lessmap.evaluation.simrun import SimTruth
+    from lessmap.sim.simulator import SimTruth
 
 
 def _add_common(parser: argparse.ArgumentParser) -> None:

@@ -1,17 +1,14 @@
 """Consistency of transitions with a simulated building's ground truth (paper Figs. 5, 8, 11).
 
-Figures, with ``tol`` = ``tolerance_frames`` (ported from the client's ``groundtruth.score``,
-which this package may not import):
+What is specific to the evaluation: the detections of each method over a run's frames,
+and the door spreads. The figures recall, recall_boundary, recall_any, precision,
+precision_boundary, precision_door and latency are those of ``lessmap.sim.groundtruth``
+(the scorer the demo uses too; definitions in its docstring), with ``tolerance_frames``
+and ``door_distance_m`` passed explicitly; precision_door is None in a building without
+doors. On top of them:
 
-- recall: share of true room changes (first frame ``c`` in the new room) followed by a
-  detection with ``c <= seq <= c + tol``; recall_boundary: a detection whose
-  ``boundary_seq`` lies within ``c ± tol``; recall_any: followed by a detection at all
-  before the robot's next room change.
-- precision: share of detections whose ``seq`` lies within ``± tol`` of a true change of the
-  same robot; precision_boundary likewise with ``boundary_seq``; precision_door: share whose
-  robot stood within ``door_distance_m`` of a door centre at ``boundary_seq``.
-- latency: ``seq - c`` of the first detection in ``[c, next change)``, frames.
-- revisit spread: each true change is matched to that same first detection. For every door
+- revisit spread: each true change is matched to its first detection before the robot's
+  next room change (the one its latency measures). For every door
   crossed several times with a match, the true positions at the matches' ``boundary_seq``
   (and at their ``seq``) are compared pairwise: the spread of a door is the mean pairwise
   distance, its max the largest. Grouped by door (either direction) and by passage (door
@@ -29,15 +26,17 @@ from typing import TYPE_CHECKING, Any
 
 from lessmap.core import Partitioner
 from lessmap.evaluation.baselines import fixed_features
+from lessmap.sim import groundtruth
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
 
     from lessmap.core import PartitionParams
-    from lessmap.evaluation.simrun import RoomChange, SimTruth
     from lessmap.frames_file import FrameRow
+    from lessmap.sim.simulator import RoomChange, SimTruth
 
 DEFAULT_TOLERANCE_FRAMES = 8  # 4 s at the simulator's 2 Hz: the CovRate needs a few frames
+# (lessmap.sim.groundtruth.score defaults to 5: the evaluation always passes its own)
 DEFAULT_DOOR_DISTANCE_M = 2.0
 
 
@@ -178,11 +177,6 @@ def score(
         ValueError: a negative tolerance or distance, or a detection or change at a frame
             the truth has no position for (spread and door figures need positions).
     """
-    if tolerance_frames < 0 or door_distance_m < 0:
-        msg = f"need tolerance_frames, door_distance_m >= 0, got {tolerance_frames}, "
-        msg += f"{door_distance_m}"
-        raise ValueError(msg)
-    tol = tolerance_frames
     where = truth.positions()
     doors = {door.id: (door.x, door.y) for door in truth.doors}
 
@@ -193,67 +187,55 @@ def score(
             msg = f"no true position of robot {robot!r} at seq {seq}"
             raise ValueError(msg) from None
 
-    changes: dict[str, list[RoomChange]] = {}
-    for change in truth.changes:
-        changes.setdefault(change.robot, []).append(change)
     found: dict[str, list[Detection]] = {}
     for detection in detections:
         found.setdefault(detection.robot, []).append(detection)
-    hit = hit_boundary = 0
-    latencies: list[int] = []
+    figures = groundtruth.score(
+        truth.changes,
+        found,
+        positions=where,
+        doors=list(doors.values()) or None,  # no doors: no door figure (None, not 0)
+        tolerance_frames=tolerance_frames,
+        distance_m=door_distance_m,
+    )
+    if doors:
+        for detection in detections:  # every door figure needs its position
+            position(detection.robot, detection.boundary_seq)
+    changes: dict[str, list[RoomChange]] = {}
+    for change in truth.changes:
+        changes.setdefault(change.robot, []).append(change)
     groups: dict[tuple[int, int | None], list[tuple[Any, Any, Any]]] = {}
     crossings: dict[tuple[int, int | None], int] = {}
     for robot, mine in changes.items():
         mine.sort(key=lambda c: c.seq)
         dets = sorted(found.get(robot, []), key=lambda d: d.seq)
         for change, after in zip(mine, [*(c.seq for c in mine[1:]), math.inf], strict=True):
-            c = change.seq
-            hit += any(c <= d.seq <= c + tol for d in dets)
-            hit_boundary += any(abs(d.boundary_seq - c) <= tol for d in dets)
-            first = next((d for d in dets if c <= d.seq < after), None)
-            if first is not None:
-                latencies.append(first.seq - c)
-            if change.door is None or change.door not in doors:
+            if change.door not in doors:
                 continue
+            first = next((d for d in dets if change.seq <= d.seq < after), None)
             for key in ((change.door, None), (change.door, change.to_room)):
                 crossings[key] = crossings.get(key, 0) + 1
                 if first is not None:
                     point = (position(robot, first.boundary_seq), position(robot, first.seq))
                     groups.setdefault(key, []).append((*point, doors[change.door]))
-    total = sum(len(items) for items in changes.values())
-
-    def near_change(d: Detection, seq: int) -> bool:
-        return any(abs(seq - c.seq) <= tol for c in changes.get(d.robot, ()))
-
-    def near_door(d: Detection) -> bool:
-        x, y = position(d.robot, d.boundary_seq)
-        return any(math.hypot(dx - x, dy - y) <= door_distance_m for dx, dy in doors.values())
-
     keys = sorted(crossings, key=lambda k: (k[0], -1 if k[1] is None else k[1]))
     spreads = [_spread(*key, crossings[key], groups.get(key, [])) for key in keys]
+    median = figures.latency_median
     return Consistency(
         method=method,
-        changes=total,
-        transitions=len(detections),
-        tolerance_frames=tol,
-        door_distance_m=door_distance_m,
-        recall=_ratio(hit, total),
-        recall_boundary=_ratio(hit_boundary, total),
-        recall_any=_ratio(len(latencies), total),
-        precision=_ratio(sum(near_change(d, d.seq) for d in detections), len(detections)),
-        precision_boundary=_ratio(
-            sum(near_change(d, d.boundary_seq) for d in detections), len(detections)
-        ),
-        precision_door=_ratio(sum(near_door(d) for d in detections), len(detections))
-        if doors
-        else None,
-        latency_mean=statistics.fmean(latencies) if latencies else None,
-        latency_median=float(statistics.median(latencies)) if latencies else None,
-        latency_max=max(latencies) if latencies else None,
+        changes=figures.changes,
+        transitions=figures.transitions,
+        tolerance_frames=figures.tolerance_frames,
+        door_distance_m=figures.distance_m,
+        recall=figures.recall,
+        recall_boundary=figures.recall_boundary,
+        recall_any=figures.recall_any,
+        precision=figures.precision,
+        precision_boundary=figures.precision_boundary,
+        precision_door=figures.precision_door,
+        latency_mean=figures.latency_mean,
+        latency_median=None if median is None else float(median),
+        latency_max=figures.latency_max,
         doors=tuple(s for s in spreads if s.to_room is None),
         passages=tuple(s for s in spreads if s.to_room is not None),
     )
-
-
-def _ratio(part: int, whole: int) -> float | None:
-    return part / whole if whole else None

@@ -36,8 +36,8 @@ if TYPE_CHECKING:
     from lessmap.core import PartitionParams
     from lessmap.evaluation.infoloss import LandmarkInformation
     from lessmap.evaluation.segmentation import LessmapRun
-    from lessmap.evaluation.simrun import SimTruth
     from lessmap.frames_file import FrameRow
+    from lessmap.sim.simulator import SimTruth
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -47,8 +47,8 @@ if TYPE_CHECKING:
     from lessmap.evaluation.consistency import Consistency, Detection
     from lessmap.evaluation.diagnosis import Loss, StreamStats, VariantRow
     from lessmap.evaluation.report import EvalReport
-    from lessmap.evaluation.simrun import SimTruth
     from lessmap.frames_file import FrameRow
+    from lessmap.sim.simulator import SimTruth
 
 DEFAULT_DATASET = Path("../shared/datasets/dlr.frames.jsonl")
 FEATURE_SIZES = (10, 15, 20, 30, 50, 60, 100, 150)  # the fixed-features curve

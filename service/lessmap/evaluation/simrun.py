@@ -1,13 +1,13 @@
-"""Read a simulated run's files: ground truth, building, and a SLAM problem to measure e.
+"""A simulated run as a data set: ground truth, and a SLAM problem to measure e.
 
 The simulator (``lessmap.sim.simulator.write_run``, formats in its docstring) writes
-``<name>.frames.jsonl``, ``<name>.truth.jsonl`` and ``<name>.building.json`` side by side.
-This package may not import the client, so the files are the interface. Rules:
+``<name>.frames.jsonl``, ``<name>.truth.jsonl`` and ``<name>.building.json`` side by side,
+and ``lessmap.sim.simulator.read_truth`` reads the last two back; this module adds what
+the evaluation needs on top. Rules:
 
 1. A frames file is a simulated run when ``<name>.truth.jsonl`` lies next to it.
-2. Room changes come from the building file's ``room_changes`` (they name the door); a
-   building file without them gives the changes of the truth rows, each at the door the
-   truth row of the change frame names in ``door_near``.
+2. The truth (rows, doors, room changes, landmarks) is the simulator's ``SimTruth``; a
+   missing or malformed file is a ``DatasetError``.
 3. The simulator writes no edges or odometry: ``sim_problem`` builds them from the true
    poses and the building's landmark positions, with the fixed information below (a 2-D
    laser scanner at ~5 cm, wheel odometry at ~1 cm and ~1° per 0.25 m step; the ratio of
@@ -17,10 +17,7 @@ This package may not import the client, so the files are the interface. Rules:
 
 from __future__ import annotations
 
-import itertools
-import json
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +30,7 @@ from lessmap.evaluation.dataset import (
     load_frames,
 )
 from lessmap.frames_file import read_frames
+from lessmap.sim.simulator import SimTruth, read_truth
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -46,54 +44,6 @@ SIM_NOTE = (
     "H synthesized from the simulator's true poses and landmark positions: landmark "
     "information 400·I (σ 5 cm), odometry diag(1e4, 1e4, 2500) per frame step"
 )
-
-
-@dataclass(frozen=True, slots=True)
-class TruthRow:
-    """Where a robot really was at one frame (a line of ``<name>.truth.jsonl``)."""
-
-    robot: str
-    seq: int
-    room: int
-    x: float
-    y: float
-    door: int | None  # nearest door
-
-
-@dataclass(frozen=True, slots=True)
-class Door:
-    """A door of the building: its centre (metres) and the two rooms it joins."""
-
-    id: int
-    x: float
-    y: float
-    rooms: tuple[int, int]
-
-
-@dataclass(frozen=True, slots=True)
-class RoomChange:
-    """A robot entered another room; ``seq`` is its first frame there."""
-
-    robot: str
-    seq: int
-    from_room: int
-    to_room: int
-    door: int | None
-
-
-@dataclass(frozen=True, slots=True)
-class SimTruth:
-    """The ground truth of a simulated run."""
-
-    rows: tuple[TruthRow, ...]
-    doors: tuple[Door, ...]
-    changes: tuple[RoomChange, ...]
-    landmarks: dict[int, tuple[float, float]] = field(default_factory=dict)  # id → x, y
-    walls: tuple[tuple[float, float, float, float], ...] = ()  # x0, y0, x1, y1 (for figures)
-
-    def positions(self) -> dict[tuple[str, int], tuple[float, float]]:
-        """Map (robot, seq) to the true position (x, y)."""
-        return {(row.robot, row.seq): (row.x, row.y) for row in self.rows}
 
 
 def sibling(frames_path: Path, suffix: str) -> Path:
@@ -111,97 +61,21 @@ def is_sim_run(frames_path: Path) -> bool:
     )
 
 
-def _load_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        msg = f"{path.name}: not JSON ({exc.msg})"
-        raise DatasetError(msg) from exc
-
-
-def _truth_row(line: str, where: str) -> TruthRow:
-    try:
-        row = json.loads(line)
-        near = row.get("door_near")
-        return TruthRow(
-            robot=str(row["robot"]),
-            seq=int(row["seq"]),
-            room=int(row["room"]),
-            x=float(row["x"]),
-            y=float(row["y"]),
-            door=None if near is None else int(near["door"]),
-        )
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
-        msg = f"{where}: not a truth row ({exc})"
-        raise DatasetError(msg) from exc
-
-
 def load_truth(frames_path: Path) -> SimTruth:
-    """Read ``<name>.truth.jsonl`` and ``<name>.building.json`` next to the frames file.
+    """Read the truth and building files next to the frames file (``lessmap.sim`` reads them).
 
     Raises:
         DatasetError: a file is missing or malformed.
     """
-    truth_path = sibling(frames_path, ".truth.jsonl")
-    building_path = sibling(frames_path, ".building.json")
-    for path in (truth_path, building_path):
+    for suffix in (".truth.jsonl", ".building.json"):
+        path = sibling(frames_path, suffix)
         if not path.is_file():
             msg = f"{path} not found: the consistency scores need the simulator's files"
             raise DatasetError(msg)
-    with truth_path.open(encoding="utf-8") as handle:
-        rows = tuple(
-            _truth_row(line, f"{truth_path.name}:{number}")
-            for number, line in enumerate(handle, start=1)
-            if line.strip()
-        )
-    building = _load_json(building_path)
     try:
-        doors = tuple(
-            Door(
-                int(d["id"]), float(d["x"]), float(d["y"]), (int(d["rooms"][0]), int(d["rooms"][1]))
-            )
-            for d in building.get("doors", [])
-        )
-        landmarks = {
-            int(m["id"]): (float(m["x"]), float(m["y"])) for m in building.get("landmarks", [])
-        }
-        walls = tuple(
-            (float(w["x0"]), float(w["y0"]), float(w["x1"]), float(w["y1"]))
-            for w in building.get("walls", [])
-        )
-        listed = building.get("room_changes")
-        changes = (
-            changes_from_rows(rows)
-            if listed is None
-            else tuple(
-                RoomChange(
-                    str(c["robot"]),
-                    int(c["seq"]),
-                    int(c["from_room"]),
-                    int(c["to_room"]),
-                    None if c.get("door") is None else int(c["door"]),
-                )
-                for c in listed
-            )
-        )
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
-        msg = f"{building_path.name}: unexpected layout ({exc})"
-        raise DatasetError(msg) from exc
-    return SimTruth(rows=rows, doors=doors, changes=changes, landmarks=landmarks, walls=walls)
-
-
-def changes_from_rows(rows: Sequence[TruthRow]) -> tuple[RoomChange, ...]:
-    """Derive the room changes from the truth rows (rule 2), robots apart, in seq order."""
-    by_robot: dict[str, list[TruthRow]] = {}
-    for row in rows:
-        by_robot.setdefault(row.robot, []).append(row)
-    changes = []
-    for robot, items in by_robot.items():
-        items.sort(key=lambda row: row.seq)
-        for before, row in itertools.pairwise(items):
-            if row.room != before.room:
-                changes.append(RoomChange(robot, row.seq, before.room, row.room, row.door))
-    return tuple(changes)
+        return read_truth(frames_path)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(str(exc)) from exc
 
 
 def sim_problem(

@@ -1,5 +1,8 @@
 """Score detected transitions against true room changes (simulation or surveyed ground truth).
 
+The one scorer of the project: the demo and the evaluation (``lessmap.evaluation.consistency``,
+which adds the door spreads) both call ``score``, each passing its window and distance.
+
 Pure Python, no I/O: feed it what you have in memory, whether ``RoomChange`` objects from the
 simulator, rows read back from a ``<name>.truth.jsonl``, core ``Transition`` objects, wire
 ``Transition`` messages or the offline output's dicts. Records are read by field name,
@@ -15,8 +18,9 @@ Figures, with ``tol`` = ``tolerance_frames``:
 - precision: share of detections whose ``seq`` lies within ``± tol`` of a true change of
   the same robot; precision_boundary likewise with ``boundary_seq``.
 - precision_door: share of detections whose robot stood within ``distance_m`` of a door at
-  the detection's ``boundary_seq`` (needs positions and doors); precision_door_at_seq
-  uses the detection frame itself.
+  the detection's ``boundary_seq``; precision_door_at_seq uses the detection frame itself.
+  None without ``positions`` or ``doors``, or when a detection's position is unknown; an
+  empty ``doors`` gives 0 (pass None for "not applicable" in a building without doors).
 - recall_any: share of true changes followed by a detection at all before the robot's next
   room change (late counts, missed does not).
 - latency: ``seq - c`` for the first detection in ``[c, next change)``, frames, over the

@@ -17,7 +17,8 @@ Files written by ``write_run(run, out_dir, name)``:
     One line per frame, same order: ``{"robot", "seq", "stamp", "room", "x", "y",
     "door_near": {"door": <id>, "distance_m": <m>}}`` (``door_near`` is null in a building
     without doors). ``room`` is the index of the room holding the robot's position (a point
-    on a shared wall line counts for the lower index); x, y in metres.
+    on a shared wall line counts for the lower index); x, y in metres. A line is a
+    ``TruthRow``.
 ``<name>.building.json``
     ``{"seed", "options", "rooms": [{"index", "rect": {"x0", "y0", "x1", "y1"}, "kind"}],
     "walls": [{"x0", "y0", "x1", "y1", "sides": [room | null, room | null]}], "doors": [{"id",
@@ -26,6 +27,10 @@ Files written by ``write_run(run, out_dir, name)``:
     Metres; walls have the door openings cut out; a landmark faces its room along (nx, ny);
     a room change's ``seq`` is the first frame in the new room. ``Building.from_json`` reads
     the plan back.
+
+``read_truth(frames_path)`` reads the truth and building files back (``SimTruth``): the one
+reader of these formats, used by the evaluation. A building file without ``room_changes``
+gives the changes of the truth rows, each at the door its change frame's ``door_near`` names.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from lessmap.sim.building import Building, Door, Rect, generate_building
+from lessmap.sim.groundtruth import changes_from_truth
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -48,8 +54,11 @@ __all__ = [
     "RunPaths",
     "SimOptions",
     "SimRun",
+    "SimTruth",
     "TruthRow",
     "iter_frames",
+    "read_truth",
+    "run_paths",
     "simulate",
     "write_run",
 ]
@@ -72,7 +81,7 @@ class SimOptions:
     detection_prob: float = 0.8  # per visible landmark and frame
     # 270°: a SICK LMS1xx / Hokuyo UTM-30LX class indoor scanner, the common case. It loses
     # the old room once through a door; a 360° lidar keeps seeing it through the door behind,
-    # which delays transitions about 2x (measured in tests/client/test_sim.py). ~60-90: camera.
+    # which delays transitions about 2x (measured in tests/sim/test_sim.py). ~60-90: camera.
     fov_deg: float = 270.0
     speed_mps: float = 0.5
     rate_hz: float = 2.0
@@ -83,7 +92,10 @@ class SimOptions:
 
 @dataclass(frozen=True, slots=True)
 class TruthRow:
-    """Where a robot really was at one frame."""
+    """Where a robot really was at one frame (a line of ``<name>.truth.jsonl``).
+
+    The heading is in the frame's ``pose``, not here.
+    """
 
     robot: str
     seq: int
@@ -91,7 +103,6 @@ class TruthRow:
     room: int
     x: float
     y: float
-    theta: float
     door: int | None  # nearest door (None in a building without doors)
     door_distance_m: float  # inf without doors
 
@@ -129,11 +140,26 @@ class SimRun:
 
 
 class RunPaths(NamedTuple):
-    """The files ``write_run`` wrote."""
+    """The files of a run: what ``write_run`` wrote, or ``run_paths`` names."""
 
     frames: Path
     truth: Path
     building: Path
+
+
+@dataclass(frozen=True, slots=True)
+class SimTruth:
+    """The ground truth of a run as its files hold it (``read_truth``)."""
+
+    rows: tuple[TruthRow, ...]  # file order: robots interleaved by stamp
+    doors: tuple[Door, ...]
+    changes: tuple[RoomChange, ...]
+    landmarks: dict[int, tuple[float, float]] = field(default_factory=dict)  # id → x, y
+    walls: tuple[tuple[float, float, float, float], ...] = ()  # x0, y0, x1, y1 (for figures)
+
+    def positions(self) -> dict[tuple[str, int], tuple[float, float]]:
+        """Map (robot, seq) to the true position (x, y)."""
+        return {(row.robot, row.seq): (row.x, row.y) for row in self.rows}
 
 
 def simulate(
@@ -194,9 +220,7 @@ def simulate(
             door, distance = building.nearest_door(x, y)
             pose = [round(x, 4), round(y, 4), round(theta, 4)]
             frame = {"robot": robot, "seq": seq, "stamp": stamp, "features": features, "pose": pose}
-            truth = TruthRow(
-                robot, seq, stamp, room, pose[0], pose[1], pose[2], door, round(distance, 4)
-            )
+            truth = TruthRow(robot, seq, stamp, room, pose[0], pose[1], door, round(distance, 4))
             rows.append((stamp, index, frame, truth))
             if previous is not None and room != previous:
                 run.room_changes.append(
@@ -317,6 +341,107 @@ def write_run(run: SimRun, out_dir: str | Path, name: str) -> RunPaths:
     document["room_changes"] = [asdict(change) for change in run.room_changes]
     paths.building.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
     return paths
+
+
+FRAMES_SUFFIX = ".frames.jsonl"
+
+
+def run_paths(frames_path: str | Path) -> RunPaths:
+    """Name the truth and building files next to ``<name>.frames.jsonl``.
+
+    Raises:
+        ValueError: the name does not end in ``.frames.jsonl``.
+    """
+    frames = Path(frames_path)
+    if not frames.name.endswith(FRAMES_SUFFIX):
+        msg = f"{frames}: a frames file name must end in {FRAMES_SUFFIX}"
+        raise ValueError(msg)
+    stem = frames.name[: -len(FRAMES_SUFFIX)]
+    return RunPaths(
+        frames, frames.with_name(f"{stem}.truth.jsonl"), frames.with_name(f"{stem}.building.json")
+    )
+
+
+def read_truth(frames_path: str | Path) -> SimTruth:
+    """Read the truth and building files of a run back (formats: module docstring).
+
+    Raises:
+        OSError: a file cannot be read (``FileNotFoundError`` when missing).
+        ValueError: a file is malformed; the message names the file (and line).
+    """
+    paths = run_paths(frames_path)
+    with paths.truth.open(encoding="utf-8") as handle:
+        rows = tuple(
+            _truth_row(line, f"{paths.truth.name}:{number}")
+            for number, line in enumerate(handle, start=1)
+            if line.strip()
+        )
+    try:
+        document = json.loads(paths.building.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        msg = f"{paths.building.name}: not JSON ({exc.msg})"
+        raise ValueError(msg) from exc
+    try:
+        building = Building.from_json(document)
+        listed = document.get("room_changes")
+        changes = (
+            _changes_from_rows(rows)
+            if listed is None
+            else tuple(
+                RoomChange(
+                    str(c["robot"]),
+                    int(c["seq"]),
+                    int(c["from_room"]),
+                    int(c["to_room"]),
+                    int(c["door"]),
+                )
+                for c in listed
+            )
+        )
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+        msg = f"{paths.building.name}: unexpected layout ({exc!r})"
+        raise ValueError(msg) from exc
+    return SimTruth(
+        rows=rows,
+        doors=building.doors,
+        changes=changes,
+        landmarks={mark.id: (mark.x, mark.y) for mark in building.landmarks},
+        walls=tuple((w.x0, w.y0, w.x1, w.y1) for w in building.walls),
+    )
+
+
+def _truth_row(line: str, where: str) -> TruthRow:
+    try:
+        row = json.loads(line)
+        near = row["door_near"]
+        return TruthRow(
+            robot=str(row["robot"]),
+            seq=int(row["seq"]),
+            stamp=float(row["stamp"]),
+            room=int(row["room"]),
+            x=float(row["x"]),
+            y=float(row["y"]),
+            door=None if near is None else int(near["door"]),
+            door_distance_m=math.inf if near is None else float(near["distance_m"]),
+        )
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        msg = f"{where}: not a truth row ({exc!r})"
+        raise ValueError(msg) from exc
+
+
+def _changes_from_rows(rows: tuple[TruthRow, ...]) -> tuple[RoomChange, ...]:
+    """The room changes of the truth rows, each at the door its change frame is nearest."""
+    door_of = {(row.robot, row.seq): row.door for row in rows}
+    changes = []
+    for change in changes_from_truth(rows):
+        door = door_of[(change["robot"], change["seq"])]
+        if door is None:
+            msg = f"robot {change['robot']!r} changes room at seq {change['seq']} without a door"
+            raise ValueError(msg)
+        changes.append(
+            RoomChange(change["robot"], change["seq"], change["from_room"], change["to_room"], door)
+        )
+    return tuple(changes)
 
 
 def iter_frames(

@@ -6,6 +6,7 @@ Run with ``-s`` to see the measured figures of the acceptance checks.
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import math
 import random
@@ -17,7 +18,14 @@ from lessmap.core import Partitioner, PartitionParams, Transition
 from lessmap.frames_file import read_frames
 from lessmap.sim.building import FACE_OFFSET_M, Building, Door, generate_building
 from lessmap.sim.groundtruth import Score, changes_from_truth, score
-from lessmap.sim.simulator import SimRun, iter_frames, simulate, write_run
+from lessmap.sim.simulator import (
+    SimRun,
+    iter_frames,
+    read_truth,
+    run_paths,
+    simulate,
+    write_run,
+)
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -156,9 +164,10 @@ def test_robot_away_from_doors_sees_mostly_its_room(layout: str) -> None:
     for seed in range(3):
         run = simulate(seed, rooms=6, frames_per_robot=200, layout=layout)
         building, opts = run.building, run.options
-        for row in run.truth:
+        for frame, row in zip(run.frames, run.truth, strict=True):
             if row.door_distance_m >= 1.5:
-                seen = building.visible(row.x, row.y, row.theta, opts.range_m, opts.fov_deg)
+                theta = frame["pose"][2]  # the heading is in the frame, the rest in the truth
+                seen = building.visible(row.x, row.y, theta, opts.range_m, opts.fov_deg)
                 own += sum(building.landmarks[i].room == row.room for i in seen)
                 total += len(seen)
     _report(f"{layout}: {own / total:.1%} of what is seen >= 1.5 m from a door is in the room")
@@ -187,6 +196,40 @@ def test_frames_have_the_dataset_format(tmp_path: Path) -> None:
     document = json.loads(paths.building.read_text())
     assert Building.from_json(document) == run.building
     assert len(document["room_changes"]) == len(run.room_changes)
+    back = read_truth(paths.frames)  # the one reader of these files gives the run back
+    assert back.rows == tuple(run.truth)
+    assert back.changes == tuple(run.room_changes)
+    assert back.doors == run.building.doors
+    assert back.landmarks == {m.id: (m.x, m.y) for m in run.building.landmarks}
+    assert len(back.walls) == len(run.building.walls)
+    frame = next(f for f in run.frames if (f["robot"], f["seq"]) == ("robot1", 5))
+    assert back.positions()[("robot1", 5)] == tuple(frame["pose"][:2])
+
+
+def test_truth_files_that_do_not_fit_are_named(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"must end in \.frames\.jsonl"):
+        run_paths(tmp_path / "sim.jsonl")
+    assert run_paths(tmp_path / "a.b.frames.jsonl").truth == tmp_path / "a.b.truth.jsonl"
+    paths = write_run(simulate(2, rooms=3, robots=1, frames_per_robot=80), tmp_path, "sim")
+    lines = paths.truth.read_text().splitlines()
+    document = json.loads(paths.building.read_text())
+    del document["room_changes"]
+    paths.building.write_text(json.dumps(document))
+    assert read_truth(paths.frames).changes  # derived from the rows
+    rooms = [json.loads(line)["room"] for line in lines]
+    first = next(k for k, (a, b) in enumerate(itertools.pairwise(rooms), start=1) if a != b)
+    bad = json.loads(lines[first])
+    bad["door_near"] = None  # the first frame in the new room names no door
+    lines[first] = json.dumps(bad)
+    paths.truth.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match="without a door"):
+        read_truth(paths.frames)
+    paths.truth.write_text(lines[0] + "\n" + '{"robot": "robot0", "seq": 1}' + "\n")
+    with pytest.raises(ValueError, match=r"sim\.truth\.jsonl:2: not a truth row"):
+        read_truth(paths.frames)
+    paths.truth.unlink()
+    with pytest.raises(FileNotFoundError):
+        read_truth(paths.frames)
 
 
 def test_every_room_change_happens_at_its_door() -> None:
