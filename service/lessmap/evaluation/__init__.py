@@ -2,10 +2,11 @@
 
 Modules: ``dataset`` (frames + edges + odometry as a linearized SLAM problem), ``infoloss``
 (landmark information matrix and e), ``segmentation`` (LESS-mapping runs as frame labels),
-``baselines``, ``sweep``, ``report`` (``evaluate``), ``simrun`` (a simulated run's files:
-ground truth, building, synthesized SLAM problem), ``consistency`` (transitions against the
-true room changes, revisit spread), ``diagnosis`` (why e comes out as it does), ``plots``
-and ``charts`` (matplotlib, imported only when figures are drawn), ``markdown`` (eval.md),
-``commands`` (``lessmap eval`` and ``lessmap plot``), and ``results`` with ``resultsdoc``
-and ``whydoc`` (``python -m lessmap.evaluation.results``: docs/RESULTS.md).
+``baselines``, ``sweep``, ``report`` (``evaluate``), ``simrun`` (a simulated run as a data
+set: the truth read by ``lessmap.sim``, a synthesized SLAM problem), ``consistency``
+(detections of each method, scored by ``lessmap.sim.groundtruth``, plus the revisit spread),
+``diagnosis`` (why e comes out as it does), ``plots`` and ``charts`` (matplotlib, imported
+only when figures are drawn), ``markdown`` (eval.md), ``commands`` (``lessmap eval`` and
+``lessmap plot``), and ``results`` (the measured figures of docs/RESULTS.md; the page is
+rendered by ``docs/results/generate.py``, outside the package).
 """

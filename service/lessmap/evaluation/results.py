@@ -1,19 +1,14 @@
-"""Write ``docs/RESULTS.md`` and ``docs/figures/*.png``: the one command behind the results page.
+"""The figures of the results page, measured: a recorded data set and a simulated run.
 
-    python -m lessmap.evaluation.results --sim /tmp/sim/sim.frames.jsonl --out docs --jobs 2
-
-It evaluates a recorded data set (default: DLR from ``../shared/datasets``) and a simulated
-run (frames, truth and building files of ``lessmap.sim.simulator.write_run``; this
-package may not import the simulator, so its files are the input), then renders the page
-with ``lessmap.evaluation.resultsdoc``. Every figure on the page is measured here; the page
-names, for each table, the ``lessmap eval`` command that gives the same numbers.
+``recorded`` evaluates a recorded data set (frames, edges, odometry), ``simulated`` a run of
+the seeded simulator (its files, read with ``lessmap.sim``), each into a plain results
+object. Every number on ``docs/RESULTS.md`` is measured here; the page itself is rendered
+outside the package, by ``docs/results/generate.py``, which imports this module (never the
+other way round).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -38,7 +33,6 @@ from lessmap.evaluation.diagnosis import (
 from lessmap.evaluation.infoloss import landmark_information
 from lessmap.evaluation.report import evaluate
 from lessmap.evaluation.simrun import load_for_eval, load_truth
-from lessmap.evaluation.sweep import DEFAULT_GRID
 from lessmap.frames_file import read_frames
 
 if TYPE_CHECKING:
@@ -50,7 +44,6 @@ if TYPE_CHECKING:
     from lessmap.frames_file import FrameRow
     from lessmap.sim.simulator import SimTruth
 
-DEFAULT_DATASET = Path("../shared/datasets/dlr.frames.jsonl")
 FEATURE_SIZES = (10, 15, 20, 30, 50, 60, 100, 150)  # the fixed-features curve
 FRAME_SIZES = (10, 20, 30, 50, 100, 165, 300)  # the fixed-frames curve
 ODOMETRY_SCALES = (1.0, 0.1, 0.01)
@@ -197,92 +190,3 @@ def simulated(path: Path, params: PartitionParams) -> SimResults:
         consistency=consistency,
         detections=detections,
     )
-
-
-def write_figures(folder: Path, rec: RecordedResults, sim: SimResults | None) -> list[Path]:
-    """Write the PNGs of the page into ``folder``; return their paths."""
-    from lessmap.evaluation import charts, plots
-
-    folder.mkdir(parents=True, exist_ok=True)
-    report, name = rec.report, rec.report.dataset
-    figures = {
-        f"{name}_trajectory.png": plots.trajectory_figure(rec.frames, report.lessmap),
-        f"{name}_ncut_lambda2.png": plots.thresholds_figure(report.lessmap),
-        f"{name}_sweep.png": plots.sweep_figure(report.sweep) if report.sweep else None,
-        f"{name}_e_vs_submaps.png": charts.loss_count_figure(
-            rec.curves, f"{name}: e against the number of submaps"
-        ),
-    }
-    if sim is not None:
-        first = sim.reports[0]
-        figures["sim_trajectory.png"] = plots.trajectory_figure(sim.frames, first.lessmap)
-        figures["sim_consistency.png"] = charts.consistency_figure(sim.truth, sim.detections)
-    written = []
-    for file_name, fig in figures.items():
-        if fig is None:
-            continue
-        path = folder / file_name
-        fig.savefig(path, format="png", bbox_inches="tight", dpi=charts.DPI)
-        written.append(path)
-    return written
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """Return the parser of ``python -m lessmap.evaluation.results``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m lessmap.evaluation.results",
-        description="Evaluate a recorded data set and a simulated run; write RESULTS.md and "
-        "figures/*.png into --out.",
-    )
-    parser.add_argument(
-        "--dataset",
-        type=Path,
-        default=DEFAULT_DATASET,
-        metavar="FILE",
-        help=f"recorded frames file with edges and odometry (default {DEFAULT_DATASET})",
-    )
-    parser.add_argument(
-        "--sim",
-        type=Path,
-        metavar="FILE",
-        help="frames file of a simulated run (truth and building files next to it)",
-    )
-    parser.add_argument("--out", type=Path, default=Path("docs"), metavar="DIR")
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes for the sweep")
-    parser.add_argument(
-        "--sweep",
-        type=float,
-        nargs="+",
-        default=list(DEFAULT_GRID),
-        metavar="V",
-        help="values of both thresholds in the sweep (default 0.1..0.5)",
-    )
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the evaluations and write the page; return the exit code."""
-    from lessmap.errors import DatasetError
-    from lessmap.evaluation.resultsdoc import render
-
-    args = build_parser().parse_args(argv)
-    started = time.perf_counter()
-    params = PartitionParams.from_profile("laser")
-    try:
-        rec = recorded(args.dataset, params, args.sweep, max(args.jobs, 1))
-        sim = simulated(args.sim, params) if args.sim is not None else None
-    except (DatasetError, FileNotFoundError) as exc:
-        sys.stderr.write(f"results: {exc}\n")
-        return 1
-    out: Path = args.out
-    written = write_figures(out / "figures", rec, sim)
-    page = render(rec, sim, [path.name for path in written], list(argv or sys.argv[1:]))
-    (out / "RESULTS.md").write_text(page, encoding="utf-8")
-    elapsed = time.perf_counter() - started
-    lines = [f"wrote {path}" for path in [out / "RESULTS.md", *written]]
-    sys.stdout.write("\n".join([*lines, f"({elapsed:.0f} s)"]) + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,7 @@
-"""Render the "Why" section of docs/RESULTS.md: the recorded data set's gap, measured."""
+"""Render the "Why" section of docs/RESULTS.md: the recorded data set's gap, measured.
+
+Called by ``render.py`` beside it.
+"""
 
 from __future__ import annotations
 

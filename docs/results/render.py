@@ -1,5 +1,8 @@
 """Render docs/RESULTS.md from the measured results (``lessmap.evaluation.results``).
 
+Beside ``generate.py``, which runs the measurements and calls ``render``; the "Why" section
+comes from ``why.py``. Neither ships in the wheel.
+
 Every number on the page comes from the results objects; sentences that compare two numbers
 pick their words from the comparison, so a rerun on other data never states a stale claim.
 """
@@ -8,6 +11,8 @@ from __future__ import annotations
 
 import shlex
 from typing import TYPE_CHECKING
+
+from why import why_lines
 
 from lessmap.evaluation.diagnosis import Loss
 from lessmap.evaluation.markdown import (
@@ -20,7 +25,6 @@ from lessmap.evaluation.markdown import (
     ratio,
     table,
 )
-from lessmap.evaluation.whydoc import why_lines
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -28,6 +32,7 @@ if TYPE_CHECKING:
     from lessmap.evaluation.report import EvalReport, MethodResult
     from lessmap.evaluation.results import RecordedResults, SimResults
 
+COMMAND = ("python", "docs/results/generate.py")  # run from the repository root
 SIM_ONE_LINER = (
     'python -c "from lessmap.sim.simulator import simulate, write_run; '
     "write_run(simulate(0, rooms=8, robots=3, frames_per_robot=1000), '/tmp/sim', 'sim')\""
@@ -96,7 +101,7 @@ def _pair(x: Loss) -> str:
 
 def header_lines(argv: Sequence[str]) -> list[str]:
     """Title, provenance and the reproduction commands."""
-    command = shlex.join(["python", "-m", "lessmap.evaluation.results", *argv])
+    command = shlex.join([*COMMAND, *argv])
     return [
         "# Results: information loss and consistency of lessmap",
         "",
@@ -108,10 +113,12 @@ def header_lines(argv: Sequence[str]) -> list[str]:
         "```sh",
         "# 1. a seeded simulated run: 8 rooms, 3 robots, 1000 frames per robot (2 Hz)",
         "lessmap sim --out /tmp/sim --seed 0 --rooms 8 --robots 3 --frames 1000",
-        "#    or, equivalently, with the client SDK:",
+        "#    or, equivalently, in Python (lessmap.sim):",
         SIM_ONE_LINER,
         "# 2. this page (DLR from ../shared/datasets; about 3 minutes on 2 cores)",
-        "python -m lessmap.evaluation.results --sim /tmp/sim/sim.frames.jsonl --out docs --jobs 2",
+        shlex.join(
+            [*COMMAND, "--sim", "/tmp/sim/sim.frames.jsonl", "--out", "docs", "--jobs", "2"]
+        ),
         "```",
         "",
         "e is the paper's information-loss ratio (§4.1, Eq. 5): the share of the landmark "
