@@ -1,170 +1,115 @@
-"""The ``lessmap`` command line: one entry point, one subcommand per job."""
+"""The ``lessmap`` command line: one entry point, one subcommand per job.
+
+Each subcommand lives in its own module, named in ``COMMANDS`` and imported only when that
+command runs: ``lessmap --version`` and ``lessmap --help`` load neither numpy nor zenoh. A
+command module defines ``configure(parser)`` (its arguments) and ``run(args) -> int``
+(spelled otherwise when one module holds several commands).
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import logging
 import sys
-from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from lessmap import __version__
-from lessmap.core import PROFILES, GraphError, SeedMode
-from lessmap.errors import ConfigError, DatasetError
 from lessmap.logfmt import configure as configure_logging
-from lessmap.partition_options import add_partition_options, partition_params
-from lessmap_client.adapters.replay import ReplayError
-from lessmap_schemas.errors import WireError
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
-    from lessmap.core import Transition
 
-log = logging.getLogger(__name__)
+class Command(NamedTuple):
+    """Where a subcommand is defined, and its one-line help."""
 
-#: Failures a user can fix: one line on stderr and exit code 1, no traceback.
-KNOWN_EXCEPTIONS: tuple[type[Exception], ...] = (
-    ConfigError,
-    DatasetError,
-    GraphError,
-    FileNotFoundError,
-    IsADirectoryError,
-    PermissionError,
-    ConnectionError,  # the client commands could not reach a router
-    WireError,  # a frame breaks the wire contract (replay of a bad file)
-    ReplayError,  # a malformed frames file given to replay
+    module: str
+    help: str
+    configure: str = "configure"
+    run: str = "run"
+
+
+#: Every subcommand, in the order ``lessmap --help`` lists them.
+COMMANDS: dict[str, Command] = {
+    "serve": Command(
+        "lessmap.runtime.daemon", "run the partition service (a Zenoh daemon for many robots)"
+    ),
+    "segment": Command(
+        "lessmap.offline", "segment a recorded frames file offline (one session per robot)"
+    ),
+    "demo": Command(
+        "lessmap.demo",
+        "run the service, a simulated fleet and the live view for a bounded time",
+        run="run_demo",
+    ),
+    "replay": Command(
+        "lessmap_client.cli_client",
+        "publish a recorded frames file to the service (one publisher per robot)",
+        "configure_replay",
+        "run_replay",
+    ),
+    "watch": Command(
+        "lessmap_client.cli_client",
+        "live view of a fleet: one row per robot, transitions as they arrive",
+        "configure_watch",
+        "run_watch",
+    ),
+    "sim": Command(
+        "lessmap.sim.command",
+        "simulate a fleet in a building; write frames and ground truth, or publish live",
+    ),
+    "eval": Command(
+        "lessmap.evaluation.commands",
+        "information loss e (Eq. 5) of LESS-mapping vs. baselines, and a threshold sweep",
+        "configure_eval",
+        "run_eval",
+    ),
+    "plot": Command(
+        "lessmap.evaluation.commands",
+        "PNG figures: trajectory by submap, Ncut/λ2 over frames, reordered W, sweep",
+        "configure_plot",
+        "run_plot",
+    ),
+}
+
+#: Failures a user can fix: one line on stderr and exit code 1, no traceback. Named by
+#: module, so none is imported for nothing: an exception whose module was never loaded
+#: cannot have been raised.
+KNOWN_EXCEPTIONS: tuple[tuple[str, str], ...] = (
+    ("lessmap.errors", "ConfigError"),
+    ("lessmap.errors", "DatasetError"),
+    ("lessmap.core.errors", "GraphError"),
+    ("lessmap_schemas.errors", "WireError"),  # a frame breaks the wire contract (replay)
+    ("lessmap_client.adapters.replay", "ReplayError"),  # a malformed file given to replay
+    ("builtins", "FileNotFoundError"),
+    ("builtins", "IsADirectoryError"),
+    ("builtins", "NotADirectoryError"),
+    ("builtins", "PermissionError"),
+    ("builtins", "ConnectionError"),  # the client commands could not reach a router
 )
 
 
-def _cmd_segment(args: argparse.Namespace) -> int:
-    from lessmap.frames_file import read_frames
-    from lessmap.offline import segment, transition_record
-
-    params = partition_params(args)
-    path = Path(args.file)
-    frames = read_frames(path)
-    if args.robot:
-        frames = (f for f in frames if f.robot in set(args.robot))
-
-    def emit(robot: str, transition: Transition) -> None:
-        if not args.summary_only:
-            print(json.dumps(transition_record(robot, transition)), flush=False)
-
-    summary = segment(frames, params, on_transition=emit)
-    record = summary.as_dict()
-    record["file"] = path.name
-    record["params"] = {
-        "ncut_min": params.ncut_min,
-        "lambda2_min": params.lambda2_min,
-        "seed_mode": str(params.seed_mode),
-    }
-    print(json.dumps(record))
-    return 0
-
-
-def _cmd_serve(args: argparse.Namespace) -> int:
-    from lessmap.runtime.daemon import serve
-    from lessmap.settings import load_settings
-
-    flags = {
-        "profile": args.profile,
-        "ncut_min": args.ncut_min,
-        "lambda2_min": args.lambda2_min,
-        "seed_mode": args.seed_mode,
-        "workers": args.workers,
-        "metrics_port": args.metrics_port,
-        "instance": args.instance,
-        "session_idle_timeout_s": args.idle_timeout,
-        "max_batch_frames": args.max_batch_frames,
-        "batch_linger_ms": args.batch_linger_ms,
-        **_shard_flags(args.shard),
-        "mode": args.mode,
-        "zenoh_config": args.zenoh_config,
-        "connect": tuple(args.connect) if args.connect else None,
-        "listen": tuple(args.listen) if args.listen else None,
-    }
-    settings = load_settings(args.config, **{k: v for k, v in flags.items() if v is not None})
-    return serve(settings, args.cfg or ())
-
-
-def _shard_flags(text: str | None) -> dict[str, int]:
-    """Parse ``--shard I/N`` into the two settings."""
-    if text is None:
-        return {}
-    index, sep, count = text.partition("/")
-    if not sep or not index.isdigit() or not count.isdigit():
-        msg = f"--shard expects I/N, e.g. 0/2, got {text!r}"
-        raise ConfigError(msg)
-    return {"shard_index": int(index), "shard_count": int(count)}
-
-
-def _add_serve(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    srv = commands.add_parser(
-        "serve",
-        help="run the partition service (a Zenoh daemon for many robots)",
-        description="Run the partition service in the foreground until SIGTERM/SIGINT. With no "
-        "Zenoh option it opens its own router on tcp/127.0.0.1:7447. Settings come from "
-        "defaults < --config FILE (JSON) < LESSMAP_* environment < these flags.",
-    )
-    srv.add_argument("--config", type=Path, help="JSON file of service settings")
-    zen = srv.add_argument_group("Zenoh (as in zenoh-python's examples)")
-    zen.add_argument("-m", "--mode", choices=["peer", "client", "router"], help="Zenoh mode")
-    zen.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        metavar="ENDPOINT",
-        help="endpoint to connect to (repeatable), e.g. tcp/10.0.0.5:7447",
-    )
-    zen.add_argument(
-        "-l",
-        "--listen",
-        action="append",
-        metavar="ENDPOINT",
-        help="endpoint to listen on (repeatable)",
-    )
-    zen.add_argument("--zenoh-config", type=Path, metavar="FILE.json5", help="Zenoh config file")
-    zen.add_argument(
-        "--cfg",
-        action="append",
-        metavar="KEY:VALUE",
-        help="Zenoh config override, VALUE in JSON5 (repeatable)",
-    )
-    part = srv.add_argument_group("partitioning and runtime (override config and environment)")
-    part.add_argument("--profile", choices=sorted(PROFILES))
-    part.add_argument("--ncut-min", type=float)
-    part.add_argument("--lambda2-min", type=float)
-    part.add_argument("--seed-mode", choices=[m.value for m in SeedMode])
-    part.add_argument("--workers", type=int, help="shards (worker threads); default 1")
-    part.add_argument("--metrics-port", type=int, help="serve Prometheus /metrics on this port")
-    part.add_argument("--instance", help="instance name (default: host-pid)")
-    part.add_argument(
-        "--shard",
-        metavar="I/N",
-        help="serve only the robots whose key hashes to I of N (run one instance per I)",
-    )
-    part.add_argument("--idle-timeout", type=float, help="seconds before an idle session closes")
-    part.add_argument(
-        "--max-batch-frames",
-        type=int,
-        help="frames coalesced per decision under load (1 = decide every frame)",
-    )
-    part.add_argument(
-        "--batch-linger-ms",
-        type=float,
-        help="after waking on a quiet queue, wait this long for more frames (default 0 = off)",
-    )
-    srv.set_defaults(run=_cmd_serve)
+def is_known(exc: BaseException) -> bool:
+    """Return whether ``exc`` is a user's error (one line, exit 1) rather than a bug."""
+    for module, name in KNOWN_EXCEPTIONS:
+        loaded = sys.modules.get(module)
+        kind = getattr(loaded, name, None)
+        if isinstance(kind, type) and isinstance(exc, kind):
+            return True
+    return False
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Return the parser of every subcommand."""
+    """Return the top-level parser: global options, then COMMAND and its arguments."""
+    width = max(map(len, COMMANDS)) + 2
+    listing = "\n".join(f"  {name:<{width}}{c.help}" for name, c in COMMANDS.items())
     parser = argparse.ArgumentParser(
         prog="lessmap",
         description="Online environment segmentation for robot fleets "
         "(LESS-mapping spectral covisibility partitioning) over Eclipse Zenoh.",
+        epilog=f"commands:\n{listing}\n\n'lessmap COMMAND --help' describes one command.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"lessmap {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
@@ -174,45 +119,54 @@ def build_parser() -> argparse.ArgumentParser:
         default="text",
         help="stderr log lines as text or one JSON object per line (default: text)",
     )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    seg = commands.add_parser(
-        "segment",
-        help="segment a recorded frames file offline (one session per robot)",
-        description="Read FILE.frames.jsonl and print one JSON line per transition, then a "
-        "summary line. Decides at every frame, exactly as the service does without load.",
-    )
-    seg.add_argument("file", metavar="FILE", help="frames file (.frames.jsonl)")
-    seg.add_argument("--robot", action="append", help="only this robot (repeatable)")
-    seg.add_argument("--summary-only", action="store_true", help="print only the summary")
-    add_partition_options(seg)
-    seg.set_defaults(run=_cmd_segment)
-    _add_serve(commands)
-    from lessmap.demo import add_commands as add_demo_command
-    from lessmap.evaluation.commands import add_commands as add_evaluation_commands
-    from lessmap.sim.command import add_command as add_sim_command
-    from lessmap_client.cli_client import add_commands as add_client_commands
-
-    add_demo_command(commands)
-    add_client_commands(commands)
-    add_sim_command(commands)
-    add_evaluation_commands(commands)
+    parser.add_argument("command", metavar="COMMAND", choices=COMMANDS, help="see below")
+    parser.add_argument("arguments", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     return parser
+
+
+def command_parser(name: str) -> tuple[argparse.ArgumentParser, Callable[..., int]]:
+    """Import the module of command ``name``; return its parser and its run function."""
+    command = COMMANDS[name]
+    module = importlib.import_module(command.module)
+    parser = argparse.ArgumentParser(prog=f"lessmap {name}", description=command.help)
+    getattr(module, command.configure)(parser)
+    run: Callable[..., int] = getattr(module, command.run)
+    return parser, run
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the process exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    top = build_parser().parse_args(argv)
+    parser, run = command_parser(top.command)
+    args = parser.parse_args(top.arguments)
+    args.command, args.verbose, args.log_format = top.command, top.verbose, top.log_format
     # A daemon reports its lifecycle (INFO) by default; one-shot tools only warnings.
     base = logging.INFO if args.command == "serve" else logging.WARNING
-    level = max(logging.DEBUG, base - 10 * args.verbose)
-    configure_logging(level, args.log_format)
+    configure_logging(max(logging.DEBUG, base - 10 * args.verbose), args.log_format)
     try:
-        code: int = args.run(args)
-    except KNOWN_EXCEPTIONS as exc:
+        code = run(args)
+        sys.stdout.flush()  # a closed pipe shows here, while we can still handle it
+    except BrokenPipeError:
+        return _closed_pipe()
+    except Exception as exc:
+        if not is_known(exc):
+            raise
         print(f"lessmap {args.command}: {exc}", file=sys.stderr)
         return 1
-    except BrokenPipeError:
-        return 0  # output piped into head & co.
     return code
+
+
+def _closed_pipe() -> int:
+    """Exit quietly when stdout was closed early (``lessmap segment x | head -1``)."""
+    # Python flushes stdout again at exit and would report the broken pipe there: point
+    # stdout at /dev/null first (as the Python docs on SIGPIPE advise).
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no real file descriptor (e.g. a test's capture)
+        pass
+    finally:
+        os.close(devnull)
+    return 0

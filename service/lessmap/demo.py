@@ -26,14 +26,12 @@ if TYPE_CHECKING:
 _RATE_HZ = 2.0  # the simulated sensor's frame rate (sim default)
 
 
-def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add ``demo``."""
-    demo = commands.add_parser(
-        "demo",
-        help="run the service, a simulated fleet and the live view for a bounded time",
-        description="Start the service on its embedded router, stream a simulated fleet "
+def configure(demo: argparse.ArgumentParser) -> None:
+    """Define ``lessmap demo`` (run by ``run_demo``)."""
+    demo.description = (
+        "Start the service on its embedded router, stream a simulated fleet "
         "(rooms, doors, a 270° laser) through Zenoh, show the live view, then print a "
-        "summary scored against the simulator's ground truth.",
+        "summary scored against the simulator's ground truth."
     )
     demo.add_argument("--duration", type=float, default=30.0, help="seconds (default 30)")
     demo.add_argument("--robots", type=int, default=3, help="robots (default 3)")
@@ -51,7 +49,6 @@ def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) 
         help=f"endpoint of the embedded router (default {EMBEDDED_ENDPOINT})",
     )
     demo.add_argument("--json", action="store_true", help="print the summary as JSON")
-    demo.set_defaults(run=run_demo)
 
 
 @dataclass(slots=True)

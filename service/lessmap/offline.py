@@ -1,7 +1,12 @@
-"""Offline segmentation of a frames file: one independent partitioner per robot."""
+"""Offline segmentation of a frames file: one independent partitioner per robot.
+
+Also ``lessmap segment`` (``configure`` and ``run``, loaded by ``lessmap.cli`` on demand).
+"""
 
 from __future__ import annotations
 
+import json
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -10,6 +15,7 @@ from lessmap.core import GraphError, Partitioner, Transition
 from lessmap.errors import DatasetError
 
 if TYPE_CHECKING:
+    import argparse
     from collections.abc import Callable, Iterable
 
     from lessmap.core import PartitionParams
@@ -95,3 +101,66 @@ def segment(
     summary.elapsed_s = time.perf_counter() - started
     summary.submaps = summary.transitions + len(partitioners)
     return summary
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap segment``."""
+    from lessmap.flags import add_flags
+    from lessmap.partition_options import add_partition_options
+    from lessmap.settings import LimitSettings
+
+    parser.description = (
+        "Read FILE.frames.jsonl and print one JSON line per transition, then a summary line. "
+        "Decides at every frame, exactly as the service does without load; a frame beyond the "
+        "service's wire limits is an error, as it would be on the wire."
+    )
+    parser.add_argument("file", metavar="FILE", help="frames file (.frames.jsonl)")
+    parser.add_argument("--robot", action="append", help="only this robot (repeatable)")
+    parser.add_argument("--summary-only", action="store_true", help="print only the summary")
+    add_partition_options(parser)
+    only = frozenset({"max_features_per_frame"})
+    skip = frozenset(LimitSettings.model_fields) - only
+    add_flags(parser, LimitSettings, title="limits (as lessmap serve's)", exclude=skip)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``lessmap segment``: transitions as JSON lines, then the summary."""
+    from pathlib import Path
+
+    from pydantic import ValidationError
+
+    from lessmap.errors import ConfigError
+    from lessmap.frames_file import read_frames
+    from lessmap.partition_options import partition_params
+    from lessmap.settings import LimitSettings
+
+    params = partition_params(args)
+    given = vars(args).keys() & LimitSettings.model_fields.keys()
+    values = {name: getattr(args, name) for name in given}  # the defaults are serve's
+    try:
+        limits = LimitSettings.model_validate(values).wire_limits()
+    except ValidationError as exc:
+        msg = f"invalid --max-features-per-frame: {exc.errors()[0]['msg']}"
+        raise ConfigError(msg) from None
+    path = Path(args.file)
+    frames: Iterable[FrameRow] = read_frames(path, limits)
+    if args.robot:
+        robots = set(args.robot)
+        frames = (f for f in frames if f.robot in robots)
+    out = sys.stdout
+
+    def emit(robot: str, transition: Transition) -> None:
+        if not args.summary_only:
+            out.write(json.dumps(transition_record(robot, transition)) + "\n")
+
+    summary = segment(frames, params, on_transition=emit)
+    record = summary.as_dict()
+    record["file"] = path.name
+    record["params"] = {
+        "ncut_min": params.ncut_min,
+        "lambda2_min": params.lambda2_min,
+        "seed_mode": str(params.seed_mode),
+    }
+    out.write(json.dumps(record) + "\n")
+    out.flush()
+    return 0

@@ -1,6 +1,11 @@
 """Service settings: one model, filled from defaults < config file < environment < flags.
 
-Environment variables are ``LESSMAP_<FIELD>`` (nested: ``LESSMAP_LIMITS__MAX_PAYLOAD_BYTES``).
+Every field of ``ServiceSettings`` is at once a key of the config file (JSON, or TOML by its
+``.toml`` suffix), an environment variable ``LESSMAP_<FIELD>`` (nested:
+``LESSMAP_LIMITS__MAX_PAYLOAD_BYTES``) and a ``serve`` flag ``--<field>`` (nested:
+``--limits-max-payload-bytes``): adding a field adds all three. The precedence is the order of
+the pydantic-settings sources (``settings_customise_sources``), not a hand-made merge.
+
 Zenoh's own configuration is never re-modelled here: it is a JSON5 file handed to
 ``zenoh.Config.from_file`` plus the ``--connect/--listen/--mode`` overrides.
 """
@@ -9,22 +14,23 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    field_validator,
-    model_validator,
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    SettingsError,
 )
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings.sources import InitSettingsSource
 
-from lessmap.core import PROFILES, PartitionParams, SeedMode
 from lessmap.errors import ConfigError
+from lessmap.flags import Flag, FlagSpec, add_flags, describe_path, given, lookup
+from lessmap.partition_options import TITLE as PARTITION_TITLE, PartitionSettings
 from lessmap_schemas.keys import validate_name
 from lessmap_schemas.limits import (
     MAX_DETAIL_LEN,
@@ -34,8 +40,16 @@ from lessmap_schemas.limits import (
     WireLimits,
 )
 
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Mapping
+
 #: Where the embedded router listens when no Zenoh option is given.
 EMBEDDED_ENDPOINT = "tcp/127.0.0.1:7447"
+#: Prefix of every environment variable of the service.
+ENV_PREFIX = "LESSMAP_"
+
+_ZENOH = "Zenoh (as in zenoh-python's examples)"
 
 
 class LimitSettings(BaseModel):
@@ -44,57 +58,76 @@ class LimitSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     # Receiver policy: raise or lower freely.
-    max_payload_bytes: int = Field(1_048_576, ge=64)
-    max_features_per_frame: int = Field(4096, ge=1)
-    max_list_len: int = Field(100_000, ge=1)
+    max_payload_bytes: int = Field(1_048_576, ge=64, description="largest encoded message")
+    max_features_per_frame: int = Field(4096, ge=1, description="most features in one frame")
+    max_list_len: int = Field(100_000, ge=1, description="longest list in a message to clients")
     # Format bounds of v1: may only be lowered (schemas/README.md §8).
-    max_name_len: int = Field(MAX_NAME_LEN, ge=1, le=MAX_NAME_LEN)
-    max_seq: int = Field(MAX_SEQ, ge=1, le=MAX_SEQ)
-    max_feature_id: int = Field(MAX_FEATURE_ID, ge=1, le=MAX_FEATURE_ID)
-    max_detail_len: int = Field(MAX_DETAIL_LEN, ge=1, le=MAX_DETAIL_LEN)
+    max_name_len: int = Field(
+        MAX_NAME_LEN, ge=1, le=MAX_NAME_LEN, description="longest name (may only be lowered)"
+    )
+    max_seq: int = Field(MAX_SEQ, ge=1, le=MAX_SEQ, description="largest seq (may only be lowered)")
+    max_feature_id: int = Field(
+        MAX_FEATURE_ID,
+        ge=1,
+        le=MAX_FEATURE_ID,
+        description="largest feature ID (may only be lowered)",
+    )
+    max_detail_len: int = Field(
+        MAX_DETAIL_LEN,
+        ge=1,
+        le=MAX_DETAIL_LEN,
+        description="longest error detail (may only be lowered)",
+    )
 
     def wire_limits(self) -> WireLimits:
         """Return the codec's limits."""
         return WireLimits(**self.model_dump())
 
 
-class ServiceSettings(BaseSettings):
-    """Everything ``lessmap serve`` can be told; every field has a working default."""
+class ServiceSettings(BaseSettings, PartitionSettings):
+    """Everything ``lessmap serve`` can be told; every field has a working default.
+
+    The partitioning fields (profile, ncut_min, lambda2_min, seed_mode, min_frames_between,
+    min_cluster_size) come from ``PartitionSettings``, shared with the offline commands.
+    """
 
     model_config = SettingsConfigDict(
-        env_prefix="LESSMAP_", env_nested_delimiter="__", frozen=True, extra="forbid"
+        env_prefix=ENV_PREFIX, env_nested_delimiter="__", frozen=True, extra="forbid"
     )
 
-    # -- partitioning (Eq. 4) --
-    profile: Literal["laser", "stereo", "monocular"] = "laser"
-    ncut_min: float | None = Field(None, ge=0.0, description="overrides the profile")
-    lambda2_min: float | None = Field(None, ge=0.0, description="overrides the profile")
-    seed_mode: SeedMode = SeedMode.SEED
-    min_frames_between: int = Field(0, ge=0)
-    min_cluster_size: int = Field(1, ge=1)
+    config: Annotated[Path | None, Flag(metavar="FILE")] = Field(
+        None, description="JSON or TOML file of settings, below the environment and flags"
+    )
 
     # -- sessions --
-    session_idle_timeout_s: float = Field(300.0, gt=0.0)
-    max_sessions: int = Field(10_000, ge=1)
-    max_nodes_per_session: int = Field(20_000, ge=2)
-    max_batch_frames: int = Field(256, ge=1, description="1 = decide at every frame")
+    session_idle_timeout_s: Annotated[float, Flag("--idle-timeout")] = Field(
+        300.0, gt=0.0, description="seconds before an idle session closes"
+    )
+    max_sessions: int = Field(10_000, ge=1, description="open sessions at most")
+    max_nodes_per_session: int = Field(20_000, ge=2, description="CovGraph nodes per session")
+    max_batch_frames: int = Field(
+        256, ge=1, description="frames coalesced per decision under load (1 = decide every frame)"
+    )
 
     # -- receive path --
     # One shard by default: shards are threads sharing one GIL, and a second one measured
     # slower, not faster (docs/BENCHMARKS.md); more shards only isolate robots from each other.
-    workers: int = Field(1, ge=1, le=64, description="shards; a robot always maps to one")
+    workers: int = Field(1, ge=1, le=64, description="shards (worker threads); a robot maps to one")
     queue_depth: int = Field(50_000, ge=1, description="pending messages per shard")
     # A shard that wakes on a nearly empty queue may wait this long for more frames, so one
     # round serves several. Off by default: at 200 robots x 10 Hz, 2 ms saved 12 % of the
     # service's CPU but doubled the median latency; at saturation it changed nothing, since
     # rounds are large anyway (docs/BENCHMARKS.md). For CPU-tight hosts.
     batch_linger_ms: float = Field(
-        0.0, ge=0.0, le=100.0, description="wait for more frames after a wake-up (ms)"
+        0.0,
+        ge=0.0,
+        le=100.0,
+        description="after waking on a quiet queue, wait for more frames (ms)",
     )
     # Static sharding across instances: this instance serves the robots whose frames key
     # hashes (crc32) to shard_index modulo shard_count; run one instance per index.
-    shard_index: int = Field(0, ge=0)
-    shard_count: int = Field(1, ge=1, le=1024)
+    shard_index: int = Field(0, ge=0, description="this instance's shard (see --shard I/N)")
+    shard_count: int = Field(1, ge=1, le=1024, description="instances sharing the fleet")
 
     # -- outputs --
     transition_cache: int = Field(
@@ -103,21 +136,49 @@ class ServiceSettings(BaseSettings):
     error_rate_per_s: float = Field(
         5.0, gt=0.0, description="error events per robot, error code and second"
     )
-    error_burst: int = Field(20, ge=1)
-    instance: str = Field(default_factory=lambda: f"{socket.gethostname()[:40]}-{os.getpid()}")
+    error_burst: int = Field(20, ge=1, description="error events in a burst")
+    instance: str = Field(
+        default_factory=lambda: f"{socket.gethostname()[:40]}-{os.getpid()}",
+        description="instance name (default: host-pid)",
+    )
     shutdown_grace_s: float = Field(
         2.0, ge=0.0, description="on stop, keep taking frames until quiet, at most this long"
     )
-    metrics_port: int | None = Field(None, ge=0, le=65535)
-    metrics_addr: str = "127.0.0.1"
+    metrics_port: int | None = Field(
+        None, ge=0, le=65535, description="serve Prometheus /metrics on this port"
+    )
+    metrics_addr: str = Field("127.0.0.1", description="address of /metrics")
 
     # -- zenoh --
-    zenoh_config: Path | None = None
-    mode: Literal["peer", "client", "router"] | None = None
-    connect: tuple[str, ...] = ()
-    listen: tuple[str, ...] = ()
+    zenoh_config: Annotated[Path | None, Flag(group=_ZENOH, metavar="FILE.json5")] = Field(
+        None, description="Zenoh config file (JSON5)"
+    )
+    mode: Annotated[Literal["peer", "client", "router"] | None, Flag("-m", group=_ZENOH)] = Field(
+        None, description="Zenoh mode"
+    )
+    connect: Annotated[tuple[str, ...], Flag("-e", group=_ZENOH, metavar="ENDPOINT")] = Field(
+        (), description="endpoint to connect to, e.g. tcp/10.0.0.5:7447"
+    )
+    listen: Annotated[tuple[str, ...], Flag("-l", group=_ZENOH, metavar="ENDPOINT")] = Field(
+        (), description="endpoint to listen on"
+    )
 
     limits: LimitSettings = LimitSettings()
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Return the sources, first wins: flags (init kwargs), environment, config file."""
+        del dotenv_settings, file_secret_settings
+        flags = init_settings.init_kwargs if isinstance(init_settings, InitSettingsSource) else {}
+        path = flags.get("config") or _environ().get(ENV_PREFIX + "CONFIG") or None
+        return (init_settings, env_settings, ConfigFileSource(settings_cls, path))
 
     @field_validator("instance")
     @classmethod
@@ -128,12 +189,14 @@ class ServiceSettings(BaseSettings):
         ]
         return validate_name(cleaned.lstrip(".-") or "lessmap", "instance")
 
-    @model_validator(mode="after")
-    def _shard_in_range(self) -> ServiceSettings:
-        if self.shard_index >= self.shard_count:
-            msg = f"shard_index {self.shard_index} must be below shard_count {self.shard_count}"
+    @field_validator("shard_count")
+    @classmethod
+    def _shard_in_range(cls, value: int, info: ValidationInfo) -> int:
+        index = info.data.get("shard_index")
+        if index is not None and index >= value:
+            msg = f"shard_index {index} must be below shard_count {value}"
             raise ValueError(msg)
-        return self
+        return value
 
     @property
     def embedded(self) -> bool:
@@ -142,65 +205,140 @@ class ServiceSettings(BaseSettings):
             self.zenoh_config is None and self.mode is None and not self.connect and not self.listen
         )
 
-    def partition_params(self) -> PartitionParams:
-        """Return the core's parameters for every session of this service."""
-        ncut_min, lambda2_min = PROFILES[self.profile]
-        return PartitionParams(
-            ncut_min=self.ncut_min if self.ncut_min is not None else ncut_min,
-            lambda2_min=self.lambda2_min if self.lambda2_min is not None else lambda2_min,
-            seed_mode=self.seed_mode,
-            min_frames_between=self.min_frames_between,
-            min_cluster_size=self.min_cluster_size,
-        )
+
+class ConfigFileSource(PydanticBaseSettingsSource):
+    """The settings file: JSON, or TOML when its name ends in ``.toml``."""
+
+    def __init__(self, settings_cls: type[BaseSettings], path: str | Path | None) -> None:
+        super().__init__(settings_cls)
+        self.path = None if path is None else Path(path)
+
+    def get_field_value(self, field: Any, field_name: str) -> tuple[Any, str, bool]:
+        """Unused: ``__call__`` returns the whole file."""
+        del field
+        return None, field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        """Return the file's values (nothing when no file is named)."""
+        return {} if self.path is None else read_config_file(self.path)
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """Return the object a JSON or TOML settings file holds.
+
+    Raises:
+        ConfigError: the file cannot be read, is not JSON/TOML or holds no object.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+        if path.suffix == ".toml":
+            import tomllib
+
+            values: object = tomllib.loads(text)
+        else:
+            values = json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        msg = f"cannot read config file {path}: {exc}"
+        raise ConfigError(msg) from exc
+    if not isinstance(values, dict):
+        msg = f"config file {path}: expected a JSON object"
+        raise ConfigError(msg)
+    return values
 
 
 def load_settings(config_file: Path | None = None, **overrides: Any) -> ServiceSettings:
-    """Build the settings: defaults < JSON config file < ``LESSMAP_*`` environment < overrides.
+    """Build the settings: defaults < config file < ``LESSMAP_*`` environment < overrides.
 
     Raises:
         ConfigError: a value is invalid or the config file cannot be read (one-line message).
     """
-    file_values: object = {}
     if config_file is not None:
-        try:
-            file_values = json.loads(config_file.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
-            msg = f"cannot read config file {config_file}: {exc}"
-            raise ConfigError(msg) from exc
-        if not isinstance(file_values, dict):
-            msg = f"config file {config_file}: expected a JSON object"
-            raise ConfigError(msg)
+        overrides["config"] = config_file
+    return build_settings(overrides, {})
+
+
+def build_settings(values: Mapping[str, Any], flags: Mapping[str, str]) -> ServiceSettings:
+    """Build the settings with ``values`` on top (flags, or a caller's overrides).
+
+    Args:
+        values: the highest-precedence values, nested as the model is.
+        flags: for each dotted field path in ``values``, the flag that set it (for messages).
+
+    Raises:
+        ConfigError: one line naming the invalid setting and where its value came from.
+    """
     try:
-        # Environment beats the file: pydantic-settings gives init kwargs precedence, so the
-        # file's values go in as defaults of a subclass-free merge below.
-        from_env = ServiceSettings()
-        assert isinstance(file_values, dict)
-        merged = _deep_merge(_deep_merge(file_values, _explicit(from_env)), overrides)
-        return ServiceSettings(**merged)
-    except (ValidationError, ValueError) as exc:
-        msg = f"invalid setting: {_first_error(exc)}"
-        raise ConfigError(msg) from exc
-
-
-def _explicit(settings: ServiceSettings) -> dict[str, Any]:
-    """Return only the fields the environment actually set (nested ones too)."""
-    return settings.model_dump(exclude_unset=True)
-
-
-def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    """Return ``base`` updated by ``over``; nested dicts merge key by key."""
-    merged = dict(base)
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(merged.get(key), dict):
-            merged[key] = _deep_merge(merged[key], value)
-        else:
-            merged[key] = value
-    return merged
-
-
-def _first_error(exc: Exception) -> str:
-    if isinstance(exc, ValidationError):
+        return ServiceSettings(**values)
+    except ValidationError as exc:
         error = exc.errors()[0]
-        where = ".".join(str(p) for p in error["loc"])
-        return f"{where}: {error['msg']} (got {error.get('input')!r})"
-    return str(exc)
+        path = tuple(error["loc"])
+        where = describe_path(path) or "settings"
+        msg = f"invalid setting {where} = {error.get('input')!r} from "
+        msg += f"{_source_of(path, values, flags)}: {error['msg']}"
+        raise ConfigError(msg) from None
+    except SettingsError as exc:
+        # The environment holds a value that is not JSON where a list or object is expected.
+        match = re.search(r'field "(\w+)"', str(exc))
+        field = match.group(1) if match else "?"
+        msg = f"invalid setting {field} from environment {ENV_PREFIX}{field.upper()}: "
+        msg += 'expected JSON, e.g. ["tcp/10.0.0.5:7447"] or {"max_seq": 1000}'
+        raise ConfigError(msg) from None
+
+
+def _source_of(path: tuple[Any, ...], values: Mapping[str, Any], flags: Mapping[str, str]) -> str:
+    """Name where the value at ``path`` came from: flag, environment, config file or default."""
+    for depth in range(len(path), 0, -1):
+        found, _ = lookup(values, path[:depth])
+        if found:
+            key = describe_path(path[:depth])
+            return f"flag {flags[key]}" if key in flags else "the caller"
+    environ = _environ()
+    for depth in range(len(path), 0, -1):
+        name = ENV_PREFIX + "__".join(str(p) for p in path[:depth]).upper()
+        if name in environ:
+            return f"environment {name}"
+    config = values.get("config") or environ.get(ENV_PREFIX + "CONFIG")
+    if config:
+        try:
+            found, _ = lookup(read_config_file(Path(config)), path[:1])
+        except ConfigError:
+            found = False
+        if found:
+            return f"config file {config}"
+    return "the defaults"
+
+
+def _environ() -> dict[str, str]:
+    """Return the environment with upper-case names (pydantic-settings ignores case)."""
+    return {name.upper(): value for name, value in os.environ.items()}
+
+
+def add_settings_flags(parser: argparse.ArgumentParser) -> list[FlagSpec]:
+    """Add one ``serve`` flag per settings field (nested limits too); return their specs."""
+    specs = add_flags(parser, PartitionSettings, title=PARTITION_TITLE, env_prefix=ENV_PREFIX)
+    partition = {spec.dest for spec in specs}
+    specs += add_flags(
+        parser,
+        ServiceSettings,
+        title="service (flags beat LESSMAP_* environment beats --config FILE)",
+        env_prefix=ENV_PREFIX,
+        exclude=frozenset(partition),
+    )
+    return specs
+
+
+def settings_from_args(
+    args: argparse.Namespace,
+    specs: list[FlagSpec],
+    extra: Mapping[str, Any] | None = None,
+    extra_flags: Mapping[str, str] | None = None,
+) -> ServiceSettings:
+    """Build the settings from the flags that were given (plus ``extra`` values, e.g. --shard).
+
+    Raises:
+        ConfigError: one line naming the invalid setting and its source.
+    """
+    values, flags = given(args, specs)
+    values.update(extra or {})
+    flags.update(extra_flags or {})
+    return build_settings(values, flags)

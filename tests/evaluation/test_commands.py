@@ -1,15 +1,14 @@
-"""The ``eval`` and ``plot`` subcommands, run through an argparse parser as cli.py does."""
+"""The ``eval`` and ``plot`` subcommands, parsed and run as cli.py does."""
 
 from __future__ import annotations
 
-import argparse
 import json
 from typing import TYPE_CHECKING
 
 import pytest
 
+from lessmap.cli import command_parser
 from lessmap.errors import ConfigError, DatasetError
-from lessmap.evaluation.commands import add_commands
 from lessmap.sim.simulator import simulate, write_run
 from tests.evaluation.helpers import write_dataset
 
@@ -17,12 +16,9 @@ if TYPE_CHECKING:
     from pathlib import Path
 
 
-def run(*argv: str) -> int:
-    parser = argparse.ArgumentParser(prog="lessmap")
-    add_commands(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    code: int = args.run(args)
-    return code
+def run(name: str, *argv: str) -> int:
+    parser, run_command = command_parser(name)
+    return run_command(parser.parse_args(argv))
 
 
 def test_eval_prints_and_writes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -33,13 +33,11 @@ def endpoints(args: argparse.Namespace) -> list[str]:
     return list(args.connect) if args.connect else [DEFAULT_ENDPOINT]
 
 
-def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add ``replay`` and ``watch``."""
-    rep = commands.add_parser(
-        "replay",
-        help="publish a recorded frames file to the service (one publisher per robot)",
-        description="Publish FILE.frames.jsonl paced by its stamps (--speed), or as fast as "
-        "possible (--fast). Each robot in the file gets its own publisher and session.",
+def configure_replay(rep: argparse.ArgumentParser) -> None:
+    """Define ``lessmap replay`` (run by ``run_replay``)."""
+    rep.description = (
+        "Publish FILE.frames.jsonl paced by its stamps (--speed), or as fast as "
+        "possible (--fast). Each robot in the file gets its own publisher and session."
     )
     rep.add_argument("file", type=Path, metavar="FILE")
     rep.add_argument("--fleet", default="replay", help="fleet name (default: replay)")
@@ -55,17 +53,14 @@ def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) 
         help="seconds to wait for a service instance first (default 10)",
     )
     add_zenoh_options(rep)
-    rep.set_defaults(run=_cmd_replay)
 
-    watch = commands.add_parser(
-        "watch",
-        help="live view of a fleet: one row per robot, transitions as they arrive",
-    )
+
+def configure_watch(watch: argparse.ArgumentParser) -> None:
+    """Define ``lessmap watch`` (run by ``run_watch``)."""
     watch.add_argument("--fleet", default="*", help="fleet to follow (default: all)")
     watch.add_argument("--duration", type=float, help="stop after this many seconds")
     watch.add_argument("--interval", type=float, default=1.0, help="refresh period, seconds")
     add_zenoh_options(watch)
-    watch.set_defaults(run=_cmd_watch)
 
 
 class Progress:
@@ -98,7 +93,8 @@ class Progress:
             sys.stderr.write("\n")
 
 
-def _cmd_replay(args: argparse.Namespace) -> int:
+def run_replay(args: argparse.Namespace) -> int:
+    """Run ``lessmap replay``."""
     from lessmap_client.adapters.replay import read_recorded, replay
     from lessmap_client.session import open_session, wait_for_service
 
@@ -125,7 +121,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_watch(args: argparse.Namespace) -> int:
+def run_watch(args: argparse.Namespace) -> int:
+    """Run ``lessmap watch``."""
     from lessmap_client.fleet import FleetClient
     from lessmap_client.session import open_session
     from lessmap_client.watch import FleetView

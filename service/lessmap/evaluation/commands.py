@@ -196,16 +196,14 @@ def run_plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add the ``eval`` and ``plot`` subcommands to the ``lessmap`` parser."""
-    ev = commands.add_parser(
-        "eval",
-        help="information loss e (Eq. 5) of LESS-mapping vs. baselines, and a threshold sweep",
-        description="Segment FILE.frames.jsonl with LESS-mapping and with the baselines "
+def configure_eval(ev: argparse.ArgumentParser) -> None:
+    """Define ``lessmap eval`` (run by ``run_eval``)."""
+    ev.description = (
+        "Segment FILE.frames.jsonl with LESS-mapping and with the baselines "
         "(fixed features per submap, fixed frames per submap, no partition) and print the "
         "information-loss ratio e of each: the share of the landmark information matrix "
         "(poses marginalized) that the partition drops. Needs <name>.edges.jsonl and "
-        "<name>.odometry.jsonl next to the frames file.",
+        "<name>.odometry.jsonl next to the frames file."
     )
     _add_common(ev)
     ev.add_argument("--out", type=Path, metavar="DIR", help="also write DIR/eval.json, eval.md")
@@ -253,15 +251,14 @@ def add_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) 
         default=DEFAULT_ANCHOR_INFORMATION,
         help="prior on the first pose that fixes the gauge (default 1e9)",
     )
-    ev.set_defaults(run=run_eval)
 
-    plot = commands.add_parser(
-        "plot",
-        help="PNG figures: trajectory by submap, Ncut/λ2 over frames, reordered W, sweep",
-        description="Segment FILE.frames.jsonl with LESS-mapping and write trajectory.png, "
+
+def configure_plot(plot: argparse.ArgumentParser) -> None:
+    """Define ``lessmap plot`` (run by ``run_plot``)."""
+    plot.description = (
+        "Segment FILE.frames.jsonl with LESS-mapping and write trajectory.png, "
         "ncut_lambda2.png, similarity.png and (unless --no-sweep, which also drops the need "
-        "for the edges and odometry files) sweep.png into DIR.",
+        "for the edges and odometry files) sweep.png into DIR."
     )
     _add_common(plot)
     plot.add_argument("--out", type=Path, metavar="DIR", required=True, help="output folder")
-    plot.set_defaults(run=run_plot)

@@ -11,14 +11,12 @@ from lessmap.sim.simulator import simulate, write_run
 from lessmap_client.cli_client import add_zenoh_options, endpoints
 
 
-def add_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add ``sim``."""
-    sim = commands.add_parser(
-        "sim",
-        help="simulate a fleet in a building; write frames and ground truth, or publish live",
-        description="A seeded simulated building (rooms, doors, wall landmarks, a 270° "
+def configure(sim: argparse.ArgumentParser) -> None:
+    """Define ``lessmap sim``."""
+    sim.description = (
+        "A seeded simulated building (rooms, doors, wall landmarks, a 270° "
         "range- and wall-limited laser) walked by robots. --out writes <name>.frames.jsonl, "
-        "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live.",
+        "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live."
     )
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--rooms", type=int, default=8)
@@ -31,10 +29,10 @@ def add_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -
     sim.add_argument("--fleet", default="sim")
     sim.add_argument("--speed", type=float, default=1.0, help="playback rate with --publish")
     add_zenoh_options(sim)
-    sim.set_defaults(run=_cmd_sim)
 
 
-def _cmd_sim(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Run ``lessmap sim``."""
     from lessmap_client.adapters.replay import RecordedFrame, replay
     from lessmap_client.session import open_session
 
