@@ -3,21 +3,15 @@
 Invariants kept by this module:
 
 - Node i is a feature; ``counts[i]`` = n_i, the number of frames in which it was seen.
-- Edge counts a_ij live in one upper-triangular (i < j) CSR matrix of int64 counts,
-  canonical (sorted indices, no duplicates) whenever ``_pending`` is empty. Frames append
-  their pairs to ``_pending`` in O(pairs) vectorized numpy; the pending pairs are merged into
-  the CSR matrix in one vectorized pass before anything reads the edges. That is what makes a
-  burst of frames (coalesced under load) cheap: counting never waits for the spectral step.
-- The CovRate values W_ij = a_ij / min(n_i, n_j) (Eq. 1) are kept aligned with the CSR
-  structure. A frame changes n_i and a_ij only for its own features, so only entries with an
-  endpoint among the touched nodes are recomputed; untouched entries keep their values.
-- Small graphs (at most ``dense_max_nodes`` nodes, the size of a room's features) keep a
-  dense symmetric count matrix and a dense CovRate matrix instead: a frame adds to its
-  k x k block, and reading refreshes only the touched rows and columns of W. On graphs of
-  tens of nodes this avoids rebuilding scipy.sparse containers at every decision, which
-  cost several times the eigen-solve itself (profiled under fleet load). A graph that
-  outgrows the limit switches to the sparse form for good (``keep_only`` may switch back).
-  Both forms hold the same integer counts and compute W with the same formula.
+- Edge counts a_ij and the CovRate values W_ij = a_ij / min(n_i, n_j) (Eq. 1) live in a
+  ``CountStore`` (``lessmap.core.counts``): ``DenseCounts`` for graphs of at most
+  ``dense_max_nodes`` nodes, ``SparseCounts`` above. ``_fit_store`` is the only place that
+  picks the form; a graph that outgrows the limit switches to the sparse form for good
+  (``keep_only`` and ``from_state`` may switch back). Both forms hold the same integer
+  counts and compute W with the same formula, so the form never changes a decision.
+- A frame changes n_i and a_ij only for its own features; the graph marks those nodes as
+  touched and the store recomputes only the entries of W with a touched endpoint, the next
+  time W is read (so a burst of frames coalesced under load is counted cheaply).
 - Node indices follow first appearance and never change except through ``keep_only``;
   together with integer counts this makes the state reproducible bit for bit after a
   snapshot and restore.
@@ -29,16 +23,18 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import sparse
 
+from lessmap.core.counts import INITIAL_CAPACITY, DenseCounts, SparseCounts, UpperCounts
 from lessmap.core.errors import GraphError
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from numpy.typing import NDArray
+    from scipy import sparse
 
-_INITIAL_CAPACITY = 64
+    from lessmap.core.counts import CountStore
+    from lessmap.core.spectral import Similarity
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,24 +53,42 @@ class CovGraph:
     """Incremental covisibility counts n_i and a_ij with the CovRate similarity W."""
 
     def __init__(self, dense_max_nodes: int = 400) -> None:
+        """Start an empty graph.
+
+        Args:
+            dense_max_nodes: hold the edges densely up to this many nodes (0: never).
+        """
         self._dense_max = dense_max_nodes
-        self._dense: NDArray[np.int32] | None = None  # counts a_ij, symmetric, zero diagonal
-        self._dense_rates: NDArray[np.float64] | None = None  # W, same shape
-        if dense_max_nodes > 0:
-            side = min(_INITIAL_CAPACITY, dense_max_nodes)
-            self._dense = np.zeros((side, side), dtype=np.int32)
-            self._dense_rates = np.zeros((side, side), dtype=np.float64)
         self._index: dict[int, int] = {}
-        self._ids = np.zeros(_INITIAL_CAPACITY, dtype=np.int64)
-        self._counts = np.zeros(_INITIAL_CAPACITY, dtype=np.int64)
-        self._first_seen = np.zeros(_INITIAL_CAPACITY, dtype=np.int64)
+        self._ids = np.zeros(INITIAL_CAPACITY, dtype=np.int64)
+        self._counts = np.zeros(INITIAL_CAPACITY, dtype=np.int64)
+        self._first_seen = np.zeros(INITIAL_CAPACITY, dtype=np.int64)
+        self._touched = np.zeros(INITIAL_CAPACITY, dtype=bool)
         self._size = 0
-        self._edges = sparse.csr_array((0, 0), dtype=np.int64)
-        self._rates = np.zeros(0, dtype=np.float64)  # aligned with self._edges.data
-        self._pending_rows: list[NDArray[np.int64]] = []
-        self._pending_cols: list[NDArray[np.int64]] = []
-        self._touched = np.zeros(_INITIAL_CAPACITY, dtype=bool)
+        self._store: CountStore
+        self._fit_store(0, UpperCounts.empty())
         self._rates_stale = False
+
+    # -- storage form ----------------------------------------------------------------------
+
+    def _fit_store(self, nodes: int, upper: UpperCounts | None = None) -> None:
+        """Hold the edges in the form that suits ``nodes`` nodes: the one place that picks it.
+
+        Dense up to ``dense_max_nodes`` nodes (0: never), sparse above. With ``upper`` (a
+        state being loaded) the store is rebuilt from it. Without, the graph is growing by a
+        node and the store changes form only when it crosses the limit, which growth does
+        once, from dense to sparse, in the middle of a frame (the sparse store then counts
+        that frame's pairs).
+        """
+        dense = self._dense_max > 0 and nodes <= self._dense_max
+        if upper is None:
+            if dense == isinstance(self._store, DenseCounts):
+                self._store.resize(nodes)
+                return
+            upper = self._store.upper()
+        self._store = (
+            DenseCounts(nodes, self._dense_max, upper) if dense else SparseCounts(nodes, upper)
+        )
 
     # -- size ------------------------------------------------------------------------------
 
@@ -86,16 +100,12 @@ class CovGraph:
     @property
     def is_dense(self) -> bool:
         """Whether the graph is held in the dense small-graph form."""
-        return self._dense is not None
+        return isinstance(self._store, DenseCounts)
 
     @property
     def edge_count(self) -> int:
         """Number of covisible pairs (undirected edges)."""
-        if self._dense is not None:
-            n = self._size
-            return int(np.count_nonzero(self._dense[:n, :n])) // 2
-        self._flush()
-        return int(self._edges.nnz)
+        return self._store.edge_count()
 
     @property
     def feature_ids(self) -> NDArray[np.int64]:
@@ -139,17 +149,7 @@ class CovGraph:
         self._counts[nodes] += 1
         self._touched[nodes] = True
         self._rates_stale = True
-        if self._dense is not None:
-            # The k x k block through flat indices: half the cost of np.ix_ at k ~ 20.
-            side = self._dense.shape[1]
-            flat = self._dense.reshape(-1)  # a view: the matrix is C-contiguous
-            flat[(nodes * side)[:, None] + nodes] += 1  # nodes are distinct: no lost updates
-            flat[nodes * (side + 1)] -= 1  # a feature is not its own neighbour
-        elif nodes.size >= 2:
-            # All pairs i < j of the frame; nodes is sorted, so triu indices give i < j.
-            left, right = np.triu_indices(nodes.size, k=1)
-            self._pending_rows.append(nodes[left])
-            self._pending_cols.append(nodes[right])
+        self._store.add_frame(nodes)
         return nodes
 
     def _intern(self, features: Iterable[int], seq: int) -> NDArray[np.int64]:
@@ -163,11 +163,7 @@ class CovGraph:
         return np.fromiter(sorted(nodes), dtype=np.int64, count=len(nodes))
 
     def _new_node(self, feature: int, seq: int) -> int:
-        if self._dense is not None:
-            if self._size == self._dense_max:
-                self._to_sparse()
-            elif self._size == self._dense.shape[0]:
-                self._grow_dense(min(2 * self._dense.shape[0], self._dense_max))
+        self._fit_store(self._size + 1)
         if self._size == self._ids.size:
             self._grow(2 * self._ids.size)
         node = self._size
@@ -186,154 +182,48 @@ class CovGraph:
             new[: old.size] = old
             setattr(self, name, new)
 
-    def _grow_dense(self, side: int) -> None:
-        assert self._dense is not None
-        assert self._dense_rates is not None
-        old = self._dense.shape[0]
-        counts = np.zeros((side, side), dtype=np.int32)
-        counts[:old, :old] = self._dense
-        rates = np.zeros((side, side), dtype=np.float64)
-        rates[:old, :old] = self._dense_rates
-        self._dense, self._dense_rates = counts, rates
-
-    def _to_sparse(self) -> None:
-        """Move the counts into the CSR form, for good (the graph outgrew the dense limit)."""
-        assert self._dense is not None
-        n = self._size
-        upper = sparse.csr_array(np.triu(self._dense[:n, :n], k=1).astype(np.int64))
-        upper.sort_indices()
-        self._edges = sparse.csr_array(
-            (
-                upper.data.astype(np.int64),
-                upper.indices.astype(np.int64),
-                upper.indptr.astype(np.int64),
-            ),
-            shape=(n, n),
-        )
-        self._dense = None
-        self._dense_rates = None
-        self._pending_rows.clear()
-        self._pending_cols.clear()
-        self._rates = np.zeros(0, dtype=np.float64)
-        self._rates_stale = True
-
-    def _flush_dense(self) -> None:
-        """Refresh W (Eq. 1) in the rows and columns of the nodes touched since last read."""
-        assert self._dense is not None
-        assert self._dense_rates is not None
+    def _refresh(self) -> None:
+        """Bring W up to date for the nodes touched since it was last read."""
         if not self._rates_stale:
             return
         n = self._size
-        touched = np.flatnonzero(self._touched[:n])
-        if touched.size:
-            counts = self._counts[:n]
-            rows = self._dense[touched, :n] / np.minimum(counts[touched, None], counts[None, :])
-            self._dense_rates[touched, :n] = rows
-            self._dense_rates[:n, touched] = rows.T
+        self._store.refresh(self._counts[:n], self._touched[:n])
         self._touched[:n] = False
         self._rates_stale = False
-
-    def _flush(self) -> None:
-        """Merge pending pairs into the CSR counts and refresh the touched CovRates."""
-        if self._dense is not None:
-            self._flush_dense()
-            return
-        n = self._size
-        if self._edges.shape[0] != n:
-            # Growing a CSR matrix is padding its indptr: new rows are empty.
-            indptr = np.concatenate(
-                [self._edges.indptr, np.full(n - self._edges.shape[0], self._edges.nnz)]
-            ).astype(np.int64)
-            self._edges = sparse.csr_array(
-                (self._edges.data, self._edges.indices, indptr), shape=(n, n)
-            )
-        structure_changed = False
-        if self._pending_rows:
-            rows = np.concatenate(self._pending_rows)
-            cols = np.concatenate(self._pending_cols)
-            self._pending_rows.clear()
-            self._pending_cols.clear()
-            batch = sparse.coo_array(
-                (np.ones(rows.size, dtype=np.int64), (rows, cols)), shape=(n, n)
-            ).tocsr()
-            old_nnz = self._edges.nnz
-            merged = (self._edges + batch).tocsr()
-            merged.sum_duplicates()
-            merged.sort_indices()
-            structure_changed = merged.nnz != old_nnz
-            self._edges = sparse.csr_array(
-                (
-                    merged.data.astype(np.int64),
-                    merged.indices.astype(np.int64),
-                    merged.indptr.astype(np.int64),
-                ),
-                shape=(n, n),
-            )
-        if not self._rates_stale:
-            return
-        rows_of_entries = self._row_of_entries()
-        cols_of_entries = self._edges.indices
-        if structure_changed or self._rates.size != self._edges.nnz:
-            mask = np.ones(self._edges.nnz, dtype=bool)
-            self._rates = np.zeros(self._edges.nnz, dtype=np.float64)
-        else:
-            # Eq. 1 depends on a_ij, n_i, n_j only: entries with no touched endpoint keep
-            # their value (the paper's incremental update, §3.1 step 3).
-            mask = self._touched[rows_of_entries] | self._touched[cols_of_entries]
-        r, c = rows_of_entries[mask], cols_of_entries[mask]
-        self._rates[mask] = self._edges.data[mask] / np.minimum(self._counts[r], self._counts[c])
-        self._touched[:n] = False
-        self._rates_stale = False
-
-    def _row_of_entries(self) -> NDArray[np.int64]:
-        return np.repeat(np.arange(self._size, dtype=np.int64), np.diff(self._edges.indptr))
 
     # -- read ------------------------------------------------------------------------------
 
+    def similarity(self) -> Similarity:
+        """Return W (Eq. 1) in the form it is held: a dense read-only view or CSR.
+
+        The spectral test takes either; the dense form spares small graphs the sparse
+        containers, which cost more than the eigen-solve at tens of nodes.
+        """
+        self._refresh()
+        return self._store.similarity()
+
     def covrate_dense(self) -> NDArray[np.float64]:
         """Return W (Eq. 1) as a dense (n, n) array (a read-only view in the dense form)."""
-        if self._dense_rates is None:
-            dense: NDArray[np.float64] = self.covrate().toarray()
-            return dense
-        self._flush()
-        view = self._dense_rates[: self._size, : self._size]
-        view.flags.writeable = False
-        return view
+        self._refresh()
+        return self._store.similarity_array()
 
     def covrate(self) -> sparse.csr_array:
         """Return W (Eq. 1): symmetric CSR float64, shape (n, n), zero diagonal, in [0, 1]."""
-        if self._dense_rates is not None:
-            self._flush()
-            n = self._size
-            return sparse.csr_array(self._dense_rates[:n, :n])
-        self._flush()
-        upper = sparse.csr_array(
-            (self._rates.copy(), self._edges.indices, self._edges.indptr), shape=self._edges.shape
-        )
-        return (upper + upper.T).tocsr()
+        self._refresh()
+        return self._store.similarity_csr()
 
     def edge_counts(self) -> sparse.csr_array:
         """Return a_ij as a symmetric CSR int64 matrix, shape (n, n)."""
-        if self._dense is not None:
-            n = self._size
-            return sparse.csr_array(self._dense[:n, :n].astype(np.int64))
-        self._flush()
-        return (self._edges + self._edges.T).tocsr()
+        upper = self._store.upper().csr()
+        symmetric: sparse.csr_array = (upper + upper.T).tocsr()
+        return symmetric
 
     def pair_count(self, feature_a: int, feature_b: int) -> int:
         """Return a_ij for two feature IDs (0 when either is unknown or they never met)."""
         i, j = self._index.get(feature_a), self._index.get(feature_b)
         if i is None or j is None or i == j:
             return 0
-        if self._dense is not None:
-            return int(self._dense[i, j])
-        self._flush()
-        lo, hi = min(i, j), max(i, j)
-        start, stop = self._edges.indptr[lo], self._edges.indptr[lo + 1]
-        pos = np.searchsorted(self._edges.indices[start:stop], hi)
-        if pos < stop - start and self._edges.indices[start + pos] == hi:
-            return int(self._edges.data[start + pos])
-        return 0
+        return self._store.pair_count(i, j)
 
     def count(self, feature: int) -> int:
         """Return n_i for a feature ID (0 when unknown)."""
@@ -347,22 +237,17 @@ class CovGraph:
 
         Node indices are renumbered in their old order, so the result is deterministic.
         """
-        self._flush()
         keep = np.zeros(self._size, dtype=bool)
         keep[nodes] = True
         kept = np.flatnonzero(keep)
-        if self._dense is not None:
-            sub = sparse.csr_array(np.triu(self._dense[np.ix_(kept, kept)], k=1).astype(np.int64))
-        else:
-            sub = self._edges[kept][:, kept].tocsr()
-        sub.sort_indices()
+        upper = self._store.upper(kept)
         state = CovGraphState(
             feature_ids=self._ids[kept].copy(),
             counts=self._counts[kept].copy(),
             first_seen=self._first_seen[kept].copy(),
-            edge_indptr=sub.indptr.astype(np.int64),
-            edge_indices=sub.indices.astype(np.int64),
-            edge_counts=sub.data.astype(np.int64),
+            edge_indptr=upper.indptr,
+            edge_indices=upper.indices,
+            edge_counts=upper.counts,
         )
         self._load(state)
 
@@ -370,26 +255,15 @@ class CovGraph:
 
     def state(self) -> CovGraphState:
         """Return a copy of the whole graph as arrays (always the CSR form)."""
-        if self._dense is not None:
-            n = self._size
-            upper = sparse.csr_array(np.triu(self._dense[:n, :n], k=1).astype(np.int64))
-            upper.sort_indices()
-            return CovGraphState(
-                feature_ids=self._ids[:n].copy(),
-                counts=self._counts[:n].copy(),
-                first_seen=self._first_seen[:n].copy(),
-                edge_indptr=upper.indptr.astype(np.int64),
-                edge_indices=upper.indices.astype(np.int64),
-                edge_counts=upper.data.astype(np.int64),
-            )
-        self._flush()
+        n = self._size
+        upper = self._store.upper()
         return CovGraphState(
-            feature_ids=self._ids[: self._size].copy(),
-            counts=self._counts[: self._size].copy(),
-            first_seen=self._first_seen[: self._size].copy(),
-            edge_indptr=self._edges.indptr.astype(np.int64),
-            edge_indices=self._edges.indices.astype(np.int64),
-            edge_counts=self._edges.data.astype(np.int64),
+            feature_ids=self._ids[:n].copy(),
+            counts=self._counts[:n].copy(),
+            first_seen=self._first_seen[:n].copy(),
+            edge_indptr=upper.indptr,
+            edge_indices=upper.indices,
+            edge_counts=upper.counts,
         )
 
     @classmethod
@@ -418,7 +292,7 @@ class CovGraph:
         ):
             msg = "inconsistent CovGraph state: malformed edge arrays"
             raise GraphError(msg)
-        capacity = max(_INITIAL_CAPACITY, n)
+        capacity = max(INITIAL_CAPACITY, n)
         self._ids = np.zeros(capacity, dtype=np.int64)
         self._counts = np.zeros(capacity, dtype=np.int64)
         self._first_seen = np.zeros(capacity, dtype=np.int64)
@@ -431,25 +305,10 @@ class CovGraph:
         if len(self._index) != n:
             msg = "inconsistent CovGraph state: repeated feature IDs"
             raise GraphError(msg)
-        self._edges = sparse.csr_array(
-            (
-                np.asarray(state.edge_counts, dtype=np.int64),
-                np.asarray(state.edge_indices, dtype=np.int64),
-                np.asarray(state.edge_indptr, dtype=np.int64),
-            ),
-            shape=(n, n),
+        upper = UpperCounts(
+            np.asarray(state.edge_indptr, dtype=np.int64),
+            np.asarray(state.edge_indices, dtype=np.int64),
+            np.asarray(state.edge_counts, dtype=np.int64),
         )
-        self._pending_rows = []
-        self._pending_cols = []
-        self._rates = np.zeros(0, dtype=np.float64)
+        self._fit_store(n, upper)
         self._rates_stale = True  # recomputed in full: same formula, same values
-        self._dense = self._dense_rates = None
-        if n <= self._dense_max and self._dense_max > 0:
-            side = min(max(_INITIAL_CAPACITY, n), self._dense_max)
-            counts = np.zeros((side, side), dtype=np.int32)
-            coo = self._edges.tocoo()
-            counts[coo.row, coo.col] = coo.data
-            counts[coo.col, coo.row] = coo.data
-            self._dense = counts
-            self._dense_rates = np.zeros((side, side), dtype=np.float64)
-            self._touched[:n] = True  # every row of W is computed on first read
