@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from lessmap.cli import main
+from lessmap.settings import LimitSettings
+from lessmap_schemas.limits import DEFAULT_LIMITS
 from tests.core.helpers import TWO_ROOM_DOOR, two_room_frames
 
 if TYPE_CHECKING:
@@ -113,30 +115,149 @@ def test_profile_and_overrides_reach_the_partitioner(
     assert records[-1]["transitions"] == 0
 
 
-MALFORMED = {
-    "not json": '{"robot": "r1", "seq": 2,',
-    "not an object": "[1, 2, 3]",
-    "missing field": json.dumps({"robot": "r1", "seq": 2, "stamp": 0.2}),
-    "feature not int": json.dumps({"robot": "r1", "seq": 2, "stamp": 0.2, "features": ["x"]}),
-    "negative seq": json.dumps({"robot": "r1", "seq": -2, "stamp": 0.2, "features": []}),
-    "duplicate seq": frame_line("r1", 1, [1, 2]),
+GOOD = [frame_line("r1", 0, [1, 2]), frame_line("r1", 1, [2, 3])]
+BIG_SEQ = 10**23
+
+#: Malformed third lines: (bytes of the line, what the one-line message must say).
+MALFORMED: dict[str, tuple[bytes, str]] = {
+    "not utf-8": (b'{"robot": "r\xff1", "seq": 2, "stamp": 0.2, "features": []}', "not UTF-8"),
+    "not json": (b'{"robot": "r1", "seq": 2,', "not JSON"),
+    "not an object": (b"[1, 2, 3]", "expected an object, got list"),
+    "missing field": (
+        json.dumps({"robot": "r1", "seq": 2, "stamp": 0.2}).encode(),
+        "missing field 'features'",
+    ),
+    "missing fields": (json.dumps({"robot": "r1"}).encode(), "'seq', 'stamp', 'features'"),
+    "pose not numeric": (
+        json.dumps(
+            {"robot": "r1", "seq": 2, "stamp": 0.2, "features": [1], "pose": ["x", 0, 0]}
+        ).encode(),
+        "pose must be [x, y, theta]",
+    ),
+    "pose not finite": (
+        b'{"robot": "r1", "seq": 2, "stamp": 0.2, "features": [1], "pose": [NaN, 0, 0]}',
+        "pose must be [x, y, theta]",
+    ),
+    "seq 10^23": (
+        frame_line("r1", BIG_SEQ, [1]).encode(),
+        f"seq {BIG_SEQ} is above the wire limit",
+    ),
+    "seq above max_seq": (
+        frame_line("r1", DEFAULT_LIMITS.max_seq + 1, [1]).encode(),
+        f"is above the wire limit {DEFAULT_LIMITS.max_seq}",
+    ),
+    "negative seq": (
+        json.dumps({"robot": "r1", "seq": -2, "stamp": 0.2, "features": []}).encode(),
+        "seq must be an integer >= 0, got -2",
+    ),
+    "10000 features": (
+        frame_line("r1", 2, range(10_000)).encode(),
+        "10000 features, more than the limit of 4096 per frame",
+    ),
+    "negative feature id": (
+        frame_line("r1", 2, [1, -3]).encode(),
+        "feature 1 must be an integer in 0..",
+    ),
+    "feature not int": (
+        json.dumps({"robot": "r1", "seq": 2, "stamp": 0.2, "features": [1.5]}).encode(),
+        "feature 0 must be an integer",
+    ),
+    "feature id too large": (
+        frame_line("r1", 2, [DEFAULT_LIMITS.max_feature_id + 1]).encode(),
+        "feature 0 must be an integer",
+    ),
+    "stamp not a number": (
+        json.dumps({"robot": "r1", "seq": 2, "stamp": "noon", "features": []}).encode(),
+        "stamp must be a finite number",
+    ),
+    "duplicate seq": (frame_line("r1", 1, [1, 2]).encode(), "robot r1: frame seq 1 is not after"),
 }
 
 
-@pytest.mark.parametrize("bad", MALFORMED.values(), ids=MALFORMED.keys())
-def test_malformed_line_is_one_error_line_naming_file_and_line(
-    bad: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    path = tmp_path / "broken.frames.jsonl"
-    lines = [frame_line("r1", 0, [1, 2]), frame_line("r1", 1, [2, 3]), bad]
-    path.write_text("\n".join([*lines, frame_line("r1", 3, [3])]) + "\n", encoding="utf-8")
-    code = main(["segment", str(path)])
-    err = capsys.readouterr().err
-    assert code == 1
+def write_broken(folder: Path, bad: bytes) -> Path:
+    path = folder / "broken.frames.jsonl"
+    lines = [line.encode() for line in GOOD] + [bad, frame_line("r1", 3, [3]).encode()]
+    path.write_bytes(b"\n".join(lines) + b"\n")
+    return path
+
+
+def assert_one_error_line(err: str, path: Path, message: str) -> None:
     assert err.endswith("\n")
     assert err.count("\n") == 1, err
-    assert err.startswith("lessmap segment: ")
-    assert "broken.frames.jsonl:3" in err
+    assert err.startswith(f"lessmap segment: {path}:3: "), err
+    assert message in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("case", MALFORMED)
+def test_malformed_line_is_one_error_line_naming_file_and_line(
+    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad, message = MALFORMED[case]
+    path = write_broken(tmp_path, bad)
+    code = main(["segment", str(path)])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert_one_error_line(captured.err, path, message)
+
+
+@pytest.mark.parametrize("case", MALFORMED)
+def test_malformed_line_as_a_script(case: str, tmp_path: Path) -> None:
+    bad, message = MALFORMED[case]
+    path = write_broken(tmp_path, bad)
+    result = subprocess.run(
+        [sys.executable, "-m", "lessmap", "segment", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 1, result.stderr
+    assert_one_error_line(result.stderr, path, message)
+
+
+def test_the_feature_limit_is_the_services_and_a_flag_changes_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert LimitSettings().max_features_per_frame == 4096  # what serve enforces by default
+    path = tmp_path / "wide.frames.jsonl"
+    path.write_text(
+        "\n".join(frame_line("r1", seq, range(seq, seq + 4097)) for seq in range(3)) + "\n",
+        encoding="utf-8",
+    )
+    assert main(["segment", str(path), "--summary-only"]) == 1
+    assert "4097 features, more than the limit of 4096" in capsys.readouterr().err
+
+    assert main(["segment", str(path), "--summary-only", "--max-features-per-frame", "5000"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 3
+
+    assert main(["segment", str(path), "--max-features-per-frame", "2"]) == 1
+    assert "features, more than the limit of 2 " in capsys.readouterr().err
+
+    assert main(["segment", str(path), "--max-features-per-frame", "0"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "--max-features-per-frame" in err
+
+
+def test_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
+    # `lessmap segment FILE | head -1`: far more output than a pipe holds, read one line,
+    # close the pipe. The writer must stop with code 0 and say nothing.
+    path = write_frames(tmp_path / "many.frames.jsonl", robots=[f"r{i}" for i in range(300)])
+    with subprocess.Popen(
+        [sys.executable, "-m", "lessmap", "segment", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    ) as process:
+        assert process.stdout is not None
+        assert process.stderr is not None
+        first = process.stdout.readline()
+        process.stdout.close()
+        err = process.stderr.read()
+        code = process.wait(timeout=120)
+    assert json.loads(first)["robot"] == "r0"
+    assert err == b""
+    assert code == 0
 
 
 @pytest.mark.parametrize(

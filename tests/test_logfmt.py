@@ -27,3 +27,22 @@ def test_json_lines_include_tracebacks() -> None:
         record = logging.LogRecord("x", logging.ERROR, __file__, 1, "boom", (), sys.exc_info())
     entry = json.loads(JsonFormatter().format(record))
     assert "ZeroDivisionError" in entry["exc"]
+
+
+def test_configure_installs_one_handler_of_the_chosen_format() -> None:
+    from lessmap.logfmt import configure
+
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+    try:
+        configure(logging.DEBUG, "json")
+        configure(logging.INFO, "json")  # again: still one handler
+        [handler] = root.handlers
+        assert isinstance(handler.formatter, JsonFormatter)
+        assert root.level == logging.INFO
+        configure(logging.WARNING, "text")
+        [handler] = root.handlers
+        assert not isinstance(handler.formatter, JsonFormatter)
+    finally:
+        root.handlers[:], level = saved
+        root.setLevel(level)

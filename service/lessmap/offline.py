@@ -90,7 +90,7 @@ def segment(
         try:
             transition = partitioner.observe(frame.seq, frame.stamp_s, frame.features)
         except GraphError as exc:
-            msg = f"{frame.where or 'frame'} (robot {frame.robot}): {exc}"
+            msg = f"{frame.where or 'frame'}: robot {frame.robot}: {exc}"
             raise DatasetError(msg) from exc
         summary.frames += 1
         if transition is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import typing
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -12,8 +13,9 @@ import pytest
 
 from lessmap.core import PartitionParams, SeedMode
 from lessmap.errors import ConfigError
+from lessmap.flags import FlagSpec, flag_specs
 from lessmap.runtime.zenoh_config import service_config
-from lessmap.settings import EMBEDDED_ENDPOINT, load_settings
+from lessmap.settings import EMBEDDED_ENDPOINT, LimitSettings, ServiceSettings, load_settings
 from lessmap_schemas.keys import validate_name
 
 if TYPE_CHECKING:
@@ -318,3 +320,198 @@ def test_every_wire_limit_is_a_setting_and_format_bounds_only_tighten(
     monkeypatch.setenv("LESSMAP_LIMITS__MAX_FEATURE_ID", str(2**64))
     with pytest.raises(ConfigError, match="max_feature_id"):
         load_settings()
+
+
+# -- one model: every field is a flag, an environment variable and a config key ---------------
+
+
+def serve_settings(*argv: str) -> Any:
+    """Parse ``lessmap serve ARGV`` as the CLI does and build its settings (no service)."""
+    from lessmap.cli import command_parser
+    from lessmap.runtime.daemon import shard_values
+    from lessmap.settings import settings_from_args
+
+    parser, _run = command_parser("serve")
+    args = parser.parse_args(argv)
+    shard = shard_values(args.shard)
+    return settings_from_args(args, args.settings_flags, shard, dict.fromkeys(shard, "--shard"))
+
+
+def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
+    """Return a valid value unlike the default, as text and as the field then holds it."""
+    field = spec.field
+    kind = field.annotation
+    default = field.get_default(call_default_factory=True)
+    text: str
+    if spec.dest == "config":
+        path = write_config(tmp_path, {})
+        return str(path), path
+    if spec.dest in {"connect", "listen"}:
+        return "tcp/127.0.0.1:7500", ("tcp/127.0.0.1:7500",)
+    if spec.dest == "shard_index":
+        return "0", 0  # any other index needs a shard_count; tested with --shard
+    if spec.dest == "seed_mode":
+        return "fresh", SeedMode.FRESH
+    if spec.dest == "mode":
+        return "peer", "peer"
+    if default is None:
+        samples = {"metrics_port": 9464, "ncut_min": 0.3, "lambda2_min": 0.1}
+        if spec.dest in samples:
+            return str(samples[spec.dest]), samples[spec.dest]
+        return "zenoh.json5", Path("zenoh.json5")
+    if typing.get_origin(kind) is typing.Literal:
+        text = next(str(c) for c in typing.get_args(kind) if c != default)
+        return text, text
+    if isinstance(default, bool):
+        return str(not default).lower(), not default
+    if isinstance(default, int | float):
+        upper = next((m.le for m in field.metadata if hasattr(m, "le")), None)
+        value = default - 1 if upper is not None and default + 1 > upper else default + 1
+        return str(value), value
+    return "other-value", "other-value"
+
+
+def value_at(settings: Any, spec: FlagSpec) -> object:
+    for part in spec.path:
+        settings = getattr(settings, part)
+    return settings
+
+
+SPECS = list(flag_specs(ServiceSettings))
+
+
+def test_every_field_is_reached() -> None:
+    # Nested models contribute their fields; nothing is left without a flag.
+    dests = {spec.dest for spec in SPECS}
+    assert set(ServiceSettings.model_fields) - {"limits"} <= dests
+    assert {f"limits__{name}" for name in LimitSettings.model_fields} <= dests
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=lambda spec: spec.dest)
+def test_every_field_has_a_flag_and_an_environment_variable(
+    spec: FlagSpec,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    text, expected = other_value(spec, tmp_path)
+    assert value_at(load_settings(), spec) != expected or spec.dest == "shard_index"
+
+    if isinstance(expected, bool):  # --name / --no-name
+        from_flag = serve_settings(spec.flag if expected else f"--no-{spec.flag[2:]}")
+    else:
+        from_flag = serve_settings(spec.flag, text)
+    assert value_at(from_flag, spec) == expected
+
+    env = f"LESSMAP_{spec.dest.upper()}"
+    monkeypatch.setenv(env, json.dumps([text]) if spec.dest in {"connect", "listen"} else text)
+    assert value_at(load_settings(), spec) == expected
+
+    with pytest.raises(SystemExit):
+        serve_settings("--help")
+    assert env in capsys.readouterr().out.replace("\n", " ").replace("  ", "")
+
+
+@pytest.mark.parametrize(
+    "flag",
+    [
+        "--profile monocular",
+        "--ncut-min 0.3",
+        "--lambda2-min 0.1",
+        "--seed-mode fresh",
+        "--workers 2",
+        "--metrics-port 9464",
+        "--instance edge-1",
+        "--shard 1/2",
+        "--idle-timeout 30",
+        "--max-batch-frames 8",
+        "--batch-linger-ms 2",
+        "-m client",
+        "--mode client",
+        "-e tcp/10.0.0.5:7447",
+        "--connect tcp/10.0.0.5:7447",
+        "-l tcp/0.0.0.0:7447",
+        "--listen tcp/0.0.0.0:7447",
+        "--zenoh-config zenoh.json5",
+    ],
+)
+def test_the_documented_flag_spellings(flag: str) -> None:
+    settings = serve_settings(*flag.split())
+    assert settings != load_settings()
+
+
+def test_flags_beat_environment_beat_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    config = write_config(tmp_path, {"workers": 3, "queue_depth": 7, "error_burst": 9})
+    monkeypatch.setenv("LESSMAP_QUEUE_DEPTH", "70")
+    monkeypatch.setenv("LESSMAP_ERROR_BURST", "90")
+    settings = serve_settings("--config", str(config), "--error-burst", "900", "--shard", "1/2")
+    assert (settings.workers, settings.queue_depth, settings.error_burst) == (3, 70, 900)
+    assert (settings.shard_index, settings.shard_count) == (1, 2)
+    assert settings.config == config
+
+
+def test_the_config_file_may_come_from_the_environment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("LESSMAP_CONFIG", str(write_config(tmp_path, {"workers": 5})))
+    assert load_settings().workers == 5
+    assert serve_settings("--workers", "6").workers == 6
+
+
+def test_a_toml_config_file(tmp_path: Path) -> None:
+    path = tmp_path / "lessmap.toml"
+    path.write_text('workers = 4\nprofile = "stereo"\n[limits]\nmax_seq = 1000\n', "utf-8")
+    settings = load_settings(path)
+    assert (settings.workers, settings.profile, settings.limits.max_seq) == (4, "stereo", 1000)
+
+
+@pytest.mark.parametrize(
+    ("source", "expected"),
+    [
+        ("flag", "invalid setting workers = '0' from flag --workers: "),
+        ("environment", "invalid setting workers = '0' from environment LESSMAP_WORKERS: "),
+        ("file", "invalid setting workers = 0 from config file "),
+        ("nested flag", "invalid setting limits.max_seq = '0' from flag --limits-max-seq: "),
+        ("nested environment", "from environment LESSMAP_LIMITS__MAX_SEQ: "),
+        ("shard", "invalid setting shard_count = 2 from flag --shard: "),
+    ],
+)
+def test_an_invalid_value_is_one_line_naming_setting_and_source(
+    source: str, expected: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    argv: list[str] = []
+    if source == "flag":
+        argv = ["--workers", "0"]
+    elif source == "environment":
+        monkeypatch.setenv("LESSMAP_WORKERS", "0")
+    elif source == "file":
+        argv = ["--config", str(write_config(tmp_path, {"workers": 0}))]
+    elif source == "nested flag":
+        argv = ["--limits-max-seq", "0"]
+    elif source == "nested environment":
+        monkeypatch.setenv("LESSMAP_LIMITS__MAX_SEQ", "0")
+    else:
+        argv = ["--shard", "2/2"]
+    with pytest.raises(ConfigError) as caught:
+        serve_settings(*argv)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert expected in message
+
+
+def test_a_list_variable_that_is_not_json_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("LESSMAP_CONNECT", "tcp/10.0.0.5:7447")
+    message = config_error()
+    assert message.startswith("invalid setting connect from environment LESSMAP_CONNECT")
+
+
+def test_serve_reports_a_bad_setting_in_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from lessmap.cli import main
+
+    monkeypatch.setenv("LESSMAP_BATCH_LINGER_MS", "500")
+    assert main(["serve"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("lessmap serve: invalid setting batch_linger_ms = '500' from environment")

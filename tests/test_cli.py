@@ -1,0 +1,95 @@
+"""The ``lessmap`` entry point: lazy subcommands, help, version, no private argparse API."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lessmap.cli import COMMANDS, build_parser, command_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+HEAVY = ("numpy", "scipy", "zenoh", "pydantic", "lessmap_schemas", "lessmap.core")
+
+
+def loaded_after(argv: list[str]) -> set[str]:
+    """Run the command line in a fresh interpreter; return the heavy modules it imported."""
+    code = (
+        "import sys\n"
+        "from lessmap.cli import main\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print('LOADED', *(m for m in sys.modules if m.startswith({HEAVY!r})))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    [line] = [line for line in result.stdout.splitlines() if line.startswith("LOADED")]
+    return set(line.split()[1:])
+
+
+@pytest.mark.parametrize("argv", [["--version"], ["--help"]], ids=["version", "help"])
+def test_version_and_help_import_nothing_heavy(argv: list[str]) -> None:
+    assert loaded_after(argv) == set()
+
+
+def test_a_command_imports_only_its_own_module() -> None:
+    loaded = loaded_after(["sim", "--help"])
+    assert "lessmap_schemas" in loaded  # sim publishes through the SDK
+    assert "scipy" not in loaded  # but evaluation, serve and segment were not loaded
+
+
+def test_version_as_a_script() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "lessmap", "--version"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 0
+    assert result.stdout.startswith("lessmap ")
+    assert result.stdout.split()[1][0].isdigit()
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stopped:
+        main(["--help"])
+    assert stopped.value.code == 0
+    out = capsys.readouterr().out
+    for name, command in COMMANDS.items():
+        assert f"  {name} " in out
+        assert command.help in out
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_command_has_help(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stopped:
+        main([name, "--help"])
+    assert stopped.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: lessmap {name} ")
+    parser, run = command_parser(name)
+    assert callable(run)
+    assert parser.description  # every command describes itself
+
+
+def test_global_options_come_before_the_command(capsys: pytest.CaptureFixture[str]) -> None:
+    top = build_parser().parse_args(["-vv", "--log-format", "json", "segment", "F", "--robot", "a"])
+    assert (top.verbose, top.log_format, top.command) == (2, "json", "segment")
+    assert top.arguments == ["F", "--robot", "a"]
+    with pytest.raises(SystemExit) as stopped:
+        main(["no-such-command"])
+    assert stopped.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_no_private_argparse_api() -> None:
+    for path in [*(ROOT / "service").rglob("*.py"), *(ROOT / "clients").rglob("*.py")]:
+        text = path.read_text(encoding="utf-8")
+        assert "_SubParsersAction" not in text, path
+        assert "argparse._" not in text, path
