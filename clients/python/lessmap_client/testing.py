@@ -1,0 +1,397 @@
+"""An in-process lessmap network for testing your robot code and fleet apps without a router.
+
+In the manner of httpx's ``MockTransport``: the SDK ships the fake, and your code keeps
+calling the real ``Connection`` API. Every message still goes through the wire codec, so a
+test also catches what a real service would reject.
+
+```python
+from lessmap_client.testing import FakeBus, make_transition
+
+bus = FakeBus()
+with bus.connect() as conn:
+    sub = conn.subscribe_transitions("warehouse")
+    bus.publish_transition(make_transition("warehouse", "amr-7"))
+    assert sub.try_recv().robot == "amr-7"      # delivered before publish_transition returns
+
+    with conn.robot("warehouse", "amr-7") as robot:
+        robot.publish([1, 2, 3])
+    assert [f.features for f in bus.frames("warehouse", "amr-7")] == [[1, 2, 3]]
+    assert bus.session_ends("warehouse", "amr-7")[0].last_seq == 0
+```
+
+Semantics: delivery is synchronous (subscribers have the event when ``publish_*`` returns;
+handlers are still called on their subscription's thread), ``*`` matches one key chunk and
+``**`` any number, transitions are retained (``history`` per key) for subscriptions that ask
+for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
+stored. The fake is no service: publishing frames produces no transitions by itself.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+from lessmap_client.connection import Connection
+from lessmap_schemas import keys
+from lessmap_schemas.codec import decode_inbound, encode
+from lessmap_schemas.errors import ErrorCode, WireError
+from lessmap_schemas.messages import (
+    Error,
+    Frame,
+    Health,
+    SessionEnd,
+    SessionState,
+    Submap,
+    SubmapSummary,
+    Transition,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from lessmap_client.transport import Handle, Publisher
+
+__all__ = ["FakeBus", "Sent", "make_error", "make_state", "make_transition"]
+
+FAKE_INSTANCE = "fake"
+
+
+@dataclass(frozen=True, slots=True)
+class Sent:
+    """One message a robot published on the fake bus."""
+
+    fleet: str
+    robot: str
+    message: Frame | SessionEnd
+
+
+def key_matches(pattern: str, key: str) -> bool:
+    """Whether a concrete ``key`` matches ``pattern`` (``*``: one chunk, ``**``: any)."""
+    return _match(pattern.split("/"), key.split("/"))
+
+
+def _match(pattern: list[str], key: list[str]) -> bool:
+    if not pattern:
+        return not key
+    head, rest = pattern[0], pattern[1:]
+    if head == "**":
+        return any(_match(rest, key[i:]) for i in range(len(key) + 1) if "@" not in key[:i])
+    if not key:
+        return False
+    chunk_ok = (head == "*" and not key[0].startswith("@")) or head == key[0]
+    return chunk_ok and _match(rest, key[1:])
+
+
+class FakeBus:
+    """An in-process stand-in for a lessmap network: one bus, any number of connections.
+
+    Args:
+        history: transitions retained per robot for subscriptions with ``history``.
+        instances: service instances reported alive (``wait_for_service`` is True while
+            this is not empty); mutable.
+    """
+
+    def __init__(self, *, history: int = 64, instances: Sequence[str] = (FAKE_INSTANCE,)) -> None:
+        self.instances = list(instances)
+        self._history = history
+        self._lock = threading.RLock()
+        self._subscribers: list[_FakeSubscriber] = []
+        self._retained: dict[str, deque[bytes]] = {}
+        self._replies: dict[str, bytes] = {}
+        self._sent: list[Sent] = []
+        self.undecodable_sent = 0  # robot payloads that were not Frames or SessionEnds
+
+    def connect(self) -> Connection:
+        """Open a connection to this bus (the same ``Connection`` API as ``connect()``)."""
+        return Connection(_FakeTransport(self))
+
+    # -- what the service would publish -------------------------------------------------------
+
+    def publish_transition(self, transition: Transition) -> None:
+        """Publish a transition as the service would (retained for late subscribers)."""
+        self.put(keys.transitions(transition.fleet, transition.robot), encode(transition))
+
+    def publish_error(self, error: Error) -> None:
+        """Publish an ``Error`` on its robot's key (or the instance's key if it names none)."""
+        if error.fleet is None or error.robot is None:
+            key = keys.service_errors(error.instance)
+        else:
+            key = keys.errors(error.fleet, error.robot)
+        self.put(key, encode(error))
+
+    def put(self, key: str, payload: bytes) -> None:
+        """Publish raw bytes on a concrete key (to test how your app handles garbage)."""
+        with self._lock:
+            if key.endswith("/transitions"):
+                kept = self._retained.setdefault(key, deque(maxlen=self._history))
+                kept.append(payload)
+            if key.endswith("/frames"):
+                self._record(key, payload)
+            for subscriber in list(self._subscribers):
+                if key_matches(subscriber.key, key):
+                    subscriber.deliver(payload)
+
+    # -- what the service would answer ---------------------------------------------------------
+
+    def set_state(self, state: SessionState) -> None:
+        """Answer ``state``/``states`` queries for this robot with ``state``."""
+        self._reply(keys.state(state.fleet, state.robot), state)
+
+    def set_submap(self, submap: Submap) -> None:
+        """Answer ``submap``/``submaps`` queries for this submap."""
+        self._reply(keys.submap(submap.fleet, submap.robot, submap.summary.id), submap)
+
+    def set_health(self, health: Health) -> None:
+        """Answer ``health`` queries for this instance."""
+        self._reply(keys.health(health.instance), health)
+
+    def clear_replies(self) -> None:
+        """Forget every stored state, submap and health answer."""
+        with self._lock:
+            self._replies.clear()
+
+    def _reply(self, key: str, message: SessionState | Submap | Health) -> None:
+        with self._lock:
+            self._replies[key] = encode(message)
+
+    # -- what robots published -----------------------------------------------------------------
+
+    @property
+    def sent(self) -> list[Sent]:
+        """Every Frame and SessionEnd robots published, in order."""
+        with self._lock:
+            return list(self._sent)
+
+    def frames(self, fleet: str | None = None, robot: str | None = None) -> list[Frame]:
+        """Frames published (by one robot, a fleet, or everyone), in order."""
+        return [s.message for s in self._select(fleet, robot) if isinstance(s.message, Frame)]
+
+    def session_ends(self, fleet: str | None = None, robot: str | None = None) -> list[SessionEnd]:
+        """SessionEnds published (robots send one when closed), in order."""
+        return [s.message for s in self._select(fleet, robot) if isinstance(s.message, SessionEnd)]
+
+    def _select(self, fleet: str | None, robot: str | None) -> list[Sent]:
+        return [
+            s
+            for s in self.sent
+            if (fleet is None or s.fleet == fleet) and (robot is None or s.robot == robot)
+        ]
+
+    def _record(self, key: str, payload: bytes) -> None:
+        fleet, robot, _ = keys.parse_robot_key(key)
+        try:
+            message = decode_inbound(payload)
+        except WireError:
+            self.undecodable_sent += 1
+            return
+        self._sent.append(Sent(fleet, robot, message))
+
+    # -- transport side ------------------------------------------------------------------------
+
+    def _subscribe(
+        self, key: str, deliver: Callable[[bytes], None], history: int | None
+    ) -> _FakeSubscriber:
+        subscriber = _FakeSubscriber(self, key, deliver)
+        with self._lock:
+            if history:
+                for retained_key, payloads in self._retained.items():
+                    if key_matches(key, retained_key):
+                        for payload in list(payloads)[-history:]:
+                            deliver(payload)
+            self._subscribers.append(subscriber)
+        return subscriber
+
+    def _unsubscribe(self, subscriber: _FakeSubscriber) -> None:
+        with self._lock:
+            if subscriber in self._subscribers:
+                self._subscribers.remove(subscriber)
+
+    def _get(self, key: str) -> list[tuple[str, bytes]]:
+        with self._lock:
+            return [(k, v) for k, v in self._replies.items() if key_matches(key, k)]
+
+
+class _FakeSubscriber:
+    def __init__(self, bus: FakeBus, key: str, deliver: Callable[[bytes], None]) -> None:
+        self.bus = bus
+        self.key = key
+        self.deliver = deliver
+
+    def close(self) -> None:
+        self.bus._unsubscribe(self)
+
+
+class _FakePublisher:
+    def __init__(self, bus: FakeBus, key: str) -> None:
+        self._bus = bus
+        self._key = key
+        self._closed = False
+
+    def put(self, payload: bytes) -> None:
+        if self._closed:
+            msg = "publisher is closed"
+            raise RuntimeError(msg)
+        self._bus.put(self._key, payload)
+
+    def close(self) -> None:
+        self._closed = True
+
+
+class _FakeTransport:
+    """The ``Transport`` of one fake connection."""
+
+    def __init__(self, bus: FakeBus) -> None:
+        self._bus = bus
+        self._closed = False
+
+    def _check(self) -> None:
+        if self._closed:
+            msg = "the fake connection is closed"
+            raise RuntimeError(msg)
+
+    def subscribe(
+        self, key: str, deliver: Callable[[bytes], None], *, history: int | None
+    ) -> Handle:
+        self._check()
+        return self._bus._subscribe(key, deliver, history)
+
+    def get(self, key: str, timeout_s: float) -> list[tuple[str, bytes]]:
+        self._check()
+        return self._bus._get(key)
+
+    def instances(self, timeout_s: float) -> list[str]:
+        self._check()
+        return list(self._bus.instances)
+
+    def publisher(self, key: str, encoding: str, cache: int) -> Publisher:
+        self._check()
+        return _FakePublisher(self._bus, key)
+
+    def put(self, key: str, payload: bytes, encoding: str) -> None:
+        self._check()
+        self._bus.put(key, payload)
+
+    def close(self) -> None:
+        self._closed = True
+
+
+# -- message builders ------------------------------------------------------------------------
+
+
+def make_transition(
+    fleet: str,
+    robot: str,
+    *,
+    closed_id: int = 0,
+    seq: int | None = None,
+    session: str = "s0",
+    reason: Literal["SPECTRAL", "DISCONNECTED"] = "SPECTRAL",
+    closed_features: Sequence[int] = (1, 2, 3),
+    opened_features: Sequence[int] = (3, 4, 5),
+    instance: str = FAKE_INSTANCE,
+) -> Transition:
+    """Return a consistent ``Transition``: submap ``closed_id`` closed, the next one opened.
+
+    Frames are numbered 10 per submap unless ``seq`` (the detection frame) is given.
+    """
+    first = closed_id * 10
+    detect = first + 10 if seq is None else seq
+    boundary = max(first + 1, detect - 1) if detect > first else detect
+    spectral = reason == "SPECTRAL"
+    return Transition(
+        fleet=fleet,
+        robot=robot,
+        session=session,
+        seq=detect,
+        boundary_seq=boundary,
+        stamp_s=float(detect),
+        reason=reason,
+        ncut=0.05 if spectral else None,
+        lambda2=0.01 if spectral else None,
+        closed=SubmapSummary(
+            id=closed_id,
+            first_seq=first,
+            last_seq=max(first, boundary - 1),
+            frame_count=max(1, boundary - first),
+            features=sorted(set(closed_features)),
+        ),
+        opened=SubmapSummary(
+            id=closed_id + 1,
+            first_seq=boundary,
+            last_seq=detect,
+            frame_count=detect - boundary + 1,
+            features=sorted(set(opened_features)),
+        ),
+        boundary_features=sorted(set(closed_features) & set(opened_features)),
+        batch_frames=1,
+        instance=instance,
+    )
+
+
+def make_state(
+    fleet: str,
+    robot: str,
+    *,
+    session: str = "s0",
+    open: bool = True,
+    frames_applied: int = 0,
+    transitions: int = 0,
+    instance: str = FAKE_INSTANCE,
+) -> SessionState:
+    """Return a ``SessionState`` with ``transitions`` closed submaps and consistent counters."""
+    closed = [
+        SubmapSummary(id=i, first_seq=i * 10, last_seq=i * 10 + 9, frame_count=10, features=[])
+        for i in range(transitions)
+    ]
+    last = frames_applied - 1 if frames_applied else None
+    first = transitions * 10
+    current = SubmapSummary(
+        id=transitions,
+        first_seq=first,
+        last_seq=max(first, last or 0),
+        frame_count=max(0, frames_applied - 10 * transitions),
+        features=[],
+    )
+    return SessionState(
+        fleet=fleet,
+        robot=robot,
+        session=session,
+        instance=instance,
+        open=open,
+        last_seq=last,
+        frames_applied=frames_applied,
+        frames_duplicate=0,
+        frames_missing=0,
+        frames_rejected=0,
+        transitions=transitions,
+        current_submap=current,
+        closed_submaps=closed,
+        nodes=0,
+        edges=0,
+    )
+
+
+def make_error(
+    fleet: str | None,
+    robot: str | None,
+    code: ErrorCode | str = ErrorCode.SEQ_GAP,
+    detail: str = "reported by the fake bus",
+    *,
+    session: str | None = None,
+    seq: int | None = None,
+    instance: str = FAKE_INSTANCE,
+) -> Error:
+    """Return an ``Error`` report as the service would publish it."""
+    return Error(
+        fleet=fleet,
+        robot=robot,
+        session=session,
+        code=ErrorCode(code),
+        detail=detail,
+        seq=seq,
+        stamp_s=time.time(),
+        instance=instance,
+    )

@@ -1,0 +1,192 @@
+"""The in-process fake bus, used the way an SDK user tests a fleet app with it."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import pytest
+
+from lessmap_client import Connection, aio
+from lessmap_client.testing import FakeBus, key_matches, make_error, make_state, make_transition
+from lessmap_schemas import Transition, keys
+from lessmap_schemas.errors import ErrorCode, InvalidNameError, WireError
+from tests.conftest import wait_until
+
+
+def test_every_subscription_gets_every_transition_once() -> None:
+    bus = FakeBus()
+    with bus.connect() as conn:
+        first = conn.subscribe_transitions("warehouse")
+        second = conn.subscribe_transitions("warehouse", "amr-7")
+        other_fleet = conn.subscribe_transitions("yard")
+        handled: list[Transition] = []
+        done = threading.Event()
+
+        def handler(t: Transition) -> None:
+            handled.append(t)
+            if len(handled) == 5:
+                done.set()
+
+        conn.subscribe_transitions(handler=handler)
+        sent = [make_transition("warehouse", "amr-7", closed_id=i) for i in range(5)]
+        for t in sent:
+            bus.publish_transition(t)
+        bus.publish_transition(sent[2])  # a repeat (fail-over): dropped by every subscription
+        assert [first.try_recv() for _ in range(5)] == sent
+        assert [second.recv(timeout_s=1.0) for _ in range(5)] == sent
+        assert first.try_recv() is None
+        assert second.try_recv() is None  # the repeat was read and skipped
+        assert (first.duplicates, second.duplicates) == (1, 1)
+        assert other_fleet.try_recv() is None
+        assert done.wait(5.0)
+        assert handled == sent
+
+
+def test_history_is_replayed_to_late_subscribers_only_when_asked() -> None:
+    bus = FakeBus(history=2)
+    for i in range(3):
+        bus.publish_transition(make_transition("f", "r", closed_id=i))
+    with bus.connect() as conn:
+        late = conn.subscribe_transitions("f", history=True)
+        live = conn.subscribe_transitions("f", history=False)
+        assert [t.closed.id for t in (late.try_recv(), late.try_recv())] == [1, 2]  # type: ignore[union-attr]
+        assert late.try_recv() is None
+        assert live.try_recv() is None
+
+
+def test_the_fake_records_what_robots_publish() -> None:
+    bus = FakeBus()
+    with bus.connect() as conn:
+        assert conn.wait_for_service(0.1)
+        with conn.robot("warehouse", "amr-7", session_id="boot-1") as robot:
+            assert robot.publish([3, 1, 2], stamp_s=1.0, pose=(0.0, 1.0, 0.5)) == 0
+            assert robot.publish([4], stamp_s=2.0) == 1
+            with pytest.raises(WireError, match="max_features_per_frame"):
+                robot.publish(range(5000))
+        other = conn.robot("warehouse", "amr-8")  # closed with the connection
+        other.publish([9])
+    frames = bus.frames("warehouse", "amr-7")
+    assert [(f.seq, f.features, f.session) for f in frames] == [
+        (0, [3, 1, 2], "boot-1"),
+        (1, [4], "boot-1"),
+    ]
+    assert frames[0].pose == (0.0, 1.0, 0.5)
+    ends = bus.session_ends("warehouse", "amr-7")
+    assert [(e.session, e.last_seq) for e in ends] == [("boot-1", 1)]
+    assert [e.last_seq for e in bus.session_ends(robot="amr-8")] == [0]
+    assert [(s.robot, type(s.message).__name__) for s in bus.sent] == [
+        ("amr-7", "Frame"),
+        ("amr-7", "Frame"),
+        ("amr-7", "SessionEnd"),
+        ("amr-8", "Frame"),
+        ("amr-8", "SessionEnd"),
+    ]
+    with pytest.raises(InvalidNameError):
+        FakeBus().connect().robot("warehouse", "no/slash")
+
+
+def test_queries_answer_what_was_stored() -> None:
+    bus = FakeBus()
+    bus.set_state(make_state("f", "a", frames_applied=30, transitions=2))
+    bus.set_state(make_state("f", "b", open=False))
+    bus.set_state(make_state("g", "c"))
+    with bus.connect() as conn:
+        assert sorted(s.robot for s in conn.states("f")) == ["a", "b"]
+        assert len(conn.states()) == 3
+        state = conn.state("f", "a")
+        assert state is not None
+        assert (state.frames_applied, state.transitions, state.current_submap.id) == (30, 2, 2)
+        assert conn.state("f", "nobody") is None
+        assert conn.health() == []
+        assert conn.submaps("f", "a") == []
+    bus.instances.clear()
+    with bus.connect() as conn:
+        assert not conn.wait_for_service(0.2)
+
+
+def test_errors_and_garbage_reach_the_app_as_a_real_service_would_send_them() -> None:
+    bus = FakeBus()
+    with bus.connect() as conn:
+        errors = conn.subscribe_errors("f")
+        events = conn.subscribe_events("f", "r")
+        bus.publish_error(make_error("f", "r", ErrorCode.SEQ_GAP, "frames 3..4 missing"))
+        bus.put(keys.transitions("f", "r"), b"\xc1 not msgpack")
+        bus.publish_transition(make_transition("f", "r"))
+        error = errors.try_recv()
+        assert error is not None
+        assert (error.code, error.detail) == (ErrorCode.SEQ_GAP, "frames 3..4 missing")
+        got = [events.try_recv(), events.try_recv(), events.try_recv()]
+        assert [type(e).__name__ for e in got] == ["Error", "Transition", "NoneType"]
+        assert events.undecodable == 1
+
+
+def test_a_full_queue_drops_new_events_and_counts_them() -> None:
+    bus = FakeBus()
+    with bus.connect() as conn:
+        sub = conn.subscribe_transitions(maxsize=3)
+        for i in range(10):
+            bus.publish_transition(make_transition("f", "r", closed_id=i))
+        assert sub.dropped == 7
+        assert [t.closed.id for t in iter(sub.try_recv, None)] == [0, 1, 2]
+
+
+def test_closing_ends_iteration_and_the_connection() -> None:
+    bus = FakeBus()
+    conn = bus.connect()
+    sub = conn.subscribe_transitions()
+    seen: list[int] = []
+    reader = threading.Thread(target=lambda: seen.extend(t.closed.id for t in sub))
+    reader.start()
+    bus.publish_transition(make_transition("f", "r", closed_id=4))
+    wait_until(lambda: seen == [4], 5.0, "the reader to get the transition")
+    conn.close()
+    reader.join(5.0)
+    assert not reader.is_alive()
+    assert sub.closed
+    bus.publish_transition(make_transition("f", "r", closed_id=5))  # nobody listens anymore
+    assert seen == [4]
+    with pytest.raises(RuntimeError, match="closed"):
+        conn.subscribe_transitions()
+    with pytest.raises(RuntimeError, match="handler"):
+        Connection(bus.connect().transport).subscribe_transitions(handler=print).try_recv()
+
+
+def test_the_fake_works_with_asyncio() -> None:
+    async def app(bus: FakeBus) -> list[int]:
+        async with aio.AsyncConnection(bus.connect()) as conn:
+            sub = await conn.subscribe_transitions("f")
+            robot = await conn.robot("f", "r")
+            await robot.publish([1, 2])
+            bus.publish_transition(make_transition("f", "r", closed_id=0))
+            bus.publish_transition(make_transition("f", "r", closed_id=1))
+            got = [t.closed.id async for t in _take(sub, 2)]
+            assert await conn.states("f") == []
+            return got
+
+    bus = FakeBus()
+    assert asyncio.run(app(bus)) == [0, 1]
+    assert [f.features for f in bus.frames("f", "r")] == [[1, 2]]
+    assert len(bus.session_ends("f", "r")) == 1  # closing the connection closed the robot
+
+
+async def _take(sub: aio.AsyncSubscription[Transition], n: int):  # type: ignore[no-untyped-def]
+    for _ in range(n):
+        event = await sub.recv(timeout_s=5.0)
+        assert event is not None
+        yield event
+
+
+@pytest.mark.parametrize(
+    ("pattern", "key", "matches"),
+    [
+        ("lessmap/v1/*/*/transitions", "lessmap/v1/f/r/transitions", True),
+        ("lessmap/v1/f/*/transitions", "lessmap/v1/g/r/transitions", False),
+        ("lessmap/v1/**", "lessmap/v1/f/r/errors", True),
+        ("lessmap/v1/*/*/errors", "lessmap/v1/@/errors/i", False),
+        ("lessmap/v1/**", "lessmap/v1/@/errors/i", False),
+        ("lessmap/v1/f/r/submaps/*", "lessmap/v1/f/r/submaps/3", True),
+    ],
+)
+def test_key_matching_follows_zenoh(pattern: str, key: str, matches: bool) -> None:
+    assert key_matches(pattern, key) is matches
