@@ -32,7 +32,7 @@ def publish_walk(conn: Connection, fleet: str, robot: str = "walker") -> str:
 
 
 def read(sub: Subscription[Transition], count: int, timeout_s: float = 20.0) -> list[int]:
-    seqs = []
+    seqs: list[int] = []
     for _ in range(count):
         t = sub.recv(timeout_s)
         assert t is not None, f"got only {seqs}"
