@@ -25,15 +25,13 @@ import numpy as np
 from lessmap.core.covgraph import CovGraph, CovGraphState
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.params import PartitionParams, SeedMode
-from lessmap.core.spectral import Components, lambda2_exceeds, split_graph
+from lessmap.core.spectral import Components, cut_endpoints, lambda2_exceeds, split_graph
 from lessmap.core.submaps import Evaluation, Reason, Submap, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from numpy.typing import NDArray
-
-    from lessmap.core.spectral import Similarity
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,6 +61,38 @@ class PartitionerState:
     frames_since_transition: int
     frames_applied: int
     transitions: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Decision:
+    """Everything one spectral test found (Eq. 4), before the partitioner acts on it.
+
+    ``Partitioner.decide`` computes one per test; the ``Evaluation`` it reports and the
+    ``Transition`` it declares are both derived from it, each in one place.
+    """
+
+    seq: int  # the last frame the test covers
+    nodes: int  # CovGraph size
+    components: int = 1  # > 1 when the CovGraph fell apart
+    ncut: float | None = None  # of the bisection, when one was computed and counts
+    lambda2: float | None = None
+    lambda2_above: float | None = None  # settled by proving λ2 > this (λ2_min), no solve
+    reason: Reason | None = None  # a split was found: a bisection passing Eq. 4, or components
+    new_side: NDArray[np.bool_] | None = None  # with a reason: the nodes of the new area
+    boundary: NDArray[np.int64] | None = None  # with a transition: ends of the cut edges
+    transition: bool = False  # a split was found and it passes the min_cluster_size guard
+
+    def evaluation(self) -> Evaluation:
+        """The figures reported for this decision (``Partitioner.last_evaluation``)."""
+        return Evaluation(
+            seq=self.seq,
+            nodes=self.nodes,
+            components=self.components,
+            ncut=self.ncut,
+            lambda2=self.lambda2,
+            transition=self.transition,
+            lambda2_above=self.lambda2_above,
+        )
 
 
 def _feature_array(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
@@ -213,50 +243,44 @@ class Partitioner:
         if self._frames_since_transition <= self.params.min_frames_between:
             return None
         assert self._last_seq is not None  # a pending frame was applied
-        seq = self._last_seq
+        decision = self._test(self._last_seq)
+        self.last_evaluation = decision.evaluation()
+        if not decision.transition:
+            return None
+        return self._transition(decision, batch_frames)
+
+    def _test(self, seq: int) -> Decision:
+        """Run the spectral test (Eq. 4) on the CovGraph as it stands; change nothing."""
         if self._graph.node_count < 2:
-            self.last_evaluation = Evaluation(
-                seq=seq,
-                nodes=self._graph.node_count,
-                components=1,
-                ncut=None,
-                lambda2=None,
-                transition=False,
-            )
-            return None
-        # A small graph is decided on dense arrays, a large one on CSR (same formulas).
-        w = self._graph.covrate_dense() if self._graph.is_dense else self._graph.covrate()
+            return Decision(seq=seq, nodes=self._graph.node_count)
+        # W in the form the graph holds it: dense arrays when small, CSR when large.
+        w = self._graph.similarity()
+        nodes = w.shape[0]
         if not self.always_solve and lambda2_exceeds(w, self.params.lambda2_min):
-            self.last_evaluation = Evaluation(
-                seq=seq,
-                nodes=w.shape[0],
-                components=1,
-                ncut=None,
-                lambda2=None,
-                transition=False,
-                lambda2_above=self.params.lambda2_min,
-            )
-            return None
+            return Decision(seq=seq, nodes=nodes, lambda2_above=self.params.lambda2_min)
         split = split_graph(w, dense_max_nodes=self.params.dense_max_nodes)
         if isinstance(split, Components):
+            reason, components = Reason.DISCONNECTED, split.count
+            ncut = lambda2 = None
             new_side = self._new_component(split.labels)
-            return self._conclude(
-                seq, w, new_side, Reason.DISCONNECTED, None, None, split.count, batch_frames
-            )
-        new_side = self._new_cluster(split.labels)
-        valid = split.ncut <= self.params.ncut_min and split.lambda2 <= self.params.lambda2_min
-        if not valid:
-            self.last_evaluation = Evaluation(
-                seq=seq,
-                nodes=w.shape[0],
-                components=1,
-                ncut=split.ncut,
-                lambda2=split.lambda2,
-                transition=False,
-            )
-            return None
-        return self._conclude(
-            seq, w, new_side, Reason.SPECTRAL, split.ncut, split.lambda2, 1, batch_frames
+        elif split.ncut <= self.params.ncut_min and split.lambda2 <= self.params.lambda2_min:
+            reason, components = Reason.SPECTRAL, 1
+            ncut, lambda2 = split.ncut, split.lambda2
+            new_side = self._new_cluster(split.labels)
+        else:
+            return Decision(seq=seq, nodes=nodes, ncut=split.ncut, lambda2=split.lambda2)
+        small = min(int(new_side.sum()), int((~new_side).sum()))
+        transition = small >= self.params.min_cluster_size
+        return Decision(
+            seq=seq,
+            nodes=nodes,
+            components=components,
+            ncut=ncut,
+            lambda2=lambda2,
+            reason=reason,
+            new_side=new_side,
+            boundary=cut_endpoints(w, new_side) if transition else None,
+            transition=transition,
         )
 
     # -- deciding which side is new ---------------------------------------------------------
@@ -290,39 +314,16 @@ class Partitioner:
 
     # -- transition ------------------------------------------------------------------------
 
-    def _conclude(
-        self,
-        seq: int,
-        w: Similarity,
-        new_side: NDArray[np.bool_],
-        reason: Reason,
-        ncut: float | None,
-        lambda2: float | None,
-        component_count: int,
-        batch_frames: int,
-    ) -> Transition | None:
-        small = min(int(new_side.sum()), int((~new_side).sum()))
-        self.last_evaluation = Evaluation(
-            seq=seq,
-            nodes=w.shape[0],
-            components=component_count,
-            ncut=ncut,
-            lambda2=lambda2,
-            transition=small >= self.params.min_cluster_size,
-        )
-        if small < self.params.min_cluster_size:
-            return None
+    def _transition(self, decision: Decision, batch_frames: int) -> Transition:
+        """Close the old area, open the new one and return the transition (state changes)."""
+        assert decision.reason is not None
+        assert decision.new_side is not None
+        assert decision.boundary is not None
+        seq, new_side = decision.seq, decision.new_side
         ids = self._graph.feature_ids
         new_ids = np.sort(ids[new_side])
         old_ids = np.sort(ids[~new_side])
-        if isinstance(w, np.ndarray):
-            rows, cols = np.nonzero(w[np.ix_(new_side, ~new_side)])
-            ends = np.concatenate([np.flatnonzero(new_side)[rows], np.flatnonzero(~new_side)[cols]])
-        else:
-            coo = w.tocoo()
-            crossing = new_side[coo.row] != new_side[coo.col]
-            ends = np.concatenate([coo.row[crossing], coo.col[crossing]])
-        boundary = np.unique(ids[ends])
+        boundary = np.unique(ids[decision.boundary])
 
         boundary_seq = self._boundary_seq(new_ids)
         opened_frames = sum(1 for record in self._history if record.seq >= boundary_seq)
@@ -345,9 +346,9 @@ class Partitioner:
             seq=seq,
             boundary_seq=boundary_seq,
             stamp_s=self._last_stamp_s,
-            reason=reason,
-            ncut=ncut,
-            lambda2=lambda2,
+            reason=decision.reason,
+            ncut=decision.ncut,
+            lambda2=decision.lambda2,
             closed=closed,
             opened=opened,
             boundary_features=tuple(boundary.tolist()),

@@ -6,6 +6,11 @@ Small graphs use LAPACK (exact, deterministic); large ones use ARPACK on S with 
 first eigenvector u1 = D^1/2 1 reflected out, so Lanczos converges on u2 alone instead of
 fighting the eigenvalue cluster at 1 that a nearly separable graph produces.
 
+W arrives in the form the CovGraph holds it: a dense array for small graphs, CSR above.
+Every entry point below picks the dense or the sparse path once, at its top, and each path
+then runs straight through functions of its own (``_dense_*``, ``_sparse_*``); the two paths
+share only the formulas, never a branch on the form.
+
 This is deliberately not MRPT's variant (unnormalized Laplacian, threshold at the mean of
 the Fiedler vector, an Ncut about twice Shi–Malik's): the paper's thresholds are calibrated
 for the normalized problem and the Shi–Malik Ncut.
@@ -59,6 +64,9 @@ class Components:
     labels: NDArray[np.int32]  # (n,) numbered in order of their lowest node
 
 
+# -- entry points: each picks the dense or the sparse path once, here ---------------------
+
+
 def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     """Return True when λ2 of L v = λ D v provably exceeds ``bound`` (dense W only).
 
@@ -85,18 +93,9 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     Returns:
         True when λ2 > bound is proven; False otherwise, and always for a sparse W.
     """
-    if not isinstance(w, np.ndarray) or w.shape[0] < 2:
-        return False
-    n = w.shape[0]
-    degrees = w.sum(axis=1)
-    if not degrees.min() > 0.0:
-        return False
-    shift = bound + CERTIFICATE_MARGIN
-    matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
-    matrix -= w
-    matrix.flat[:: n + 1] += (1.0 - shift) * degrees
-    _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
-    return bool(info == 0)
+    if not isinstance(w, np.ndarray):
+        return False  # the Cholesky certificate pays off on dense W only
+    return _dense_lambda2_exceeds(w, bound)
 
 
 def split_graph(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bisection | Components:
@@ -113,23 +112,9 @@ def split_graph(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bis
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2.
         dense_max_nodes: solve with LAPACK up to this size, ARPACK above.
     """
-    bisection: Bisection | None = None
     if isinstance(w, np.ndarray):
-        degrees = w.sum(axis=1)
-        if degrees.min() > 0.0:
-            try:
-                bisection = _bisection(w, degrees, dense_max_nodes)
-            except GraphError:
-                bisection = None  # a degenerate split of a graph that fell apart: search
-            else:
-                if bisection.lambda2 > CONNECTED_LAMBDA2:
-                    return bisection
-    count, labels = components(w)
-    if count > 1:
-        return Components(count=count, labels=labels)
-    if bisection is not None:
-        return bisection
-    return normalized_bisection(w, dense_max_nodes=dense_max_nodes)
+        return _dense_split(w)
+    return _sparse_split(w, dense_max_nodes)
 
 
 def components(w: Similarity) -> tuple[int, NDArray[np.int32]]:
@@ -139,31 +124,7 @@ def components(w: Similarity) -> tuple[int, NDArray[np.int32]]:
     """
     if isinstance(w, np.ndarray):
         return _dense_components(w > 0)
-    count, labels = csgraph.connected_components(w, directed=False)
-    return int(count), labels.astype(np.int32)
-
-
-def _dense_components(adjacent: NDArray[np.bool_]) -> tuple[int, NDArray[np.int32]]:
-    # Breadth-first search one level at a time on the boolean matrix. scipy's
-    # connected_components validates a dense input through masked arrays, which took more
-    # than the whole rest of a decision on room-sized graphs (profiled: ~0.9 ms at 40 nodes).
-    n = adjacent.shape[0]
-    labels = np.full(n, -1, dtype=np.int32)
-    count = 0
-    for start in range(n):
-        if labels[start] >= 0:
-            continue
-        reached = np.zeros(n, dtype=bool)
-        reached[start] = True
-        frontier = reached.copy()
-        while True:
-            frontier = adjacent[frontier].any(axis=0) & ~reached
-            if not frontier.any():
-                break
-            reached |= frontier
-        labels[reached] = count
-        count += 1
-    return count, labels
+    return _sparse_components(w)
 
 
 def normalized_cut(
@@ -176,21 +137,69 @@ def normalized_cut(
         labels: (n,) 0/1 membership; both sides must be non-empty with positive degree.
         degrees: the row sums of W when the caller has them already.
     """
-    if degrees is None:
-        degrees = np.asarray(w.sum(axis=1)).ravel()
     side = np.asarray(labels) != 0
-    assoc_b = float(degrees[side].sum())
-    assoc_a = float(degrees[~side].sum())
-    if assoc_a <= 0.0 or assoc_b <= 0.0:
-        msg = f"Ncut needs two sides of positive degree, got assoc {assoc_a} and {assoc_b}"
-        raise GraphError(msg)
     if isinstance(w, np.ndarray):
-        cut = float(w[~side][:, side].sum())  # the same block as np.ix_, at half the cost
-    else:
-        coo = w.tocoo()
-        crossing = side[coo.row] != side[coo.col]
-        cut = float(coo.data[crossing].sum()) / 2.0  # symmetric: each cut edge counted twice
-    return cut / assoc_a + cut / assoc_b
+        return _dense_ncut(w, side, w.sum(axis=1) if degrees is None else degrees)
+    return _sparse_ncut(w, side, _sparse_degrees(w) if degrees is None else degrees)
+
+
+def fiedler_pair(
+    w: Similarity,
+    *,
+    dense_max_nodes: int = DENSE_MAX_NODES,
+    degrees: NDArray[np.float64] | None = None,
+) -> tuple[float, NDArray[np.float64]]:
+    """Return λ2 and v2 of L v = λ D v for a connected similarity graph.
+
+    Args:
+        w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2,
+            connected (check components first: D is singular on an isolated node).
+        dense_max_nodes: solve a CSR W with LAPACK up to this size, ARPACK above (a dense
+            W is always solved with LAPACK).
+        degrees: the row sums of W when the caller has them already.
+
+    Returns:
+        λ2 (clipped at 0 against round-off) and the generalized eigenvector v2, shape (n,).
+    """
+    if isinstance(w, np.ndarray):
+        return _dense_fiedler(w, w.sum(axis=1) if degrees is None else degrees)
+    return _sparse_fiedler(w, _sparse_degrees(w) if degrees is None else degrees, dense_max_nodes)
+
+
+def normalized_bisection(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bisection:
+    """Split a connected CovGraph in two by Shi–Malik normalized cut.
+
+    Solves L v = λ D v (L = D - W) for the two smallest eigenpairs; v1 is constant on a
+    connected graph, so 2-means on the rows of [v1 v2] is 2-means on the Fiedler vector v2.
+
+    Args:
+        w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2,
+            connected; a CSR matrix or, for small graphs, a dense array.
+        dense_max_nodes: solve with LAPACK up to this size, ARPACK above.
+
+    Returns:
+        Labels (n,), the Ncut of that split, λ2 and v2.
+
+    References:
+        Shi, Malik. "Normalized cuts and image segmentation." TPAMI 22 (2000).
+        Vázquez-Martín et al. "LESS-mapping." RAS 60 (2012), Eqs. 2-4.
+    """
+    if isinstance(w, np.ndarray):
+        return _dense_bisection(w, w.sum(axis=1))
+    return _sparse_bisection(w, _sparse_degrees(w), dense_max_nodes)
+
+
+def cut_endpoints(w: Similarity, side: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Return the nodes at either end of every edge of W between ``side`` and the rest.
+
+    A node appears once per cut edge it is on; the order is unspecified.
+    """
+    if isinstance(w, np.ndarray):
+        return _dense_cut_endpoints(w, side)
+    return _sparse_cut_endpoints(w, side)
+
+
+# -- shared by both paths: the formulas ----------------------------------------------------
 
 
 def two_means_1d(values: NDArray[np.float64]) -> NDArray[np.int8]:
@@ -227,56 +236,207 @@ def two_means_1d(values: NDArray[np.float64]) -> NDArray[np.int8]:
     return labels
 
 
-def fiedler_pair(
-    w: Similarity,
-    *,
-    dense_max_nodes: int = DENSE_MAX_NODES,
-    degrees: NDArray[np.float64] | None = None,
-) -> tuple[float, NDArray[np.float64]]:
-    """Return λ2 and v2 of L v = λ D v for a connected similarity graph.
-
-    Args:
-        w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2,
-            connected (check components first: D is singular on an isolated node).
-        dense_max_nodes: solve with LAPACK up to this size, ARPACK above.
-        degrees: the row sums of W when the caller has them already.
-
-    Returns:
-        λ2 (clipped at 0 against round-off) and the generalized eigenvector v2, shape (n,).
-    """
-    n = w.shape[0]
+def _require_solvable(n: int, degrees: NDArray[np.float64]) -> None:
     if n < 2:
         msg = f"a bisection needs at least 2 nodes, got {n}"
         raise GraphError(msg)
-    if degrees is None:
-        degrees = np.asarray(w.sum(axis=1)).ravel()
     if not (degrees > 0).all():
         msg = f"node {int(np.argmin(degrees))} has no edge: split the components first"
         raise GraphError(msg)
-    inv_sqrt = 1.0 / np.sqrt(degrees)
-    if isinstance(w, np.ndarray):
-        # Small graphs arrive dense: no sparse containers to build (they cost more than the
-        # solve itself at tens of nodes).
-        lsym = inv_sqrt[:, None] * w
-        lsym *= inv_sqrt[None, :]
-        np.negative(lsym, out=lsym)
-        lsym.flat[:: n + 1] = 1.0  # I - D^-1/2 W D^-1/2, W's diagonal being 0
-        lambda2, u2 = _lapack_second_pair(lsym)
-        return max(lambda2, 0.0), u2 * inv_sqrt
-    scaled = sparse.csr_array(sparse.diags_array(inv_sqrt) @ w @ sparse.diags_array(inv_sqrt))
-    if n <= dense_max_nodes:
-        lambda2, u2 = _dense_second_pair(scaled.toarray())
-    else:
+
+
+def _ncut(cut: float, side: NDArray[np.bool_], degrees: NDArray[np.float64]) -> float:
+    assoc_b = float(degrees[side].sum())
+    assoc_a = float(degrees[~side].sum())
+    if assoc_a <= 0.0 or assoc_b <= 0.0:
+        msg = f"Ncut needs two sides of positive degree, got assoc {assoc_a} and {assoc_b}"
+        raise GraphError(msg)
+    return cut / assoc_a + cut / assoc_b
+
+
+# -- dense path: small graphs, W a dense array, LAPACK ---------------------------------------
+
+
+def _dense_lambda2_exceeds(w: NDArray[np.float64], bound: float) -> bool:
+    n = w.shape[0]
+    if n < 2:
+        return False
+    degrees = w.sum(axis=1)
+    if not degrees.min() > 0.0:
+        return False
+    shift = bound + CERTIFICATE_MARGIN
+    matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
+    matrix -= w
+    matrix.flat[:: n + 1] += (1.0 - shift) * degrees
+    _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
+    return bool(info == 0)
+
+
+def _dense_split(w: NDArray[np.float64]) -> Bisection | Components:
+    # Solve first, search only when λ2 does not prove the graph connected (see split_graph).
+    degrees = w.sum(axis=1)
+    bisection: Bisection | None = None
+    if degrees.min() > 0.0:
         try:
-            lambda2, u2 = _sparse_second_pair(scaled, np.sqrt(degrees))
-        except ArpackNoConvergence:
-            lambda2, u2 = _dense_second_pair(scaled.toarray())
+            bisection = _dense_bisection(w, degrees)
+        except GraphError:
+            bisection = None  # a degenerate split of a graph that fell apart: search
+        else:
+            if bisection.lambda2 > CONNECTED_LAMBDA2:
+                return bisection
+    count, labels = _dense_components(w > 0)
+    if count > 1:
+        return Components(count=count, labels=labels)
+    if bisection is not None:
+        return bisection
+    return _dense_bisection(w, degrees)  # raises the reason this graph cannot be split
+
+
+def _dense_bisection(w: NDArray[np.float64], degrees: NDArray[np.float64]) -> Bisection:
+    lambda2, fiedler = _dense_fiedler(w, degrees)
+    labels = two_means_1d(fiedler)
+    return Bisection(
+        labels=labels, ncut=_dense_ncut(w, labels != 0, degrees), lambda2=lambda2, fiedler=fiedler
+    )
+
+
+def _dense_fiedler(
+    w: NDArray[np.float64], degrees: NDArray[np.float64]
+) -> tuple[float, NDArray[np.float64]]:
+    n = w.shape[0]
+    _require_solvable(n, degrees)
+    inv_sqrt = 1.0 / np.sqrt(degrees)
+    # No sparse containers to build: they cost more than the solve itself at tens of nodes.
+    lsym = inv_sqrt[:, None] * w
+    lsym *= inv_sqrt[None, :]
+    np.negative(lsym, out=lsym)
+    lsym.flat[:: n + 1] = 1.0  # I - D^-1/2 W D^-1/2, W's diagonal being 0
+    lambda2, u2 = _lapack_second_pair(lsym)
     return max(lambda2, 0.0), u2 * inv_sqrt
 
 
-def _dense_second_pair(scaled: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+def _dense_ncut(
+    w: NDArray[np.float64], side: NDArray[np.bool_], degrees: NDArray[np.float64]
+) -> float:
+    return _ncut(float(w[~side][:, side].sum()), side, degrees)  # np.ix_'s block, half the cost
+
+
+def _dense_components(adjacent: NDArray[np.bool_]) -> tuple[int, NDArray[np.int32]]:
+    # Breadth-first search one level at a time on the boolean matrix. scipy's
+    # connected_components validates a dense input through masked arrays, which took more
+    # than the whole rest of a decision on room-sized graphs (profiled: ~0.9 ms at 40 nodes).
+    n = adjacent.shape[0]
+    labels = np.full(n, -1, dtype=np.int32)
+    count = 0
+    for start in range(n):
+        if labels[start] >= 0:
+            continue
+        reached = np.zeros(n, dtype=bool)
+        reached[start] = True
+        frontier = reached.copy()
+        while True:
+            frontier = adjacent[frontier].any(axis=0) & ~reached
+            if not frontier.any():
+                break
+            reached |= frontier
+        labels[reached] = count
+        count += 1
+    return count, labels
+
+
+def _dense_cut_endpoints(w: NDArray[np.float64], side: NDArray[np.bool_]) -> NDArray[np.int64]:
+    rows, cols = np.nonzero(w[np.ix_(side, ~side)])
+    ends: NDArray[np.int64] = np.concatenate(
+        [np.flatnonzero(side)[rows], np.flatnonzero(~side)[cols]]
+    )
+    return ends
+
+
+# -- sparse path: W a CSR matrix; LAPACK up to dense_max_nodes, ARPACK above ----------------
+
+
+def _sparse_degrees(w: sparse.csr_array) -> NDArray[np.float64]:
+    degrees: NDArray[np.float64] = np.asarray(w.sum(axis=1), dtype=np.float64).ravel()
+    return degrees
+
+
+def _sparse_split(w: sparse.csr_array, dense_max_nodes: int) -> Bisection | Components:
+    # Search first: ARPACK is not asked to converge on a repeated eigenvalue 0.
+    count, labels = _sparse_components(w)
+    if count > 1:
+        return Components(count=count, labels=labels)
+    return _sparse_bisection(w, _sparse_degrees(w), dense_max_nodes)
+
+
+def _sparse_components(w: sparse.csr_array) -> tuple[int, NDArray[np.int32]]:
+    count, labels = csgraph.connected_components(w, directed=False)
+    return int(count), labels.astype(np.int32)
+
+
+def _sparse_bisection(
+    w: sparse.csr_array, degrees: NDArray[np.float64], dense_max_nodes: int
+) -> Bisection:
+    lambda2, fiedler = _sparse_fiedler(w, degrees, dense_max_nodes)
+    labels = two_means_1d(fiedler)
+    return Bisection(
+        labels=labels, ncut=_sparse_ncut(w, labels != 0, degrees), lambda2=lambda2, fiedler=fiedler
+    )
+
+
+def _sparse_fiedler(
+    w: sparse.csr_array, degrees: NDArray[np.float64], dense_max_nodes: int
+) -> tuple[float, NDArray[np.float64]]:
+    n = w.shape[0]
+    _require_solvable(n, degrees)
+    inv_sqrt = 1.0 / np.sqrt(degrees)
+    scaled = sparse.csr_array(sparse.diags_array(inv_sqrt) @ w @ sparse.diags_array(inv_sqrt))
+    if n <= dense_max_nodes:
+        lambda2, u2 = _lapack_second_pair(np.eye(n) - scaled.toarray())
+    else:
+        try:
+            lambda2, u2 = _arpack_second_pair(scaled, np.sqrt(degrees))
+        except ArpackNoConvergence:
+            lambda2, u2 = _lapack_second_pair(np.eye(n) - scaled.toarray())
+    return max(lambda2, 0.0), u2 * inv_sqrt
+
+
+def _sparse_ncut(
+    w: sparse.csr_array, side: NDArray[np.bool_], degrees: NDArray[np.float64]
+) -> float:
+    coo = w.tocoo()
+    crossing = side[coo.row] != side[coo.col]
+    cut = float(coo.data[crossing].sum()) / 2.0  # symmetric: each cut edge counted twice
+    return _ncut(cut, side, degrees)
+
+
+def _sparse_cut_endpoints(w: sparse.csr_array, side: NDArray[np.bool_]) -> NDArray[np.int64]:
+    coo = w.tocoo()
+    crossing = side[coo.row] != side[coo.col]
+    ends: NDArray[np.int64] = np.concatenate([coo.row[crossing], coo.col[crossing]])
+    return ends
+
+
+def _arpack_second_pair(
+    scaled: sparse.csr_array, sqrt_degrees: NDArray[np.float64]
+) -> tuple[float, NDArray[np.float64]]:
     n = scaled.shape[0]
-    return _lapack_second_pair(np.eye(n) - scaled)
+    u1 = sqrt_degrees / np.linalg.norm(sqrt_degrees)
+
+    def deflated(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        # S - 2 u1 u1ᵀ moves S's top eigenvalue from 1 to -1, the bottom of S's spectrum
+        # [-1, 1], so the largest eigenvalue left is 1 - λ2 even when λ2 > 1.
+        x = np.asarray(x, dtype=np.float64).ravel()
+        y: NDArray[np.float64] = scaled @ x - 2.0 * u1 * (u1 @ x)
+        return y
+
+    operator = LinearOperator((n, n), matvec=deflated, dtype=np.float64)
+    start = np.random.default_rng(n).standard_normal(n)  # seeded: same graph, same answer
+    start -= u1 * (u1 @ start)
+    values, vectors = eigsh(operator, k=1, which="LA", v0=start, tol=1e-12, maxiter=50 * n)
+    return 1.0 - float(values[0]), np.asarray(vectors[:, 0], dtype=np.float64)
+
+
+# -- eigen-solvers --------------------------------------------------------------------------
 
 
 def _lapack_second_pair(lsym: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
@@ -305,52 +465,3 @@ def _dsyevr_workspace(n: int) -> tuple[int, int]:
         msg = f"LAPACK dsyevr workspace query failed for order {n} (info {info})"
         raise GraphError(msg)
     return int(work), int(iwork)
-
-
-def _sparse_second_pair(
-    scaled: sparse.csr_array, sqrt_degrees: NDArray[np.float64]
-) -> tuple[float, NDArray[np.float64]]:
-    n = scaled.shape[0]
-    u1 = sqrt_degrees / np.linalg.norm(sqrt_degrees)
-
-    def deflated(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        # S - 2 u1 u1ᵀ moves S's top eigenvalue from 1 to -1, the bottom of S's spectrum
-        # [-1, 1], so the largest eigenvalue left is 1 - λ2 even when λ2 > 1.
-        x = np.asarray(x, dtype=np.float64).ravel()
-        y: NDArray[np.float64] = scaled @ x - 2.0 * u1 * (u1 @ x)
-        return y
-
-    operator = LinearOperator((n, n), matvec=deflated, dtype=np.float64)
-    start = np.random.default_rng(n).standard_normal(n)  # seeded: same graph, same answer
-    start -= u1 * (u1 @ start)
-    values, vectors = eigsh(operator, k=1, which="LA", v0=start, tol=1e-12, maxiter=50 * n)
-    return 1.0 - float(values[0]), np.asarray(vectors[:, 0], dtype=np.float64)
-
-
-def normalized_bisection(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bisection:
-    """Split a connected CovGraph in two by Shi–Malik normalized cut.
-
-    Solves L v = λ D v (L = D - W) for the two smallest eigenpairs; v1 is constant on a
-    connected graph, so 2-means on the rows of [v1 v2] is 2-means on the Fiedler vector v2.
-
-    Args:
-        w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n), n >= 2,
-            connected; a CSR matrix or, for small graphs, a dense array.
-        dense_max_nodes: solve with LAPACK up to this size, ARPACK above.
-
-    Returns:
-        Labels (n,), the Ncut of that split, λ2 and v2.
-
-    References:
-        Shi, Malik. "Normalized cuts and image segmentation." TPAMI 22 (2000).
-        Vázquez-Martín et al. "LESS-mapping." RAS 60 (2012), Eqs. 2-4.
-    """
-    return _bisection(w, np.asarray(w.sum(axis=1)).ravel(), dense_max_nodes)
-
-
-def _bisection(w: Similarity, degrees: NDArray[np.float64], dense_max_nodes: int) -> Bisection:
-    lambda2, fiedler = fiedler_pair(w, dense_max_nodes=dense_max_nodes, degrees=degrees)
-    labels = two_means_1d(fiedler)
-    return Bisection(
-        labels=labels, ncut=normalized_cut(w, labels, degrees), lambda2=lambda2, fiedler=fiedler
-    )
