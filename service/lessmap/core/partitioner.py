@@ -79,7 +79,7 @@ class Decision:
     lambda2_above: float | None = None  # settled by proving λ2 > this (λ2_min), no solve
     reason: Reason | None = None  # a split was found: a bisection passing Eq. 4, or components
     new_side: NDArray[np.bool_] | None = None  # with a reason: the nodes of the new area
-    boundary: NDArray[np.int64] | None = None  # with a transition: ends of the cut edges
+    boundary: NDArray[np.integer] | None = None  # with a transition: ends of cut edges
     transition: bool = False  # a split was found and it passes the min_cluster_size guard
 
     def evaluation(self) -> Evaluation:

@@ -189,10 +189,11 @@ def normalized_bisection(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODE
     return _sparse_bisection(w, _sparse_degrees(w), dense_max_nodes)
 
 
-def cut_endpoints(w: Similarity, side: NDArray[np.bool_]) -> NDArray[np.int64]:
+def cut_endpoints(w: Similarity, side: NDArray[np.bool_]) -> NDArray[np.integer]:
     """Return the nodes at either end of every edge of W between ``side`` and the rest.
 
-    A node appears once per cut edge it is on; the order is unspecified.
+    Nodes repeat (how often depends on the form of W) and come in no particular order:
+    callers want the set.
     """
     if isinstance(w, np.ndarray):
         return _dense_cut_endpoints(w, side)
@@ -344,9 +345,9 @@ def _dense_components(adjacent: NDArray[np.bool_]) -> tuple[int, NDArray[np.int3
     return count, labels
 
 
-def _dense_cut_endpoints(w: NDArray[np.float64], side: NDArray[np.bool_]) -> NDArray[np.int64]:
+def _dense_cut_endpoints(w: NDArray[np.float64], side: NDArray[np.bool_]) -> NDArray[np.integer]:
     rows, cols = np.nonzero(w[np.ix_(side, ~side)])
-    ends: NDArray[np.int64] = np.concatenate(
+    ends: NDArray[np.integer] = np.concatenate(
         [np.flatnonzero(side)[rows], np.flatnonzero(~side)[cols]]
     )
     return ends
@@ -409,10 +410,10 @@ def _sparse_ncut(
     return _ncut(cut, side, degrees)
 
 
-def _sparse_cut_endpoints(w: sparse.csr_array, side: NDArray[np.bool_]) -> NDArray[np.int64]:
+def _sparse_cut_endpoints(w: sparse.csr_array, side: NDArray[np.bool_]) -> NDArray[np.integer]:
     coo = w.tocoo()
     crossing = side[coo.row] != side[coo.col]
-    ends: NDArray[np.int64] = np.concatenate([coo.row[crossing], coo.col[crossing]])
+    ends: NDArray[np.integer] = np.concatenate([coo.row[crossing], coo.col[crossing]])
     return ends
 
 
