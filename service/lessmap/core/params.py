@@ -34,7 +34,7 @@ class PartitionParams:
     seed_mode: SeedMode = SeedMode.SEED
     min_frames_between: int = 0  # guard, off by default: frames after a transition with no test
     min_cluster_size: int = 1  # guard, off by default: smallest side a transition may cut off
-    dense_max_nodes: int = 400  # LAPACK up to this many nodes, ARPACK above
+    dense_max_nodes: int = 400  # dense counts and LAPACK up to this many nodes; CSR, ARPACK above
     history_frames: int = 2000  # frames kept to estimate the boundary frame
     keep_closed_submaps: int = 1000  # closed submaps remembered per session (oldest go)
 
