@@ -109,6 +109,20 @@ def metric_value(text: str, name: str, **labels: str) -> float:
     return 0.0
 
 
+@pytest.fixture(autouse=True)
+def private_state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Every ``lessmap serve`` a test starts keeps its session checkpoints under tmp_path.
+
+    The default state directory is under ``$XDG_STATE_HOME``: without this, tests would
+    share (and resume) each other's sessions and write into the user's home.
+    """
+    folder = tmp_path / "xdg-state"
+    monkeypatch.setenv("XDG_STATE_HOME", str(folder))
+    monkeypatch.delenv("LESSMAP_STATE_DIR", raising=False)
+    monkeypatch.delenv("LESSMAP_MEMORY_ONLY", raising=False)
+    return folder
+
+
 @pytest.fixture
 def serve(tmp_path: Path) -> Iterator[Callable[..., ServeProcess]]:
     """Start ``lessmap serve`` subprocesses; every one is stopped by PID at teardown."""

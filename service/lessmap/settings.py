@@ -101,12 +101,43 @@ class ServiceSettings(BaseSettings, PartitionSettings):
 
     # -- sessions --
     session_idle_timeout_s: Annotated[float, Flag("--idle-timeout")] = Field(
-        300.0, gt=0.0, description="seconds before an idle session closes"
+        300.0,
+        gt=0.0,
+        description="seconds before an idle session is evicted (closed when memory-only)",
     )
     max_sessions: int = Field(10_000, ge=1, description="open sessions at most")
     max_nodes_per_session: int = Field(20_000, ge=2, description="CovGraph nodes per session")
     max_batch_frames: int = Field(
         256, ge=1, description="frames coalesced per decision under load (1 = decide every frame)"
+    )
+
+    # -- durable sessions --
+    # Checkpoints go to <state_dir>/sessions.sqlite3. A restarted instance resumes each
+    # session at its checkpoint and asks the robots' publication caches for the frames after
+    # it, so the rule is: a robot's cache (RobotPublisher cache, 1000 frames by default) must
+    # hold the frames of one checkpoint interval plus the downtime, at its frame rate.
+    state_dir: Path | None = Field(
+        None,
+        description="folder of the session checkpoint store "
+        "(default: $XDG_STATE_HOME/lessmap, else ~/.local/state/lessmap)",
+    )
+    memory_only: bool = Field(
+        False, description="keep sessions in memory only: a restart loses them"
+    )
+    checkpoint_every_frames: int = Field(
+        100, ge=1, description="checkpoint a session after this many applied frames"
+    )
+    checkpoint_interval_s: float = Field(
+        5.0, gt=0.0, description="or after this many seconds with new frames"
+    )
+    catchup_max_frames: int = Field(
+        1000, ge=1, description="frames asked of each robot's cache when catching up"
+    )
+    state_retention_s: float = Field(
+        7 * 24 * 3600.0, gt=0.0, description="drop stored sessions not updated for this long"
+    )
+    state_max_bytes: int = Field(
+        1 << 30, ge=1 << 20, description="size bound of the store; oldest idle sessions go first"
     )
 
     # -- receive path --
@@ -197,6 +228,14 @@ class ServiceSettings(BaseSettings, PartitionSettings):
             msg = f"shard_index {index} must be below shard_count {value}"
             raise ValueError(msg)
         return value
+
+    def resolved_state_dir(self) -> Path:
+        """The state directory: the setting, else the XDG state home's ``lessmap`` folder."""
+        if self.state_dir is not None:
+            return self.state_dir
+        xdg = os.environ.get("XDG_STATE_HOME")
+        base = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".local" / "state"
+        return base / "lessmap"
 
     @property
     def embedded(self) -> bool:
