@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from lessmap_client.robot import RobotPublisher
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.subscription import DEFAULT_MAXSIZE, Subscription
-from lessmap_client.transport import ZenohTransport
+from lessmap_client.transport import ZenohTransport, wait_for_instances
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode
 from lessmap_schemas.errors import WireError
@@ -28,7 +28,6 @@ if TYPE_CHECKING:
 
     import zenoh
 
-    from lessmap_client.robot import RobotPublisher
     from lessmap_client.transport import Transport
 
 log = logging.getLogger(__name__)
@@ -104,8 +103,6 @@ class Connection:
         See ``RobotPublisher`` for the arguments. Closing it (or this connection) sends the
         ``SessionEnd``.
         """
-        from lessmap_client.robot import RobotPublisher  # robot.py imports this module
-
         return RobotPublisher(
             fleet, robot, session=self, session_id=session_id, cache=cache, limits=limits
         )
@@ -236,14 +233,8 @@ class Connection:
 
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
         """Wait until a lessmap service instance is alive; False after ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            remaining = deadline - time.monotonic()
-            if self.instances(timeout_s=min(1.0, max(0.1, remaining))):
-                return True
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(0.05)
+        self._check_open()
+        return wait_for_instances(self.transport, timeout_s)
 
     def _get(self, key: str, expected: type[M], timeout_s: float) -> list[M]:
         self._check_open()

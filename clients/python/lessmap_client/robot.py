@@ -7,8 +7,10 @@ import time
 import uuid
 from typing import TYPE_CHECKING
 
-from lessmap_client.connection import Connection, connect
-from lessmap_client.session import DEFAULT_ENDPOINT
+import zenoh
+
+from lessmap_client.session import DEFAULT_ENDPOINT, open_session
+from lessmap_client.transport import ZenohTransport, wait_for_instances
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
@@ -19,7 +21,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
     from types import TracebackType
 
-    import zenoh
+    from lessmap_client.transport import Host, Transport
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +59,7 @@ class RobotPublisher:
         fleet: str,
         robot: str,
         *,
-        session: Connection | zenoh.Session | None = None,
+        session: Host | zenoh.Session | None = None,
         connect: Sequence[str] = (DEFAULT_ENDPOINT,),
         session_id: str | None = None,
         cache: int = 1000,
@@ -68,15 +70,21 @@ class RobotPublisher:
         self.session_id = keys.validate_name(session_id or new_session_id(), "session", limits)
         self._limits = limits
         self._key = keys.frames(self.fleet, self.robot)
-        if isinstance(session, Connection):
-            self._connection, self._owns_connection = session, False
-        elif session is not None:
-            self._connection, self._owns_connection = Connection.from_session(session), True
+        # A Connection adopts the publisher (closing it ends the session); a Zenoh session or
+        # none gets a transport of the publisher's own.
+        self._host: Host | None = None
+        self._transport: Transport
+        if isinstance(session, zenoh.Session):
+            self._transport, self._owns_transport = ZenohTransport(session, owned=False), True
+        elif session is None:
+            opened = open_session(list(connect))
+            self._transport, self._owns_transport = ZenohTransport(opened, owned=True), True
         else:
-            self._connection, self._owns_connection = _open(connect), True
-        self._connection._check_open()
-        self._publisher = self._connection.transport.publisher(self._key, _FRAME_ENCODING, cache)
-        self._connection._adopt(self)
+            session._check_open()
+            self._host, self._transport, self._owns_transport = session, session.transport, False
+        self._publisher = self._transport.publisher(self._key, _FRAME_ENCODING, cache)
+        if self._host is not None:
+            self._host._adopt(self)
         self._next_seq = 0
         self._closed = False
 
@@ -92,7 +100,7 @@ class RobotPublisher:
 
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
         """Wait until a lessmap service instance is alive on the network."""
-        return self._connection.wait_for_service(timeout_s)
+        return wait_for_instances(self._transport, timeout_s)
 
     def publish(
         self,
@@ -156,13 +164,14 @@ class RobotPublisher:
         end = SessionEnd(session=self.session_id, last_seq=last, stamp_s=time.time())
         try:
             # Same key as the frames: Zenoh keeps the order of puts on one key.
-            self._connection.transport.put(self._key, encode(end), _END_ENCODING)
+            self._transport.put(self._key, encode(end), _END_ENCODING)
         except Exception:  # zenoh.ZError, or a transport already closed
             log.warning("could not send the end of session %s", self.session_id)
         self._publisher.close()
-        self._connection._release(self)
-        if self._owns_connection:
-            self._connection.close()
+        if self._host is not None:
+            self._host._release(self)
+        if self._owns_transport:
+            self._transport.close()
 
     def __enter__(self) -> RobotPublisher:
         return self
@@ -174,7 +183,3 @@ class RobotPublisher:
         tb: TracebackType | None,
     ) -> None:
         self.close()
-
-
-def _open(endpoints: Sequence[str]) -> Connection:
-    return connect(list(endpoints))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import TYPE_CHECKING, Protocol
 
 import zenoh
@@ -70,6 +71,32 @@ class Transport(Protocol):
 
     def close(self) -> None:
         """Release everything still declared (idempotent)."""
+
+
+class Host(Protocol):
+    """What a ``RobotPublisher`` declares on: a ``Connection`` (kept apart to avoid a cycle)."""
+
+    @property
+    def transport(self) -> Transport:
+        """The network under the connection."""
+
+    def _adopt(self, child: object) -> None: ...
+
+    def _release(self, child: object) -> None: ...
+
+    def _check_open(self) -> None: ...
+
+
+def wait_for_instances(transport: Transport, timeout_s: float) -> bool:
+    """Wait until a lessmap service instance is alive; False after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        remaining = deadline - time.monotonic()
+        if transport.instances(min(1.0, max(0.1, remaining))):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.05)
 
 
 class _ZenohHandle:
