@@ -128,7 +128,7 @@ def test_schemas_depend_on_nothing_heavy(path: Path) -> None:
 @pytest.mark.parametrize("path", files("lessmap_client"), ids=ids)
 def test_client_needs_only_the_schemas(path: Path) -> None:
     modules = imported_modules(path)
-    assert "scipy" not in roots(modules)
+    assert not roots(modules) & {"numpy", "scipy", "matplotlib", "prometheus_client"}
     assert all(within(m, "lessmap_client", "lessmap_schemas") for m in project_imports(path))
 
 
@@ -140,19 +140,83 @@ def test_only_runtime_and_client_touch_zenoh(path: Path) -> None:
 
 
 @pytest.mark.parametrize("path", files("lessmap", "evaluation"), ids=ids)
-def test_evaluation_builds_on_the_core_only(path: Path) -> None:
+def test_evaluation_builds_on_the_core_and_the_simulator_only(path: Path) -> None:
     # The offline tools (frames files, errors, offline runs) are core-level too: no I/O
-    # beyond reading files, no transport.
+    # beyond reading files, no transport. The simulator and its scorer are shared with the
+    # demo: one scorer, not a copy per package.
     allowed = (
         "lessmap.core",
         "lessmap.evaluation",
+        "lessmap.sim",
         "lessmap.errors",
         "lessmap.frames_file",
         "lessmap.offline",
         "lessmap.partition_options",
+        "lessmap.flags",
     )
     assert all(within(m, *allowed) for m in project_imports(path)), project_imports(path)
     assert "zenoh" not in roots(imported_modules(path))
+
+
+@pytest.mark.parametrize("path", ALL_FILES, ids=ids)
+def test_no_package_imports_the_tests_or_the_benchmarks(path: Path) -> None:
+    assert "tests" not in roots(imported_modules(path))
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> project modules it imports (type-only imports included), as existing files."""
+    known = {module_name(p) for p in ALL_FILES}
+    graph: dict[str, set[str]] = {}
+    for path in ALL_FILES:
+        name = module_name(path)
+        graph[name] = {m for m in project_imports(path) if m in known and m != name}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every strongly connected component of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for nxt in graph.get(node, ()):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_modules_import_each_other_one_way_only() -> None:
+    # A package __init__ that re-exports its modules is not a cycle with them: the modules
+    # must then import their siblings directly, never through the package.
+    graph = import_graph()
+    for name, targets in graph.items():
+        graph[name] = {t for t in targets if not name.startswith(t + ".")}
+    assert cycles(graph) == []
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
 
 
 def test_the_checker_resolves_relative_and_nested_imports() -> None:
@@ -175,7 +239,10 @@ def test_the_checker_resolves_relative_and_nested_imports() -> None:
 
 @pytest.mark.skipif(not PACKAGES["lessmap_client"].is_dir(), reason="no client package yet")
 def test_importing_the_client_loads_no_scipy() -> None:
-    code = "import lessmap_client, sys; assert 'scipy' not in sys.modules, 'scipy loaded'"
+    code = (
+        "import lessmap_client, lessmap_client.aio, lessmap_client.testing, sys; "
+        "assert not {'numpy', 'scipy'} & set(sys.modules), 'numpy or scipy loaded'"
+    )
     result = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
     )
