@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -93,3 +94,27 @@ def test_no_private_argparse_api() -> None:
         text = path.read_text(encoding="utf-8")
         assert "_SubParsersAction" not in text, path
         assert "argparse._" not in text, path
+
+
+def test_a_missing_optional_extra_is_one_line(tmp_path: Path) -> None:
+    # A fresh `pip install lessmap` has no matplotlib: plotting must say which extra to add.
+    frames = tmp_path / "walk.frames.jsonl"
+    frames.write_text(
+        "\n".join(
+            json.dumps({"robot": "r", "seq": i, "stamp": float(i), "features": [i, i + 1]})
+            for i in range(5)
+        )
+        + "\n",
+        encoding="utf-8",
+    )
+    code = (
+        "import sys; sys.modules['matplotlib'] = None; from lessmap.cli import main; "
+        f"sys.exit(main(['plot', {str(frames)!r}, '--out', {str(tmp_path / 'out')!r}]))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert result.returncode == 1, result.stderr
+    assert result.stderr.strip().splitlines() == [
+        "lessmap plot: this needs matplotlib, from the optional extra: pip install 'lessmap[eval]'"
+    ]

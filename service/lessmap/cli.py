@@ -90,6 +90,10 @@ KNOWN_EXCEPTIONS: tuple[tuple[str, str], ...] = (
 )
 
 
+#: Top-level modules of the optional extras, and the extra that installs each.
+OPTIONAL_MODULES = {"matplotlib": "eval"}
+
+
 def is_known(exc: BaseException) -> bool:
     """Return whether ``exc`` is a user's error (one line, exit 1) rather than a bug."""
     for module, name in KNOWN_EXCEPTIONS:
@@ -148,6 +152,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, while we can still handle it
     except BrokenPipeError:
         return _closed_pipe()
+    except ModuleNotFoundError as exc:
+        if exc.name is None or exc.name.partition(".")[0] not in OPTIONAL_MODULES:
+            raise
+        extra = OPTIONAL_MODULES[exc.name.partition(".")[0]]
+        print(
+            f"lessmap {args.command}: this needs {exc.name}, from the optional extra: "
+            f"pip install 'lessmap[{extra}]'",
+            file=sys.stderr,
+        )
+        return 1
     except Exception as exc:
         if not is_known(exc):
             raise
