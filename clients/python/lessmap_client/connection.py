@@ -97,14 +97,25 @@ class Connection:
         session_id: str | None = None,
         cache: int = 1000,
         limits: WireLimits = DEFAULT_LIMITS,
+        on_error: Callable[[Error], None] | None = None,
+        auto_new_session: bool = True,
     ) -> RobotPublisher:
         """Declare a robot publisher: frames numbered from 0 in a fresh session.
 
-        See ``RobotPublisher`` for the arguments. Closing it (or this connection) sends the
-        ``SessionEnd``.
+        It follows the service's reports about its session (``status``, ``on_error``,
+        ``state()``) and starts a new session when the service closed its own, unless
+        ``auto_new_session=False``. See ``RobotPublisher`` for the arguments. Closing it (or
+        this connection) sends the ``SessionEnd``.
         """
         return RobotPublisher(
-            fleet, robot, session=self, session_id=session_id, cache=cache, limits=limits
+            fleet,
+            robot,
+            session=self,
+            session_id=session_id,
+            cache=cache,
+            limits=limits,
+            on_error=on_error,
+            auto_new_session=auto_new_session,
         )
 
     # -- subscriptions -----------------------------------------------------------------------

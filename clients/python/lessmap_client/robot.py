@@ -1,32 +1,52 @@
-"""The robot side: publish frames of one robot session to the lessmap service."""
+"""The robot side: publish frames of one robot session to the lessmap service.
+
+Invariants of this file:
+
+- A robot follows its own ``errors`` key. The transport's callback (Zenoh's thread) only
+  appends the raw payload to the robot's bounded inbox; the robot's follower thread decodes
+  it, updates the status, queries the service if needed and calls ``on_error``.
+- The session id and the numbering change only on the publishing thread (``publish``,
+  ``new_session``): a ``SESSION_CLOSED`` report is turned into a flag that the next
+  ``publish`` acts on, so frames are never renumbered behind the caller's back mid-call.
+"""
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 import uuid
+from collections import Counter, deque
+from dataclasses import dataclass
+from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 import zenoh
 
+from lessmap_client.errors import SessionClosedError
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.transport import ZenohTransport, wait_for_instances
 from lessmap_schemas import keys
-from lessmap_schemas.codec import encode, encoding
+from lessmap_schemas.codec import decode, encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
-from lessmap_schemas.messages import Frame, SessionEnd
+from lessmap_schemas.messages import Error, Frame, SessionEnd, SessionState
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Callable, Iterable, Mapping, Sequence
     from types import TracebackType
 
-    from lessmap_client.transport import Host, Transport
+    from lessmap_client.transport import Handle, Host, Transport
+
+__all__ = ["RobotPublisher", "RobotStatus", "SessionClosedError", "new_session_id"]
 
 log = logging.getLogger(__name__)
 
 _FRAME_ENCODING = encoding(Frame)
 _END_ENCODING = encoding(SessionEnd)
+_INBOX_MAX = 1000  # error reports waiting for the follower thread; more are dropped, counted
+_HOLDER_QUERY_S = 1.0  # how long the follower asks who holds the robot after SESSION_CLOSED
+_JOIN_TIMEOUT_S = 5.0
 
 
 def new_session_id() -> str:
@@ -34,13 +54,57 @@ def new_session_id() -> str:
     return f"{int(time.time())}-{uuid.uuid4().hex[:12]}"
 
 
+@dataclass(frozen=True, slots=True)
+class RobotStatus:
+    """What a robot publisher sent and what the service reported back (a snapshot).
+
+    Attributes:
+        fleet: fleet of the robot.
+        robot: the robot.
+        session_id: the current session.
+        next_seq: seq the next frame of the current session will carry.
+        last_seq: last seq sent in the current session (None before the first frame).
+        frames_sent: frames published over every session of this publisher.
+        sessions: sessions this publisher started (1, plus one per new session).
+        errors: ``Error`` reports about this publisher's sessions, counted per code.
+        last_error: the latest of them.
+        closed_by_service: the service reported the current session closed; the next
+            ``publish`` starts a new session (``auto_new_session``) or raises.
+        reports_dropped: reports dropped unread because too many were waiting.
+    """
+
+    fleet: str
+    robot: str
+    session_id: str
+    next_seq: int
+    last_seq: int | None
+    frames_sent: int
+    sessions: int
+    errors: Mapping[str, int]
+    last_error: Error | None
+    closed_by_service: bool
+    reports_dropped: int = 0
+
+    def count(self, code: ErrorCode | str) -> int:
+        """Reports received with this code (``"SEQ_GAP"`` or ``ErrorCode.SEQ_GAP``)."""
+        return self.errors.get(str(code), 0)
+
+
 class RobotPublisher:
-    """Publishes the frames of one robot session, numbered from 0.
+    """Publishes the frames of one robot session, numbered from 0, and follows its errors.
 
     Declare one with ``conn.robot(fleet, robot)``. Frames go through an ``AdvancedPublisher``
     with a cache, so a service instance that takes the session over can fetch recent frames
     it missed. ``close`` ends the session explicitly (a ``SessionEnd`` with the last seq), so
     the service frees it at once.
+
+    The publisher follows the service's ``Error`` reports on its own ``errors`` key: each one
+    about its sessions is counted in ``status`` and handed to ``on_error`` (on the
+    publisher's own thread, never Zenoh's, so the callback may block or query). When the
+    service reports the current session closed (``SESSION_CLOSED``), the next ``publish``
+    starts a new session (new id, seq from 0) if ``auto_new_session``, else raises
+    ``SessionClosedError``. It never takes a robot name over from another publisher: if the
+    service holds another open session for the robot, ``publish`` raises either way.
 
     Args:
         fleet: fleet name (letters, digits, ``_ . -``; up to 64 characters).
@@ -52,6 +116,12 @@ class RobotPublisher:
             use a new id so the service starts a new CovGraph).
         cache: frames kept for recovery by the service.
         limits: wire limits checked locally before anything is sent.
+        on_error: called with every ``Error`` the service reports about this publisher's
+            sessions, on the publisher's thread; exceptions in it are logged.
+        auto_new_session: start a new session by itself when the service closed the
+            current one (default True: a closed session discards every frame, and a robot
+            in the field should keep being segmented without an operator; the change shows
+            in ``status`` and ``on_error``). False: ``publish`` raises ``SessionClosedError``.
     """
 
     def __init__(
@@ -64,12 +134,33 @@ class RobotPublisher:
         session_id: str | None = None,
         cache: int = 1000,
         limits: WireLimits = DEFAULT_LIMITS,
+        on_error: Callable[[Error], None] | None = None,
+        auto_new_session: bool = True,
     ) -> None:
         self.fleet = keys.validate_name(fleet, "fleet", limits)
         self.robot = keys.validate_name(robot, "robot", limits)
         self.session_id = keys.validate_name(session_id or new_session_id(), "session", limits)
+        self.auto_new_session = auto_new_session
         self._limits = limits
+        self._on_error = on_error
         self._key = keys.frames(self.fleet, self.robot)
+        # Session bookkeeping (the publishing thread and the follower share it).
+        self._lock = threading.Lock()
+        self._next_seq = 0
+        self._frames_sent = 0
+        self._sessions = [self.session_id]
+        self._errors: Counter[str] = Counter()
+        self._last_error: Error | None = None
+        self._closed_report: Error | None = None  # SESSION_CLOSED for the current session
+        self._holder: str | None = None  # another open session of this robot name, if seen
+        self._closed = False
+        # The inbox of raw error reports (Zenoh's thread appends, the follower takes).
+        self._inbox: deque[bytes] = deque()
+        self._inbox_cond = threading.Condition(threading.Lock())
+        self._received = 0
+        self._handled = 0
+        self._dropped = 0
+        self._stopping = False
         # A Connection adopts the publisher (closing it ends the session); a Zenoh session or
         # none gets a transport of the publisher's own.
         self._host: Host | None = None
@@ -83,10 +174,23 @@ class RobotPublisher:
             session._check_open()
             self._host, self._transport, self._owns_transport = session, session.transport, False
         self._publisher = self._transport.publisher(self._key, _FRAME_ENCODING, cache)
+        self._follower = threading.Thread(
+            target=self._follow, name=f"lessmap-robot-{self.fleet}/{self.robot}", daemon=True
+        )
+        self._follower.start()
+        self._errors_handle: Handle | None = None
+        try:
+            self._errors_handle = self._transport.subscribe(
+                keys.errors(self.fleet, self.robot), self._push_error, history=None
+            )
+        except BaseException:
+            self._stop_follower()
+            self._publisher.close()
+            if self._owns_transport:
+                self._transport.close()
+            raise
         if self._host is not None:
             self._host._adopt(self)
-        self._next_seq = 0
-        self._closed = False
 
     @property
     def next_seq(self) -> int:
@@ -98,9 +202,47 @@ class RobotPublisher:
         """Whether the session was ended."""
         return self._closed
 
+    @property
+    def status(self) -> RobotStatus:
+        """A snapshot of what was sent and what the service reported about it."""
+        with self._lock:
+            return RobotStatus(
+                fleet=self.fleet,
+                robot=self.robot,
+                session_id=self.session_id,
+                next_seq=self._next_seq,
+                last_seq=self._next_seq - 1 if self._next_seq else None,
+                frames_sent=self._frames_sent,
+                sessions=len(self._sessions),
+                errors=MappingProxyType(dict(self._errors)),
+                last_error=self._last_error,
+                closed_by_service=self._closed_report is not None,
+                reports_dropped=self._dropped,
+            )
+
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
         """Wait until a lessmap service instance is alive on the network."""
         return wait_for_instances(self._transport, timeout_s)
+
+    def state(self, timeout_s: float = 2.0) -> SessionState | None:
+        """Ask the service for the state of the current session (blocks up to ``timeout_s``).
+
+        Returns None when no instance answers for this session (no frame of it arrived
+        yet, no service, or the service holds another session for this robot name). Call it
+        from your thread or ``on_error``, never from a Zenoh callback.
+        """
+        session_id = self.session_id
+        for reply_key, payload in self._transport.get(
+            keys.state(self.fleet, self.robot), timeout_s
+        ):
+            try:
+                state = decode(payload, SessionState)
+            except WireError as exc:
+                log.warning("skipped an undecodable reply on %s: %s", reply_key, exc)
+                continue
+            if state.session == session_id:
+                return state
+        return None
 
     def publish(
         self,
@@ -110,21 +252,40 @@ class RobotPublisher:
         pose: tuple[float, float, float] | None = None,
         seq: int | None = None,
     ) -> int:
-        """Publish one frame and return its seq.
+        """Publish one frame and return its seq (call it from one thread at a time).
 
         Args:
             features: IDs of the features seen together (non-negative ints < 2**63).
             stamp_s: time of the frame in seconds (default: now).
             pose: optional (x_m, y_m, theta_rad).
             seq: explicit seq (must be >= the next one; a gap is reported by the service).
+                After a new session the numbering starts again at 0 (``next_seq``).
 
         Raises:
             WireError: the frame breaks a limit or a type rule (nothing was sent).
+            SessionClosedError: the service closed the session and no new one is started
+                (``auto_new_session=False``, or another publisher holds the robot name).
             RuntimeError: the publisher is closed.
         """
-        if self._closed:
-            msg = "RobotPublisher is closed"
-            raise RuntimeError(msg)
+        with self._lock:
+            if self._closed:
+                msg = "RobotPublisher is closed"
+                raise RuntimeError(msg)
+            if self._closed_report is not None:
+                if not self.auto_new_session or self._holder is not None:
+                    raise SessionClosedError(
+                        self.fleet, self.robot, self.session_id, self._closed_report, self._holder
+                    )
+                old = self.session_id
+                self._start_session(new_session_id())
+                log.warning(
+                    "%s/%s: the service closed session %s; publishing under new session %s",
+                    self.fleet,
+                    self.robot,
+                    old,
+                    self.session_id,
+                )
+            session_id, next_seq = self.session_id, self._next_seq
         feature_list = list(features)
         if len(feature_list) > self._limits.max_features_per_frame:
             msg = (
@@ -132,13 +293,13 @@ class RobotPublisher:
                 f"{self._limits.max_features_per_frame}"
             )
             raise WireError(msg, code=ErrorCode.LIMIT_EXCEEDED, limit="max_features_per_frame")
-        frame_seq = self._next_seq if seq is None else seq
-        if frame_seq < self._next_seq:
-            msg = f"seq {frame_seq} is before the next seq {self._next_seq}"
+        frame_seq = next_seq if seq is None else seq
+        if frame_seq < next_seq:
+            msg = f"seq {frame_seq} is before the next seq {next_seq}"
             raise WireError(msg, code=ErrorCode.OUT_OF_ORDER)
         try:
             frame = Frame(
-                session=self.session_id,
+                session=session_id,
                 seq=frame_seq,
                 stamp_s=time.time() if stamp_s is None else stamp_s,
                 features=feature_list,
@@ -152,21 +313,175 @@ class RobotPublisher:
             msg = f"frame of {len(payload)} bytes, over max_payload_bytes"
             raise WireError(msg, code=ErrorCode.LIMIT_EXCEEDED, limit="max_payload_bytes")
         self._publisher.put(payload)
-        self._next_seq = frame_seq + 1
+        with self._lock:
+            self._frames_sent += 1
+            if self.session_id == session_id:
+                self._next_seq = frame_seq + 1
         return frame_seq
 
-    def close(self) -> None:
-        """End the session explicitly, then release the publisher (idempotent)."""
-        if self._closed:
+    def new_session(self, session_id: str | None = None) -> str:
+        """End the current session (unless the service closed it) and start a new one.
+
+        The next frame carries seq 0 under the new id (a fresh random one by default).
+        Returns the new session id.
+        """
+        new_id = keys.validate_name(session_id or new_session_id(), "session", self._limits)
+        with self._lock:
+            if self._closed:
+                msg = "RobotPublisher is closed"
+                raise RuntimeError(msg)
+            if new_id in self._sessions:
+                msg = f"session id {new_id!r} was already used by this publisher"
+                raise ValueError(msg)
+            old, still_open = self.session_id, self._closed_report is None
+            last = self._next_seq - 1 if self._next_seq else None
+            self._start_session(new_id)
+        if still_open:
+            self._send_end(old, last)
+        return new_id
+
+    def _start_session(self, session_id: str) -> None:
+        """Switch to a new session numbered from 0 (holding ``_lock``)."""
+        self.session_id = session_id
+        self._sessions.append(session_id)
+        self._next_seq = 0
+        self._closed_report = None
+        self._holder = None
+
+    def flush_errors(self, timeout_s: float = 1.0) -> bool:
+        """Wait until every error report received so far is handled (status, ``on_error``).
+
+        Reports still on the network are not waited for. With the in-process ``FakeBus``,
+        whose delivery is synchronous, a report injected before this call is reflected in
+        ``status`` when it returns True. False after ``timeout_s``.
+        """
+        if threading.current_thread() is self._follower:
+            return True  # called from on_error: waiting for ourselves would never end
+        with self._inbox_cond:
+            target = self._received
+            return self._inbox_cond.wait_for(
+                lambda: self._handled >= target or self._stopping, timeout_s
+            )
+
+    # -- the service's reports -------------------------------------------------------------
+
+    def _push_error(self, payload: bytes) -> None:
+        """Queue one raw report (the transport's thread: constant time, no Zenoh, no log)."""
+        with self._inbox_cond:
+            if self._stopping:
+                return
+            if len(self._inbox) >= _INBOX_MAX:
+                self._dropped += 1
+                return
+            self._inbox.append(payload)
+            self._received += 1
+            self._inbox_cond.notify_all()
+
+    def _follow(self) -> None:
+        """The follower thread: handle reports one by one until the publisher closes."""
+        while True:
+            with self._inbox_cond:
+                while not self._inbox and not self._stopping:
+                    self._inbox_cond.wait()
+                if self._stopping:
+                    return
+                payload = self._inbox.popleft()
+            try:
+                self._handle(payload)
+            except Exception:
+                log.exception("%s/%s: handling an error report failed", self.fleet, self.robot)
+            with self._inbox_cond:
+                self._handled += 1
+                self._inbox_cond.notify_all()
+
+    def _handle(self, payload: bytes) -> None:
+        try:
+            error = decode(payload, Error)
+        except WireError as exc:
+            log.warning(
+                "%s/%s: skipped an undecodable error report: %s", self.fleet, self.robot, exc
+            )
             return
-        self._closed = True
-        last = self._next_seq - 1 if self._next_seq else None
-        end = SessionEnd(session=self.session_id, last_seq=last, stamp_s=time.time())
+        with self._lock:
+            if error.session is not None and error.session not in self._sessions:
+                return  # about another publisher's session of this robot name
+            self._errors[str(error.code)] += 1
+            self._last_error = error
+            current = self.session_id
+            closes_current = (
+                error.code == ErrorCode.SESSION_CLOSED
+                and error.session == current
+                and self._closed_report is None
+            )
+        log.warning(
+            "%s/%s: the service reported %s for session %s seq %s: %s",
+            self.fleet,
+            self.robot,
+            error.code,
+            error.session,
+            error.seq,
+            error.detail,
+        )
+        if closes_current:
+            # Starting a new session would close any other open session of this robot name:
+            # never fight another publisher for it.
+            holder = self._other_holder(current) if self.auto_new_session else None
+            with self._lock:
+                if self.session_id == current and self._closed_report is None:
+                    self._closed_report, self._holder = error, holder
+        if self._on_error is not None:
+            try:
+                self._on_error(error)
+            except Exception:
+                log.exception("on_error of %s/%s failed", self.fleet, self.robot)
+
+    def _other_holder(self, current: str) -> str | None:
+        """Return another open session the service holds for this robot name, if any."""
+        try:
+            replies = self._transport.get(keys.state(self.fleet, self.robot), _HOLDER_QUERY_S)
+        except Exception:  # a closed transport: nobody to ask
+            return None
+        for _, payload in replies:
+            try:
+                state = decode(payload, SessionState)
+            except WireError:
+                continue
+            if state.open and state.session != current and state.session not in self._sessions:
+                return state.session
+        return None
+
+    # -- lifetime --------------------------------------------------------------------------
+
+    def _send_end(self, session_id: str, last_seq: int | None) -> None:
+        end = SessionEnd(session=session_id, last_seq=last_seq, stamp_s=time.time())
         try:
             # Same key as the frames: Zenoh keeps the order of puts on one key.
             self._transport.put(self._key, encode(end), _END_ENCODING)
         except Exception:  # zenoh.ZError, or a transport already closed
-            log.warning("could not send the end of session %s", self.session_id)
+            log.warning("could not send the end of session %s", session_id)
+
+    def _stop_follower(self) -> None:
+        with self._inbox_cond:
+            self._stopping = True
+            self._inbox.clear()
+            self._inbox_cond.notify_all()
+        if self._follower is not threading.current_thread():
+            self._follower.join(_JOIN_TIMEOUT_S)
+
+    def close(self) -> None:
+        """End the session explicitly, then release the publisher (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            still_open = self._closed_report is None
+            last = self._next_seq - 1 if self._next_seq else None
+        if still_open:
+            self._send_end(self.session_id, last)
+        handle, self._errors_handle = self._errors_handle, None
+        if handle is not None:
+            handle.close()
+        self._stop_follower()
         self._publisher.close()
         if self._host is not None:
             self._host._release(self)
