@@ -1,19 +1,39 @@
-"""Replay a recorded frames file to the service: one publisher per robot in the file."""
+"""Replay a recorded frames file to the service: one publisher per robot in the file.
+
+The reader mirrors the service's frames-file rules (``lessmap.frames_file``, which this
+package must not import) and their messages: every malformed line is one ``ReplayError``
+``FILE:LINE: what``, with the wire limits the service enforces. It also checks what would
+otherwise only fail half-way through publishing: robot names and increasing seqs per robot.
+"""
 
 from __future__ import annotations
 
 import json
+import math
+import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from lessmap_client.errors import SessionClosedError
 from lessmap_client.robot import RobotPublisher
+from lessmap_schemas.errors import InvalidNameError
+from lessmap_schemas.keys import validate_name
+from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator
     from pathlib import Path
 
     import zenoh
+
+    from lessmap_client.transport import Host
+    from lessmap_schemas.messages import SessionState
+
+#: Longest line read at all (as the service's reader); a full frame needs about 80 kB.
+MAX_LINE_BYTES = 16 * 1024 * 1024
+
+_FIELDS = ("robot", "seq", "stamp", "features")
 
 
 class ReplayError(ValueError):
@@ -31,41 +51,145 @@ class RecordedFrame:
     pose: tuple[float, float, float] | None
 
 
-def read_recorded(path: Path) -> Iterator[RecordedFrame]:
-    """Yield the frames of a ``.frames.jsonl`` file in file order.
+def read_recorded(
+    path: Path, limits: WireLimits = DEFAULT_LIMITS, robot_prefix: str = ""
+) -> Iterator[RecordedFrame]:
+    """Yield the frames of a ``.frames.jsonl`` file in file order; blank lines are skipped.
+
+    Args:
+        path: the file.
+        limits: the wire limits the service enforces (seq, features per frame, feature ids).
+        robot_prefix: prepended to the robot ids, to check the names that will be published.
 
     Raises:
-        ReplayError: a line is not a valid frame.
+        ReplayError: a line is not a valid frame (``FILE:LINE: what``).
     """
-    with path.open(encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            if line.strip():
-                yield _parse(line, f"{path.name}:{number}")
+    last_seq: dict[str, int] = {}
+    with path.open("rb") as handle:
+        number = 0
+        while raw := handle.readline(MAX_LINE_BYTES + 1):
+            number += 1
+            where = f"{path}:{number}"
+            if len(raw) > MAX_LINE_BYTES:
+                msg = f"{where}: line longer than {MAX_LINE_BYTES} bytes"
+                raise ReplayError(msg)
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                msg = f"{where}: not UTF-8 (byte 0x{raw[exc.start]:02x} at column {exc.start + 1})"
+                raise ReplayError(msg) from None
+            if not line.strip():
+                continue
+            frame = _parse(line, where, limits)
+            problem = _sequence_problem(frame, robot_prefix, last_seq, limits)
+            if problem is not None:
+                msg = f"{where}: {problem}"
+                raise ReplayError(msg)
+            last_seq[frame.robot] = frame.seq
+            yield frame
 
 
-def _parse(line: str, where: str) -> RecordedFrame:
+def _parse(line: str, where: str, limits: WireLimits) -> RecordedFrame:
     try:
         row: Any = json.loads(line)
-        robot, seq, stamp, features = row["robot"], row["seq"], row["stamp"], row["features"]
-        pose = row.get("pose")
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        msg = f"{where}: not a frame ({exc})"
-        raise ReplayError(msg) from exc
-    if not (
-        isinstance(seq, int)
-        and isinstance(stamp, int | float)
-        and isinstance(features, list)
-        and (pose is None or (isinstance(pose, list) and len(pose) == 3))
-    ):
-        msg = f"{where}: fields have the wrong types"
+    except json.JSONDecodeError as exc:
+        msg = f"{where}: not JSON ({exc.msg} at column {exc.colno})"
+        raise ReplayError(msg) from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        msg = f"{where}: not JSON ({exc})"
+        raise ReplayError(msg) from None
+    except RecursionError:
+        msg = f"{where}: not JSON (nested too deeply)"
+        raise ReplayError(msg) from None
+    if not isinstance(row, dict):
+        msg = f"{where}: expected an object, got {type(row).__name__}"
         raise ReplayError(msg)
+    problem = _problem(row, limits)
+    if problem is not None:
+        msg = f"{where}: {problem}"
+        raise ReplayError(msg)
+    pose = row.get("pose")
     return RecordedFrame(
-        robot=str(robot),
-        seq=seq,
-        stamp_s=float(stamp),
-        features=features,
+        robot=str(row["robot"]),
+        seq=row["seq"],
+        stamp_s=float(row["stamp"]),
+        features=list(row["features"]),
         pose=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
     )
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _problem(row: dict[str, Any], limits: WireLimits) -> str | None:
+    """What is wrong with one frames-file object (the service reader's rules), or None."""
+    missing = [name for name in _FIELDS if name not in row]
+    if missing:
+        return f"missing field {', '.join(map(repr, missing))}"
+    robot, seq, features, pose = row["robot"], row["seq"], row["features"], row.get("pose")
+    if not (isinstance(robot, str) and robot) and not _is_int(robot):
+        return f"robot must be a non-empty string, got {robot!r}"
+    if not _is_int(seq) or seq < 0:
+        return f"seq must be an integer >= 0, got {_short(seq)}"
+    if seq > limits.max_seq:
+        return f"seq {seq} is above the wire limit {limits.max_seq}"
+    if not _is_number(row["stamp"]):
+        return f"stamp must be a finite number, got {_short(row['stamp'])}"
+    if not isinstance(features, list):
+        return f"features must be a list of integers, got {_short(features)}"
+    if len(features) > limits.max_features_per_frame:
+        return (
+            f"{len(features)} features, more than the limit of "
+            f"{limits.max_features_per_frame} per frame"
+        )
+    if pose is not None and not (
+        isinstance(pose, list) and len(pose) == 3 and all(map(_is_number, pose))
+    ):
+        return f"pose must be [x, y, theta] (finite numbers) or null, got {_short(pose)}"
+    for index, feature in enumerate(features):
+        if not _is_int(feature) or not 0 <= feature <= limits.max_feature_id:
+            return (
+                f"feature {index} must be an integer in 0..{limits.max_feature_id}, "
+                f"got {_short(feature)}"
+            )
+    return None
+
+
+def _sequence_problem(
+    frame: RecordedFrame, prefix: str, last_seq: dict[str, int], limits: WireLimits
+) -> str | None:
+    """Checks across lines: a publishable robot name, seqs increasing per robot."""
+    if frame.robot not in last_seq:
+        try:
+            validate_name(f"{prefix}{frame.robot}", "robot", limits)
+        except InvalidNameError as exc:
+            return str(exc)
+        return None
+    previous = last_seq[frame.robot]
+    if frame.seq <= previous:
+        return f"seq {frame.seq} of robot {frame.robot!r} is not above its previous seq {previous}"
+    return None
+
+
+def _short(value: object) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+@dataclass(slots=True)
+class RobotReplay:
+    """What a replay sent for one robot, and what the service reported back."""
+
+    robot: str  # the published name (prefix included)
+    session_id: str
+    offered: int = 0  # frames published
+    skipped: int = 0  # frames of the file not published: the service had closed the session
+    closed_by_service: bool = False
 
 
 @dataclass(slots=True)
@@ -75,11 +199,12 @@ class ReplayStats:
     frames: int = 0
     robots: int = 0
     elapsed_s: float = 0.0
+    per_robot: dict[str, RobotReplay] = field(default_factory=dict)  # by published name
 
 
 def replay(
     frames: Iterable[RecordedFrame],
-    session: zenoh.Session,
+    session: zenoh.Session | Host,
     fleet: str,
     *,
     speed: float | None = 1.0,
@@ -87,24 +212,30 @@ def replay(
     on_frame: Callable[[int], None] | None = None,
     sleep: Callable[[float], None] = time.sleep,
     clock: Callable[[], float] = time.monotonic,
+    stats: ReplayStats | None = None,
 ) -> ReplayStats:
     """Publish frames paced by their stamps; every robot's session is ended at the end.
 
+    A robot whose session the service closes is not moved to a new session (the file's
+    numbering belongs to one session): its remaining frames are skipped and counted.
+
     Args:
         frames: the frames, in time order (robots interleaved).
-        session: an open Zenoh session to the lessmap network.
+        session: an open Zenoh session or ``Connection`` to the lessmap network.
         fleet: fleet name to publish under; robot names come from the file.
         speed: 1.0 = real time, 10.0 = ten times faster, None = as fast as possible.
         robot_prefix: prepended to the file's robot ids (``"r"`` turns ``"3"`` into ``"r3"``).
         on_frame: called with the running frame count after each frame (progress).
         sleep: waits that many seconds.
         clock: monotonic seconds.
+        stats: filled as the replay goes (another thread may read it for progress); a new
+            one by default. Returned either way.
     """
     if speed is not None and speed <= 0:
         msg = f"speed must be positive or None, got {speed}"
         raise ValueError(msg)
     publishers: dict[str, RobotPublisher] = {}
-    stats = ReplayStats()
+    stats = ReplayStats() if stats is None else stats
     started = clock()
     first_stamp: float | None = None
     try:
@@ -118,14 +249,124 @@ def replay(
             publisher = publishers.get(frame.robot)
             if publisher is None:
                 name = f"{robot_prefix}{frame.robot}"
-                publisher = publishers[frame.robot] = RobotPublisher(fleet, name, session=session)
-            publisher.publish(frame.features, stamp_s=frame.stamp_s, pose=frame.pose, seq=frame.seq)
+                publisher = publishers[frame.robot] = RobotPublisher(
+                    fleet, name, session=session, auto_new_session=False
+                )
+                stats.per_robot[name] = RobotReplay(name, publisher.session_id)
+            record = stats.per_robot[publisher.robot]
+            try:
+                publisher.publish(
+                    frame.features, stamp_s=frame.stamp_s, pose=frame.pose, seq=frame.seq
+                )
+            except SessionClosedError:
+                record.skipped += 1
+                continue
+            record.offered += 1
             stats.frames += 1
             if on_frame is not None:
                 on_frame(stats.frames)
     finally:
         for publisher in publishers.values():
+            publisher.flush_errors(0.5)
+            stats.per_robot[publisher.robot].closed_by_service = publisher.status.closed_by_service
             publisher.close()
     stats.robots = len(publishers)
     stats.elapsed_s = clock() - started
     return stats
+
+
+def settled_states(
+    states: Callable[[], list[SessionState]],
+    stats: ReplayStats,
+    *,
+    quiet_s: float = 10.0,
+    poll_s: float = 0.2,
+    sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
+) -> dict[str, SessionState]:
+    """Wait until the service closed every replayed session; return their final states.
+
+    A session is final once closed: its ``SessionEnd`` came after all its frames on one
+    key. Gives up once no state changed for ``quiet_s`` (a robot without a state is then
+    missing from the result), so the wait is bounded while the service keeps working
+    through a backlog.
+
+    Args:
+        states: returns the states of the replay's fleet (e.g. ``conn.states(fleet)``).
+        stats: what ``replay`` sent.
+        quiet_s: give up after this long without any change.
+        poll_s: time between two queries.
+        sleep: waits that many seconds.
+        clock: monotonic seconds.
+    """
+    wanted = {(name, record.session_id) for name, record in stats.per_robot.items()}
+    found: dict[str, SessionState] = {}
+    last_change = clock()
+    while True:
+        current = {s.robot: s for s in states() if (s.robot, s.session) in wanted}
+        if current != found:
+            found, last_change = current, clock()
+        if len(found) == len(wanted) and not any(s.open for s in found.values()):
+            return found
+        if clock() - last_change >= quiet_s:
+            return found
+        sleep(poll_s)
+
+
+class ProgressReporter:
+    """Every ``interval_s``, one line on ``write``: frames sent, acknowledged, rate.
+
+    Acknowledged frames are the service's ``frames_applied`` for the replayed sessions,
+    from a state query on the reporter's own thread (so a slow answer never slows the
+    replay down).
+    """
+
+    def __init__(
+        self,
+        interval_s: float,
+        sent: Callable[[], int],
+        acknowledged: Callable[[], int | None],
+        write: Callable[[str], None],
+        total: int,
+    ) -> None:
+        self._interval_s = interval_s
+        self._sent = sent
+        self._acknowledged = acknowledged
+        self._write = write
+        self._total = total
+        self._stop = threading.Event()
+        self._started = time.monotonic()
+        self._thread = threading.Thread(
+            target=self._run, name="lessmap-replay-progress", daemon=True
+        )
+
+    def start(self) -> ProgressReporter:
+        """Start reporting (no-op for ``interval_s <= 0``)."""
+        if self._interval_s > 0:
+            self._thread.start()
+        return self
+
+    def line(self) -> str:
+        """The progress line now."""
+        elapsed = time.monotonic() - self._started
+        sent = self._sent()
+        acknowledged = self._acknowledged()
+        ack = "?" if acknowledged is None else str(acknowledged)
+        rate = sent / elapsed if elapsed > 0 else 0.0
+        return (
+            f"{sent}/{self._total} frames sent, {ack} acknowledged, "
+            f"{rate:.0f} frames/s, {elapsed:.0f} s"
+        )
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._interval_s):
+            try:
+                self._write(self.line())
+            except Exception:  # a query on a closing session: progress is best effort
+                return
+
+    def stop(self) -> None:
+        """Stop reporting (waits for a report being written)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(5.0)
