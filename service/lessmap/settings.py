@@ -133,6 +133,12 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     catchup_max_frames: int = Field(
         1000, ge=1, description="frames asked of each robot's cache when catching up"
     )
+    catchup_wait_s: float = Field(
+        2.0,
+        gt=0.0,
+        le=60.0,
+        description="frames after a gap wait this long at most for the robot's cache",
+    )
     state_retention_s: float = Field(
         7 * 24 * 3600.0, gt=0.0, description="drop stored sessions not updated for this long"
     )

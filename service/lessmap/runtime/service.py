@@ -22,7 +22,7 @@ from lessmap.errors import ConfigError
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.sessions import SessionTable
-from lessmap.runtime.shard import Inbound, Shard
+from lessmap.runtime.shard import CATCHUP_DONE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, StoreError
 from lessmap.runtime.zenoh_config import service_config
 from lessmap.settings import EMBEDDED_ENDPOINT
@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
     from wsgiref.simple_server import WSGIServer
 
+    from lessmap.runtime.sessions import CatchupRequest
     from lessmap.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
@@ -114,6 +115,9 @@ class Service:
                 store=self.store,
                 checkpoint_every_frames=s.checkpoint_every_frames,
                 checkpoint_interval_s=s.checkpoint_interval_s,
+                # Catch-up with a store only: memory-only keeps today's immediate SEQ_GAP.
+                catchup_max_frames=0 if self.store.path is None else s.catchup_max_frames,
+                catchup_wait_s=s.catchup_wait_s,
             )
             self._shards.append(
                 Shard(
@@ -124,6 +128,7 @@ class Service:
                     queue_depth=s.queue_depth,
                     queue_bytes=_QUEUE_BYTES_PER_SHARD,
                     linger_s=s.batch_linger_ms / 1000.0,
+                    request_catchup=self._request_catchup,
                 )
             )
         for shard in self._shards:
@@ -135,10 +140,15 @@ class Service:
             session.declare_queryable(f"{any_robot}/submaps/*", self._queries.put)
         )
         self._declared.append(session.declare_queryable(keys.health(s.instance), self._queries.put))
-        # Catch-up from the robots' caches after a restart (an AdvancedSubscriber with
-        # history) is not wired yet: with the robots' timestamp-sequenced publishers it lost
-        # the first frames of new sessions in our tests. Frames sent while the service is
-        # down are reported missing (SEQ_GAP) with their exact range.
+        # A plain subscriber; catch-up is an explicit query of the robot's publication cache
+        # (``_request_catchup``), sent by the worker when its session table holds frames
+        # beyond a gap. An AdvancedSubscriber with history was tried and is not used: the
+        # robots' publishers have no sample miss detection (no sequence numbers), so it
+        # orders each publisher's samples by timestamp and dropped history older than a
+        # live sample that overtook it (frame 0 of a new session, then others), and with
+        # ``detect_late_publishers`` on a wildcard every new robot costs a history query of
+        # its whole cache. The query below is asked only on a gap, for one robot, and the
+        # table puts what comes back in seq order itself.
         self._declared.append(session.declare_subscriber(f"{any_robot}/frames", self._on_sample))
         self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
         if s.metrics_port is not None:
@@ -162,15 +172,37 @@ class Service:
             log.info("sessions live in memory only (--memory-only): a restart loses them")
         else:
             log.info("session checkpoints in %s", self.store.path)
-            if s.checkpoint_every_frames > s.catchup_max_frames:
-                log.warning(
-                    "checkpoint_every_frames %d > catchup_max_frames %d: after a crash the "
-                    "frames between the last checkpoint and the cache's oldest are lost",
-                    s.checkpoint_every_frames,
-                    s.catchup_max_frames,
-                )
+            self._check_catchup_budget()
         for problem in self.store.problems:
             log.error("%s", problem)
+
+    def _check_catchup_budget(self) -> None:
+        """Warn when a crash can lose frames that the robots' caches would have held.
+
+        After a crash a session resumes at its last checkpoint, so a catch-up must fetch
+        the frames since that checkpoint (at most ``checkpoint_every_frames``) plus those
+        sent while no instance ran. The rule (README, "Behaviour worth knowing"):
+        ``checkpoint_every_frames + rate x downtime <= min(robot cache, catchup_max_frames)``.
+        """
+        s = self.settings
+        budget = s.catchup_max_frames - s.checkpoint_every_frames
+        if budget <= 0:
+            log.warning(
+                "checkpoint_every_frames %d >= catchup_max_frames %d: after a crash the "
+                "frames between the last checkpoint and the oldest one a catch-up asks for "
+                "are lost; lower checkpoint_every_frames or raise catchup_max_frames",
+                s.checkpoint_every_frames,
+                s.catchup_max_frames,
+            )
+        else:
+            log.info(
+                "catch-up: up to %d frames per robot; %d of them are left for the downtime "
+                "after a crash (e.g. %.0f s at 10 frames/s), if the robots' caches hold "
+                "that many",
+                s.catchup_max_frames,
+                budget,
+                budget / 10.0,
+            )
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop taking frames, finish the queued ones, publish final states, close Zenoh."""
@@ -233,6 +265,48 @@ class Service:
             self._reject_on_receipt(
                 shard, key, f"shard {shard.index} queue full ({depth=}); frame dropped"
             )
+
+    def _request_catchup(self, shard: Shard, request: CatchupRequest) -> None:
+        """Ask a robot's publication cache for its newest frames (worker thread, no wait).
+
+        The query goes to the cache queryables of the robot's frames key (``@adv/**`` below
+        it, where AdvancedPublishers answer) with callbacks: replies and the query's end are
+        only enqueued on the shard, like live samples, so neither the worker nor a Zenoh
+        thread waits. Consolidation is off (every cached sample has the same key) and
+        replies keyed as the frames are accepted (they do not match the ``@adv`` selector).
+        """
+        session = self._session
+        key = keys.frames(request.fleet, request.robot)
+        max_payload = self.settings.limits.max_payload_bytes
+        done = Inbound(0.0, key, request.session.encode(), CATCHUP_DONE)
+        if session is None:
+            shard.offer(done)
+            return
+
+        def on_reply(reply: zenoh.Reply) -> None:  # Zenoh's thread: enqueue only
+            sample = reply.ok
+            if sample is None or str(sample.key_expr) != key:
+                return  # an error reply, or a queryable answering for another key
+            if len(sample.payload) > max_payload:
+                return
+            shard.offer(Inbound(time.monotonic(), key, sample.payload.to_bytes(), RECOVERED))
+
+        def on_end() -> None:  # the query is over: every reply was delivered, or timed out
+            shard.offer(Inbound(time.monotonic(), key, done.payload, CATCHUP_DONE))
+
+        log.debug("catch-up of %s after seq %d", key, request.after_seq)
+        try:
+            session.get(
+                f"{key}/@adv/**?_max={request.max_frames}",
+                zenoh.handlers.Callback(on_reply, on_end),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                accept_replies=zenoh.ReplyKeyExpr.ANY,
+                timeout=self.settings.catchup_wait_s,
+            )
+        except zenoh.ZError as exc:  # a closing session: the hold is released at once
+            log.warning("catch-up query of %s failed: %s", key, exc)
+            shard.offer(done)
 
     def _shard_of(self, key: str) -> Shard | None:
         """Return the shard that owns a robot's key, or None when another instance does.

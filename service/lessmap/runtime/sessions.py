@@ -22,6 +22,18 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    to the store instead of being closed. Without a file, idle sessions close as before.
    Frames at or below the seq a session was restored at are redeliveries (a robot's cache
    answering a catch-up query): counted as duplicates, never reported as errors.
+6. Catch-up (``catchup_max_frames > 0``, the service turns it on with a store): a frame
+   beyond a gap is not applied at once. It is *held*, with every later frame of the session,
+   and the outcome carries a ``CatchupRequest``: the shard asks the robot's publication cache
+   for its newest ``catchup_max_frames`` frames. Recovered frames (``recover``) and late
+   live ones fill the hold; whatever is contiguous is applied in seq order at once. When the
+   cache has answered (``catchup_done``), after ``catchup_wait_s`` (``release_overdue``), or
+   when more than ``catchup_max_frames`` frames are held, the hold is released: the held
+   frames are applied in seq order and only the seqs no cache returned are reported as
+   SEQ_GAP. One catch-up per session at a time, at most one per ``catchup_wait_s``, so a
+   robot that skips seqs on purpose costs a bounded number of cache replies. Recovered
+   frames that are not needed (already applied, another session, no hold) are dropped
+   silently. Held frames are not in a checkpoint: a restart asks the cache for them again.
 """
 
 from __future__ import annotations
@@ -64,6 +76,17 @@ class Rejection:
     seq: int | None
 
 
+@dataclass(frozen=True, slots=True)
+class CatchupRequest:
+    """Ask a robot's publication cache for its newest frames (the shard sends the query)."""
+
+    fleet: str
+    robot: str
+    session: str
+    after_seq: int  # the last seq received in order: the frames after it are wanted
+    max_frames: int
+
+
 @dataclass(slots=True)
 class RobotSession:
     """One robot session: its partitioner and its counters."""
@@ -81,6 +104,12 @@ class RobotSession:
     restored_seq: int | None = None  # last_seen_seq of the checkpoint it resumed from
     frames_since_checkpoint: int = 0
     checkpoint_s: float = 0.0  # activity time of the last checkpoint
+    # Catch-up (rule 6): frames beyond a gap, waiting for the robot's cache to fill it.
+    held: dict[int, Frame] = field(default_factory=dict)
+    held_end: SessionEnd | None = None  # an end that arrived during the hold
+    hold_until_s: float | None = None  # a hold is under way until then
+    next_catchup_s: float = 0.0  # no new catch-up query before
+    recovered: int = 0  # frames the current hold took from the robot's cache
 
     def counters(self) -> dict[str, Any]:
         """The non-partitioner part of the session, for its checkpoint (JSON-ready)."""
@@ -149,6 +178,8 @@ class Outcome:
     frames_duplicate: int = 0
     frames_missing: int = 0
     decisions: list[tuple[float, int]] = field(default_factory=list)  # (seconds, batch frames)
+    catchups: list[CatchupRequest] = field(default_factory=list)  # queries for the shard
+    frames_recovered: int = 0  # taken from a robot's cache and applied or held
     failures: list[tuple[RobotKey, Exception]] = field(default_factory=list)
 
     def reject(
@@ -180,9 +211,14 @@ class SessionTable:
         store: CheckpointStore | None = None,
         checkpoint_every_frames: int = 100,
         checkpoint_interval_s: float = 5.0,
+        catchup_max_frames: int = 0,
+        catchup_wait_s: float = 2.0,
         wall_clock: Callable[[], float] = time.time,
     ) -> None:
         self._params = params
+        self._catchup_max_frames = catchup_max_frames  # 0: no catch-up, gaps reported at once
+        self._catchup_wait_s = catchup_wait_s
+        self._holding: set[RobotKey] = set()  # sessions with a hold under way
         self._store = store if store is not None and store.path is not None else None
         self._checkpoint_every_frames = checkpoint_every_frames
         self._checkpoint_interval_s = checkpoint_interval_s
@@ -255,6 +291,7 @@ class SessionTable:
                 # state is suspect), report it, go on. The shard logs the traceback.
                 outcome.failures.append((key, exc))
                 broken = self._open.pop(key, None)
+                self._holding.discard(key)
                 outcome.reject(
                     key[0],
                     key[1],
@@ -276,7 +313,7 @@ class SessionTable:
             if isinstance(message, SessionEnd):
                 self._apply_run(key, run, now_s, out)
                 run = []
-                self._end(key, message, out)
+                self._end(key, message, now_s, out)
             else:
                 run.append(message)
         self._apply_run(key, run, now_s, out)
@@ -318,24 +355,177 @@ class SessionTable:
             self._open[key] = current
             out.opened.append(current)
         current.last_activity_s = now_s
+        ordered = sorted(run, key=lambda f: f.seq)
+        if self._catchup_max_frames:
+            # Lazy on purpose: each frame is routed after the ones before it were applied,
+            # so the gap test sees the current last seq.
+            self._apply_frames(
+                current, (f for f in ordered if not self._held_back(current, f, now_s, out)), out
+            )
+            self._drain_hold(current, now_s, out)
+        else:
+            self._apply_frames(current, ordered, out)
+        self._checkpoint_if_due(current, now_s)
+
+    def _apply_frames(self, session: RobotSession, frames: Iterable[Frame], out: Outcome) -> None:
+        """Apply frames (ascending seq) and decide every ``max_batch_frames`` applied."""
         pending = 0
-        for frame in sorted(run, key=lambda f: f.seq):
-            if self._apply_frame(current, frame, out):
+        for frame in frames:
+            if self._apply_frame(session, frame, out):
                 pending += 1
-                current.frames_since_checkpoint += 1
+                session.frames_since_checkpoint += 1
                 if pending >= self._max_batch_frames:
-                    self._decide(current, out)
+                    self._decide(session, out)
                     pending = 0
         if pending:
-            self._decide(current, out)
-        if self._store is not None and (
-            current.frames_since_checkpoint >= self._checkpoint_every_frames
-            or (
-                current.frames_since_checkpoint
-                and now_s - current.checkpoint_s >= self._checkpoint_interval_s
+            self._decide(session, out)
+
+    def _checkpoint_if_due(self, session: RobotSession, now_s: float) -> None:
+        key = (session.fleet, session.robot)
+        if (
+            self._store is not None
+            and self._open.get(key) is session  # not closed meanwhile (an end after a hold)
+            and (
+                session.frames_since_checkpoint >= self._checkpoint_every_frames
+                or (
+                    session.frames_since_checkpoint
+                    and now_s - session.checkpoint_s >= self._checkpoint_interval_s
+                )
             )
         ):
-            self._checkpoint(current, "open", now_s)
+            self._checkpoint(session, "open", now_s)
+
+    # -- catch-up (rule 6) -----------------------------------------------------------------
+
+    def _held_back(self, session: RobotSession, frame: Frame, now_s: float, out: Outcome) -> bool:
+        """Hold a frame that lies beyond a gap (starting a catch-up); False: apply it now."""
+        seen = session.last_seen_seq
+        if seen is not None and frame.seq <= seen:
+            return False  # a duplicate: ``_apply_frame`` reports it
+        key = (session.fleet, session.robot)
+        if session.hold_until_s is None:
+            expected = 0 if seen is None else seen + 1
+            if frame.seq == expected or now_s < session.next_catchup_s:
+                return False
+            session.hold_until_s = now_s + self._catchup_wait_s
+            session.next_catchup_s = now_s + self._catchup_wait_s
+            session.recovered = 0
+            self._holding.add(key)
+            out.catchups.append(
+                CatchupRequest(
+                    session.fleet,
+                    session.robot,
+                    session.session,
+                    -1 if seen is None else seen,
+                    self._catchup_max_frames,
+                )
+            )
+        if frame.seq in session.held:
+            session.frames_duplicate += 1
+            out.frames_duplicate += 1
+            out.reject(
+                session.fleet,
+                session.robot,
+                session.session,
+                ErrorCode.DUPLICATE_SEQ,
+                f"frame {frame.seq} was already received (held for catch-up)",
+                frame.seq,
+            )
+            return True
+        session.held[frame.seq] = frame  # past catchup_max_frames, _drain_hold releases
+        return True
+
+    def _drain_hold(self, session: RobotSession, now_s: float, out: Outcome) -> None:
+        """Apply the held frames that now follow the last seq without a gap."""
+        if session.hold_until_s is None:
+            return
+        seen = session.last_seen_seq
+        expected = 0 if seen is None else seen + 1
+        run: list[Frame] = []
+        while expected in session.held:
+            run.append(session.held.pop(expected))
+            expected += 1
+        self._apply_frames(session, run, out)
+        if not session.held:
+            self._finish_hold(session, now_s, out)
+        elif len(session.held) > self._catchup_max_frames:
+            # Bounded: the cache is slow or does not hold the gap; stop waiting for it.
+            self._release(session, out, now_s)
+
+    def _release(self, session: RobotSession, out: Outcome, now_s: float | None = None) -> None:
+        """End a hold: apply what is held in seq order; seqs nobody returned are missing."""
+        if session.hold_until_s is None:
+            return
+        held = [session.held[seq] for seq in sorted(session.held)]
+        session.held.clear()
+        self._apply_frames(session, held, out)
+        self._finish_hold(session, now_s, out)
+
+    def _finish_hold(self, session: RobotSession, now_s: float | None, out: Outcome) -> None:
+        session.hold_until_s = None
+        key = (session.fleet, session.robot)
+        self._holding.discard(key)
+        log.info(
+            "%s/%s %s: caught up to seq %s, %d frame(s) recovered from the robot's cache",
+            session.fleet,
+            session.robot,
+            session.session,
+            session.last_seen_seq,
+            session.recovered,
+        )
+        if session.held_end is not None and now_s is not None:
+            end, session.held_end = session.held_end, None
+            self._end(key, end, now_s, out)
+
+    def recover(
+        self, key: RobotKey, session_id: str, frames: Iterable[Frame], now_s: float
+    ) -> Outcome:
+        """Take frames a robot's cache returned for a catch-up of ``session_id``."""
+        out = Outcome()
+        session = self._open.get(key)
+        if session is None or session.session != session_id or session.hold_until_s is None:
+            return out  # nothing waits for them any more
+        seen = session.last_seen_seq
+        for frame in frames:
+            if (
+                frame.session != session_id
+                or (seen is not None and frame.seq <= seen)
+                or frame.seq in session.held
+                or len(session.held) >= 2 * self._catchup_max_frames
+            ):
+                continue  # not needed: silently dropped, never an error
+            session.held[frame.seq] = frame
+            session.recovered += 1
+            out.frames_recovered += 1
+        self._drain_hold(session, now_s, out)
+        self._checkpoint_if_due(session, now_s)
+        return out
+
+    def catchup_done(self, key: RobotKey, session_id: str, now_s: float) -> Outcome:
+        """The robot's cache has answered (or the query ended): release the hold."""
+        out = Outcome()
+        session = self._open.get(key)
+        if session is not None and session.session == session_id:
+            self._release(session, out, now_s)
+            self._checkpoint_if_due(session, now_s)
+        return out
+
+    def release_overdue(self, now_s: float) -> Outcome:
+        """Release every hold older than ``catchup_wait_s`` (a cache that never answered)."""
+        out = Outcome()
+        for key in list(self._holding):
+            session = self._open.get(key)
+            if session is None:
+                self._holding.discard(key)
+            elif session.hold_until_s is not None and now_s >= session.hold_until_s:
+                self._release(session, out, now_s)
+                self._checkpoint_if_due(session, now_s)
+        return out
+
+    @property
+    def holds(self) -> int:
+        """Sessions waiting for a catch-up."""
+        return len(self._holding)
 
     # -- durable sessions ------------------------------------------------------------------
 
@@ -489,8 +679,13 @@ class SessionTable:
 
     # -- closing ---------------------------------------------------------------------------
 
-    def _end(self, key: RobotKey, end: SessionEnd, out: Outcome) -> None:
+    def _end(self, key: RobotKey, end: SessionEnd, now_s: float, out: Outcome) -> None:
         current = self._open.get(key)
+        if current is None and self._store is not None:
+            current = self._resume(key, out, now_s)  # it ended while no instance ran
+        if current is not None and current.hold_until_s is not None:
+            current.held_end = end  # after the held frames: the end waits for the catch-up
+            return
         if current is None or current.session != end.session:
             return  # a repeated end, or the end of a session never seen: nothing to close
         seen = current.last_seen_seq
@@ -500,7 +695,10 @@ class SessionTable:
         self._close(key, "ended", out)
 
     def _close(self, key: RobotKey, cause: str, out: Outcome) -> None:
-        session = self._open.pop(key)
+        session = self._open[key]
+        session.held_end = None
+        self._release(session, out)  # frames held for a catch-up are applied, gaps counted
+        del self._open[key]
         if session.partitioner.pending_frames:
             self._decide(session, out)
         ids = self._closed_ids.setdefault(key, deque(maxlen=_CLOSED_IDS_KEPT))
@@ -526,6 +724,9 @@ class SessionTable:
                     self._close(key, "idle", out)
                     continue
                 # The robot may only be paused: keep its session, free the memory.
+                self._release(session, out, now_s)
+                if self._open.get(key) is not session:
+                    continue  # an end that waited for the catch-up closed it
                 self._checkpoint(session, "evicted", now_s)
                 del self._open[key]
                 out.evicted += 1
@@ -538,6 +739,10 @@ class SessionTable:
             if self._store is None:
                 self._close(key, cause, out)
                 continue
+            # At a stop, held frames are applied and the seqs still missing counted.
+            self._release(session, out, session.last_activity_s)
+            if self._open.get(key) is not session:
+                continue  # an end that waited for the catch-up closed it
             if session.partitioner.pending_frames:
                 self._decide(session, out)
             self._checkpoint(session, "open", session.last_activity_s)
