@@ -193,11 +193,21 @@ def test_replay_command_delivers_every_frame(
     service = serve("--max-batch-frames", "1")
     done = run_cli("replay", str(path), "--fleet", fleet_name, "--fast", "-e", service.endpoint)
     assert done.returncode == 0, done.stderr
-    assert json.loads(done.stdout.strip().splitlines()[-1]) | {"elapsed_s": 0} == {
-        "frames": 2 * len(walk),
-        "robots": 2,
-        "elapsed_s": 0,
-    }
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert (summary["frames"], summary["robots"], summary["applied"], summary["ok"]) == (
+        2 * len(walk),
+        2,
+        2 * len(walk),
+        True,
+    )
+    for name in ("a", "b"):
+        counted = summary["per_robot"][name]
+        assert (counted["offered"], counted["applied"], counted["missing"]) == (
+            len(walk),
+            len(walk),
+            0,
+        )
+        assert counted["transitions"] == 2
     session = client_session(service.endpoint)
     with FleetClient(fleet_name, session=session) as fleet:
 
