@@ -31,8 +31,10 @@ if TYPE_CHECKING:
 
     from lessmap.core.spectral import Similarity
 
-#: Side of a new dense matrix (and the node capacity of a new CovGraph).
-INITIAL_CAPACITY = 64
+#: Side of a new dense matrix (and the node capacity of a new CovGraph). Small, because a
+#: fleet has thousands of small sessions: 16 nodes hold 3 KiB of matrices where 64 held 48 KiB,
+#: and doubling keeps the growth amortized.
+INITIAL_CAPACITY = 16
 
 
 @dataclass(frozen=True, slots=True)

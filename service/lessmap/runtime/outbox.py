@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import zenoh
 from zenoh import ext
 
+from lessmap.runtime.memory import release_free_memory
 from lessmap.runtime.ratelimit import RateLimiter
 from lessmap.runtime.sessions import summary_of
 from lessmap_schemas import keys
@@ -134,6 +135,7 @@ class Outbox:
         if outcome.evicted:
             m.sessions_evicted.inc(outcome.evicted)
             m.sessions.dec(outcome.evicted)
+            release_free_memory()  # evicted graphs are freed: let the process shrink
         for state in outcome.suspended:  # stop with a store: the session lives on
             m.sessions.dec()
             self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
