@@ -1,14 +1,19 @@
-"""A restart loses nothing: SIGTERM mid-stream, a new process on the same state directory.
+"""A restart loses nothing: SIGTERM or kill -9 mid-stream, a new process on the same state.
 
 Real processes on loopback: a Zenoh router opened by the test, two ``lessmap serve``
 processes one after the other (peers of that router, sharing the test's state directory),
 one robot replaying DLR, one fleet app. The reference is ``lessmap segment`` of the file.
+The frames the robot sends while no instance runs, and after a kill -9 those since the last
+checkpoint, come back from the robot's publication cache (the service's catch-up query).
 """
 
 from __future__ import annotations
 
 import json
+import re
 import signal
+import threading
+import time
 from typing import TYPE_CHECKING
 
 import pytest
@@ -16,11 +21,16 @@ import zenoh
 
 from lessmap.frames_file import read_frames
 from lessmap_client import FleetClient, RobotPublisher
+from lessmap_schemas import keys
+from lessmap_schemas.codec import decode
+from lessmap_schemas.messages import Error, Transition
 from tests.conftest import ServeProcess, dataset, free_port, wait_until
 from tests.service.test_serve_e2e import as_record, drain, offline_transitions, wait_closed
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
+
+    from lessmap.frames_file import FrameRow
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -83,4 +93,129 @@ def test_sigterm_and_restart_resume_every_session_exactly(
     assert closed_ids == sorted(set(closed_ids))
     assert [as_record(t) for t in got] == expected
     assert {t.instance for t in got} == {first.instance, second.instance}
+    assert second.terminate() == 0
+
+
+FRAMES_PER_S = 120.0  # paced: the robot's 1000-frame cache spans ~8 s of it
+
+
+class PacedRobot:
+    """Publishes frames at a steady rate from its own thread, whatever the service does."""
+
+    def __init__(self, robot: RobotPublisher, frames: list[FrameRow]) -> None:
+        self.robot = robot
+        self.frames = frames
+        self.sent = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        started = time.monotonic()
+        for index, frame in enumerate(self.frames):
+            delay = started + index / FRAMES_PER_S - time.monotonic()
+            if self._stop.wait(max(0.0, delay)):
+                return
+            self.robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+            self.sent = index + 1
+
+    def join(self, timeout_s: float) -> None:
+        self._thread.join(timeout_s)
+        assert not self._thread.is_alive(), "the robot did not finish publishing"
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(10.0)
+
+
+@pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "sigterm"])
+def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
+    how: signal.Signals,
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    router: str,
+    fleet_name: str,
+) -> None:
+    frames = list(read_frames(dataset("dlr.frames.jsonl")))
+    expected = offline_transitions(frames)["0"]
+    # Checkpoints every 300 frames: the kill lands well after the last one (seq 1199), so
+    # the frames between it and the crash, which the dead process had applied and whose
+    # transitions it had published, must come back from the cache too.
+    options = (
+        *("-m", "peer", "-e", router, "--max-batch-frames", "1"),
+        *("--checkpoint-every-frames", "300"),
+    )
+    session = client_session(router)
+    raw: list[Transition] = []
+    errors: list[Error] = []
+    lock = threading.Lock()
+
+    def keep(
+        box: list[Transition] | list[Error], kind: type[Transition] | type[Error]
+    ) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            with lock:
+                box.append(decode(sample.payload.to_bytes(), kind))  # type: ignore[arg-type]
+
+        return on_sample
+
+    raw_sub = session.declare_subscriber(keys.transitions(fleet_name, "dlr"), keep(raw, Transition))
+    error_sub = session.declare_subscriber(keys.errors(fleet_name, "dlr"), keep(errors, Error))
+    with FleetClient(fleet_name, session=session) as client:
+        robot = RobotPublisher(fleet_name, "dlr", session=session)
+        first = serve(*options)
+        assert robot.wait_for_service(20.0), first.log()
+        paced = PacedRobot(robot, frames)
+        paced.start()
+        try:
+            applied_before = [0]
+
+            def applied_at_least(count: int) -> bool:
+                state = client.state("dlr", fleet=fleet_name, timeout_s=2.0)
+                applied_before[0] = 0 if state is None else state.frames_applied
+                return applied_before[0] >= count
+
+            wait_until(lambda: applied_at_least(1250), 60.0, "1250 frames applied")
+            first.process.send_signal(how)
+            code = first.process.wait(15)
+            assert code == (-signal.SIGKILL if how == signal.SIGKILL else 0), first.log()
+            stopped_at = paced.sent
+            time.sleep(2.0)  # no instance runs; the robot goes on publishing
+            second = serve(*options)
+            wait_until(lambda: "serving as" in second.log(), 30.0, "the second instance")
+            assert paced.sent < len(frames), "the robot finished before the restart"
+            paced.join(120.0)
+        finally:
+            paced.stop()
+        robot.close()
+        state = wait_closed(client, fleet_name, "dlr", len(frames))
+        got = drain(client)
+    raw_sub.undeclare()
+    error_sub.undeclare()
+
+    log = second.log()
+    resumed = re.search(r"session resumed from the state store: .* at seq (\d+)", log)
+    assert resumed is not None, log
+    if how == signal.SIGKILL:
+        assert int(resumed.group(1)) + 1 < applied_before[0]  # applied, then lost with it
+    else:
+        assert int(resumed.group(1)) + 1 >= applied_before[0]  # checkpointed at the stop
+    recovered = re.search(r"(\d+) frame\(s\) recovered from the robot's cache", log)
+    assert recovered is not None, log
+    assert int(recovered.group(1)) > 100
+    assert paced.sent - stopped_at > 100  # the downtime really spanned frames
+    assert (state.frames_applied, state.frames_missing) == (len(frames), 0)
+    assert state.transitions == len(expected)
+    assert not [e for e in errors if e.code.value == "SEQ_GAP"], errors
+    # De-duplicated on (session, closed id) as the client does: exactly the offline ones.
+    assert [as_record(t) for t in got] == expected
+    # A transition published twice (before the kill and again after the catch-up) is the
+    # same transition: nothing conflicting ever reached the wire.
+    by_id: dict[tuple[str, int], list[dict[str, object]]] = {}
+    for t in raw:
+        by_id.setdefault((t.session, t.closed.id), []).append(as_record(t))
+    assert all(all(r == records[0] for r in records) for records in by_id.values())
+    assert sorted(by_id) == [(state.session, i) for i in range(len(expected))]
     assert second.terminate() == 0
