@@ -190,3 +190,31 @@ async def _take(sub: aio.AsyncSubscription[Transition], n: int):  # type: ignore
 )
 def test_key_matching_follows_zenoh(pattern: str, key: str, matches: bool) -> None:
     assert key_matches(pattern, key) is matches
+
+
+def test_async_robot_follows_its_errors_and_new_sessions() -> None:
+    from lessmap_client import aio
+    from lessmap_client.testing import FakeBus, make_error
+    from lessmap_schemas.errors import ErrorCode
+
+    async def scenario() -> tuple[int, str, str, int]:
+        bus = FakeBus()
+        seen: list[object] = []
+        conn = aio.AsyncConnection(bus.connect())
+        robot = await conn.robot("f", "r", on_error=seen.append)
+        first = robot.session_id
+        await robot.publish([1, 2, 3])
+        bus.publish_error(
+            make_error("f", "r", ErrorCode.SESSION_CLOSED, session=robot.session_id, seq=0)
+        )
+        robot.sync.flush_errors(2.0)
+        await robot.publish([4, 5])  # auto_new_session: a new id, seq 0
+        second = robot.session_id
+        count = robot.status.count(ErrorCode.SESSION_CLOSED)
+        await conn.close()
+        return len(seen), first, second, count
+
+    errors, first, second, count = asyncio.run(scenario())
+    assert errors == 1
+    assert count == 1
+    assert first != second

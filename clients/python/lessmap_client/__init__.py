@@ -19,8 +19,9 @@ import logging
 from importlib.metadata import version
 
 from lessmap_client.connection import Connection, connect
+from lessmap_client.errors import SessionClosedError
 from lessmap_client.fleet import FleetClient
-from lessmap_client.robot import RobotPublisher, new_session_id
+from lessmap_client.robot import RobotPublisher, RobotStatus, new_session_id
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session, wait_for_service
 from lessmap_client.subscription import Subscription
 
@@ -31,6 +32,8 @@ __all__ = [
     "Connection",
     "FleetClient",
     "RobotPublisher",
+    "RobotStatus",
+    "SessionClosedError",
     "Subscription",
     "__version__",
     "connect",

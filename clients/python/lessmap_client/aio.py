@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from collections.abc import AsyncIterator, Callable, Iterable, Sequence
     from types import TracebackType
 
-    from lessmap_client.robot import RobotPublisher
+    from lessmap_client.robot import RobotPublisher, RobotStatus
     from lessmap_client.subscription import Subscription
     from lessmap_schemas.messages import (
         Error,
@@ -173,13 +173,31 @@ class AsyncRobotPublisher:
         self.sync = robot
         self.fleet = robot.fleet
         self.robot = robot.robot
-        self.session_id = robot.session_id
         self._lock = asyncio.Lock()  # one put at a time keeps the frames in seq order
+
+    @property
+    def session_id(self) -> str:
+        """The current session id (it changes when a new session starts)."""
+        return self.sync.session_id
 
     @property
     def next_seq(self) -> int:
         """Seq the next frame will carry."""
         return self.sync.next_seq
+
+    @property
+    def status(self) -> RobotStatus:
+        """What the service reported about this robot; see ``RobotPublisher.status``."""
+        return self.sync.status
+
+    async def state(self, timeout_s: float = 2.0) -> SessionState | None:
+        """The service's state of the current session; see ``RobotPublisher.state``."""
+        return await asyncio.to_thread(self.sync.state, timeout_s)
+
+    async def new_session(self, session_id: str | None = None) -> str:
+        """End the current session and start a new one at seq 0."""
+        async with self._lock:
+            return await asyncio.to_thread(self.sync.new_session, session_id)
 
     async def publish(
         self,
@@ -230,10 +248,23 @@ class AsyncConnection:
         session_id: str | None = None,
         cache: int = 1000,
         limits: WireLimits = DEFAULT_LIMITS,
+        on_error: Callable[[Error], None] | None = None,
+        auto_new_session: bool = True,
     ) -> AsyncRobotPublisher:
-        """Declare a robot publisher; see ``Connection.robot``."""
+        """Declare a robot publisher; see ``Connection.robot``.
+
+        ``on_error`` is called on the robot's own thread, not the event loop: use
+        ``loop.call_soon_threadsafe`` from it to reach coroutines.
+        """
         publisher = await asyncio.to_thread(
-            self.sync.robot, fleet, robot, session_id=session_id, cache=cache, limits=limits
+            self.sync.robot,
+            fleet,
+            robot,
+            session_id=session_id,
+            cache=cache,
+            limits=limits,
+            on_error=on_error,
+            auto_new_session=auto_new_session,
         )
         return AsyncRobotPublisher(publisher)
 
