@@ -78,7 +78,8 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     )
     # Most of the wave's memory comes back (malloc_trim after evictions; small initial
     # CovGraph matrices keep the peak down).
-    assert first_after - before_kib <= 0.7 * (first_peak - before_kib)  # 0.34-0.66 measured
+    # Measured 0.34-0.74 of the peak's growth left; 0.94 without the trim after eviction.
+    assert first_after - before_kib <= 0.85 * (first_peak - before_kib)
 
     # An evicted robot speaks again: its session resumes where it stopped.
     session.put(keys.frames(fleet_name, "r7"), frame_of(7, 1))

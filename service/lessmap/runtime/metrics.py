@@ -46,6 +46,11 @@ class ServiceMetrics:
         self.sessions_closed = Counter(
             "lessmap_sessions_closed", "Sessions closed, by cause", ["cause"], registry=r
         )
+        self.frames_recovered = Counter(
+            "lessmap_frames_recovered",
+            "Frames taken from robots' publication caches after a gap (catch-up)",
+            registry=r,
+        )
         self.sessions_resumed = Counter(
             "lessmap_sessions_resumed", "Sessions brought back from the state store", registry=r
         )

@@ -94,6 +94,7 @@ class Outbox:
         self.frames_applied += outcome.frames_applied
         m.frames_duplicate.inc(outcome.frames_duplicate)
         m.frames_missing.inc(outcome.frames_missing)
+        m.frames_recovered.inc(outcome.frames_recovered)
         for seconds, batch in outcome.decisions:
             m.decisions.inc()
             m.decision_seconds.observe(seconds)
