@@ -207,6 +207,9 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     assert int(recovered.group(1)) > 100
     assert paced.sent - stopped_at > 100  # the downtime really spanned frames
     assert (state.frames_applied, state.frames_missing) == (len(frames), 0)
+    # Exact accounting across the restart: every frame the robot put once is counted once
+    # (cache redeliveries the service did not need are not robot puts and count nowhere).
+    assert (state.frames_duplicate, state.frames_rejected) == (0, 0)
     assert state.transitions == len(expected)
     assert not [e for e in errors if e.code.value == "SEQ_GAP"], errors
     # De-duplicated on (session, closed id) as the client does: exactly the offline ones.

@@ -208,7 +208,36 @@ def test_late_frame_inside_a_gap_is_out_of_order_and_ignored() -> None:
 
     state = state_of(table)
     assert (state.last_seq, state.frames_applied) == (3, 2)  # never rewritten backwards
-    assert state.frames_missing == 2  # late arrivals stay counted as missing
+    # The late frame is counted once: it left "missing" (2 -> 1) for "rejected".
+    assert (state.frames_missing, state.frames_rejected, state.frames_duplicate) == (1, 1, 2)
+
+    # The same late frame again is a duplicate, not a second OUT_OF_ORDER.
+    twice = table.handle_batch(frames_at(1), now_s=4.0)
+    assert codes(twice) == [ErrorCode.DUPLICATE_SEQ]
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_every_offered_frame_is_counted_exactly_once(seed: int) -> None:
+    # A robot that numbers frames 0..n-1 and puts each once, through a lossy, reordering,
+    # duplicating network: applied + rejected + missing = n, and the duplicates are exactly
+    # the repeated deliveries.
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 60))
+    delivered = [seq for seq in range(n) if rng.random() > 0.2]  # some never arrive
+    repeats = [seq for seq in delivered if rng.random() < 0.15]
+    stream = delivered + repeats
+    order = rng.permutation(len(stream))
+    stream = [stream[i] for i in order]
+    table = make_table(max_batch_frames=int(rng.integers(1, 4)))
+    batch = int(rng.integers(1, 6))
+    for start in range(0, len(stream), batch):
+        table.handle_batch(frames_at(*stream[start : start + batch]), now_s=float(start))
+    table.handle_batch([(FLEET, "r1", end(n - 1))], now_s=1000.0)
+    state = state_of(table)
+    assert state.frames_applied + state.frames_rejected + state.frames_missing == n, state
+    # Every delivery is applied, rejected (late) or a duplicate: nothing counted twice.
+    assert state.frames_applied + state.frames_rejected + state.frames_duplicate == len(stream)
+    assert state.frames_missing == n - len(set(delivered))  # exactly the lost seqs
 
 
 def test_reordering_inside_one_batch_loses_nothing() -> None:

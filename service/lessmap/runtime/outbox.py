@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _NOT_REJECTIONS = {ErrorCode.SEQ_GAP}  # reported, but the frame was applied
-_DUPLICATES = {ErrorCode.DUPLICATE_SEQ, ErrorCode.OUT_OF_ORDER}
+_DUPLICATES = {ErrorCode.DUPLICATE_SEQ}  # OUT_OF_ORDER counts as rejected, by reason
 _TRANSITION_ENCODING = zenoh.Encoding(encoding(Transition))
 _ERROR_ENCODING = zenoh.Encoding(encoding(Error))
 _STATE_ENCODING = zenoh.Encoding(encoding(SessionState))

@@ -9,6 +9,12 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    so reordering inside a batch loses nothing. seq <= last applied: ignored, counted as
    DUPLICATE_SEQ, or OUT_OF_ORDER when it falls in a gap reported earlier. seq > last + 1:
    the missing frames are counted, SEQ_GAP is reported, and the frame is applied.
+7. Exact accounting: every frame a robot puts on its key (well-formed: decoding failures are
+   counted by code in the metrics, they name no session) lands in exactly one counter of its
+   session: ``frames_applied``, ``frames_duplicate`` (a seq received before, or a cache
+   redelivery after a restore), ``frames_rejected`` (OUT_OF_ORDER, GRAPH_LIMIT, INVALID, and
+   SESSION_CLOSED on the closed session's state) or ``frames_missing`` (seqs never received).
+   A late frame moves its seq from missing to rejected, so nothing is counted twice.
 3. Coalescing: ``handle_batch`` applies up to ``max_batch_frames`` frames of a session and
    then decides once; with ``max_batch_frames = 1`` it decides at every frame, exactly as
    ``lessmap segment`` does offline.
@@ -177,6 +183,7 @@ class Outcome:
     frames_applied: int = 0
     frames_duplicate: int = 0
     frames_missing: int = 0
+    frames_late: int = 0  # OUT_OF_ORDER: counted missing when the gap was seen, now rejected
     decisions: list[tuple[float, int]] = field(default_factory=list)  # (seconds, batch frames)
     catchups: list[CatchupRequest] = field(default_factory=list)  # queries for the shard
     frames_recovered: int = 0  # taken from a robot's cache and applied or held
@@ -328,6 +335,7 @@ class SessionTable:
             current = self._resume(key, out, now_s)
         if current is None or current.session != session_id:
             if session_id in self._closed_ids.get(key, ()):
+                self._count_on_closed(key, session_id, len(run))
                 for frame in run:
                     out.reject(
                         fleet,
@@ -600,11 +608,20 @@ class SessionTable:
         p = session.partitioner
         seen = session.last_seen_seq
         if seen is not None and frame.seq <= seen:
-            session.frames_duplicate += 1
-            out.frames_duplicate += 1
             if session.restored_seq is not None and frame.seq <= session.restored_seq:
-                return False  # a redelivery from the robot's cache after a restore
-            late = any(lo <= frame.seq <= hi for lo, hi in session.gaps)
+                # A redelivery from the robot's cache after a restore.
+                session.frames_duplicate += 1
+                out.frames_duplicate += 1
+                return False
+            late = _take_from_gaps(session.gaps, frame.seq)
+            if late:
+                # Counted once: its slot leaves "missing" for "rejected" (rule 7).
+                session.frames_missing -= 1
+                session.frames_rejected += 1
+                out.frames_late += 1
+            else:
+                session.frames_duplicate += 1
+                out.frames_duplicate += 1
             code = ErrorCode.OUT_OF_ORDER if late else ErrorCode.DUPLICATE_SEQ
             what = "arrived after later frames" if late else "was already received"
             out.reject(
@@ -676,6 +693,14 @@ class SessionTable:
         out.decisions.append((self._clock() - started, batch))
         if transition is not None:
             out.transitions.append((session, transition))
+
+    def _count_on_closed(self, key: RobotKey, session_id: str, frames: int) -> None:
+        """Count frames refused as SESSION_CLOSED on the closed session's final state."""
+        final = self._final_states.get(key)
+        if final is not None and final.session == session_id:
+            self._final_states[key] = final.model_copy(
+                update={"frames_rejected": final.frames_rejected + frames}
+            )
 
     # -- closing ---------------------------------------------------------------------------
 
@@ -749,3 +774,17 @@ class SessionTable:
             out.suspended.append(session.state(self._instance, is_open=True))
             del self._open[key]
         return out
+
+
+def _take_from_gaps(gaps: deque[tuple[int, int]], seq: int) -> bool:
+    """Remove ``seq`` from the reported gap ranges; True when it was in one (a late frame)."""
+    for index, (lo, hi) in enumerate(gaps):
+        if lo <= seq <= hi:
+            del gaps[index]
+            # Both halves go back where the range was; a full deque drops its oldest range,
+            # and a late frame of a forgotten range then counts as a duplicate.
+            for part in ((seq + 1, hi), (lo, seq - 1)):
+                if part[0] <= part[1]:
+                    gaps.insert(index, part)
+            return True
+    return False
