@@ -43,6 +43,7 @@ class LoadSpec:
     max_batch_frames: int | None = None  # None: the service default (coalescing on)
     batch_linger_ms: float | None = None  # None: the service default
     instances: int = 1  # service processes splitting the fleet (`lessmap serve --shard I/N`)
+    memory_only: bool = False  # True: `serve --memory-only` (no session checkpoints)
     baseline_robots: int = _BASELINE_ROBOTS
     speed_mps: float = 0.5  # the simulator's walking speed (its default)
     dwell_s: tuple[float, float] = (0.0, 3.0)  # pause at each waypoint (the sim's default)

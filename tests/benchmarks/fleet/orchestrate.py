@@ -436,6 +436,11 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         type=float,
         help="service wait for more frames after a wake-up (default: its own; 0 = off)",
     )
+    parser.add_argument(
+        "--memory-only",
+        action="store_true",
+        help="run the service without session checkpoints (default: checkpoints on)",
+    )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument(
         "--find-knee",
@@ -483,6 +488,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         instances=args.instances,
         max_batch_frames=args.max_batch_frames,
         batch_linger_ms=args.batch_linger_ms,
+        memory_only=args.memory_only,
     )
 
 

@@ -131,6 +131,12 @@ class ServiceProcess:
             args += ["--batch-linger-ms", str(spec.batch_linger_ms)]
         if spec.instances > 1:
             args += ["--shard", f"{shard}/{spec.instances}"]
+        # Checkpoints go to the run's own folder, never to the user's state directory.
+        args += (
+            ["--memory-only"]
+            if spec.memory_only
+            else ["--state-dir", str(log_path.parent / f"state-{shard}")]
+        )
         if connect is not None:
             args += ["-e", connect]  # a router joining the first instance's router
         self.log_path = log_path
