@@ -41,7 +41,10 @@ def walk() -> list[Frame]:
 FRAMES = walk()
 
 
-def make_table(store: CheckpointStore | None, *, every: int = 25) -> SessionTable:
+def make_table(
+    store: CheckpointStore | None, *, every: int = 25, phase: bool = False
+) -> SessionTable:
+    # phase=False: checkpoints at exact multiples of ``every``, which the tests below pin.
     return SessionTable(
         LASER,
         max_sessions=8,
@@ -53,6 +56,7 @@ def make_table(store: CheckpointStore | None, *, every: int = 25) -> SessionTabl
         store=store,
         checkpoint_every_frames=every,
         checkpoint_interval_s=3600.0,
+        checkpoint_phase=phase,
     )
 
 
@@ -289,10 +293,13 @@ def test_retention_and_size_bounds_drop_old_records(tmp_path: Path) -> None:
     store.close()
 
 
+@pytest.mark.parametrize("phase", [False, True])
 @pytest.mark.parametrize("every", [1, 7, 1000])
-def test_checkpoint_frequency_never_changes_decisions(tmp_path: Path, every: int) -> None:
+def test_checkpoint_frequency_never_changes_decisions(
+    tmp_path: Path, every: int, phase: bool
+) -> None:
     store = open_store(tmp_path)
-    table = make_table(store, every=every)
+    table = make_table(store, every=every, phase=phase)
     assert transitions(feed(table, FRAMES)) == REFERENCE
     store.close()
 
@@ -314,6 +321,7 @@ def catchup_table(store: CheckpointStore | None, *, every: int = 25) -> SessionT
         checkpoint_interval_s=3600.0,
         catchup_max_frames=100,
         catchup_wait_s=2.0,
+        checkpoint_phase=False,
     )
 
 
@@ -447,4 +455,21 @@ def test_unneeded_cache_replies_are_dropped_silently(tmp_path: Path) -> None:
     assert wrong.frames_applied == 0
     assert [r.code for r in done.rejections] == [ErrorCode.SEQ_GAP]
     assert not errors([nothing_held, wrong])
+    store.close()
+
+
+def test_robots_checkpoint_at_phases_of_their_own(tmp_path: Path) -> None:
+    # Robots that start together must not all checkpoint in the same instant.
+    store = open_store(tmp_path)
+    table = make_table(store, every=100, phase=True)
+    first_due: dict[str, int] = {}
+    for seq in range(100):
+        for robot in (f"r{i}" for i in range(8)):  # the table's session limit
+            if robot in first_due:
+                continue
+            table.handle_batch([(FLEET, robot, FRAMES[seq])], 0.0)
+            if store.flush() and any(r.robot == robot for r in store.records()):
+                first_due[robot] = seq
+    assert len(first_due) == 8
+    assert len(set(first_due.values())) >= 6  # spread over the period, not one burst
     store.close()

@@ -47,6 +47,7 @@ from __future__ import annotations
 import logging
 import sqlite3
 import time
+import zlib
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -218,6 +219,7 @@ class SessionTable:
         store: CheckpointStore | None = None,
         checkpoint_every_frames: int = 100,
         checkpoint_interval_s: float = 5.0,
+        checkpoint_phase: bool = True,
         catchup_max_frames: int = 0,
         catchup_wait_s: float = 2.0,
         wall_clock: Callable[[], float] = time.time,
@@ -229,6 +231,7 @@ class SessionTable:
         self._store = store if store is not None and store.path is not None else None
         self._checkpoint_every_frames = checkpoint_every_frames
         self._checkpoint_interval_s = checkpoint_interval_s
+        self._checkpoint_phase = checkpoint_phase
         self._wall_clock = wall_clock
         self._instance = instance
         self._max_sessions = max_sessions
@@ -359,7 +362,7 @@ class SessionTable:
                 )
                 return
             current = RobotSession(fleet, robot, session_id, Partitioner(self._params), now_s)
-            current.checkpoint_s = now_s
+            self._phase_checkpoints(current, now_s)
             self._open[key] = current
             out.opened.append(current)
         current.last_activity_s = now_s
@@ -555,6 +558,21 @@ class SessionTable:
             updated_s=self._wall_clock(),
         )
 
+    def _phase_checkpoints(self, session: RobotSession, now_s: float) -> None:
+        """Start a session's checkpoint clock at a phase of its own.
+
+        Robots of a fleet usually start together and run at one rate: without a phase, all
+        their checkpoints fall due in the same instant, and the burst (a snapshot each, on
+        the worker) showed as ~90 ms of p99 latency at 200 robots. The phase comes from the
+        robot's name (crc32), so it is the same in every run; the first checkpoint of a
+        session comes that much earlier, later ones keep the spacing.
+        """
+        phase = 0.0
+        if self._checkpoint_phase:
+            phase = zlib.crc32(f"{session.fleet}/{session.robot}".encode()) / 2**32
+        session.frames_since_checkpoint = int(phase * self._checkpoint_every_frames)
+        session.checkpoint_s = now_s - phase * self._checkpoint_interval_s
+
     def _checkpoint(self, session: RobotSession, status: str, now_s: float) -> None:
         assert self._store is not None
         self._store.save(self._record(session, status, is_open=True))
@@ -599,7 +617,7 @@ class SessionTable:
             )
             self._store.delete(key)
             return None
-        session.checkpoint_s = now_s
+        self._phase_checkpoints(session, now_s)
         self._open[key] = session
         out.resumed.append(session)
         return session
