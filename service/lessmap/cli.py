@@ -71,6 +71,9 @@ COMMANDS: dict[str, Command] = {
         "configure_plot",
         "run_plot",
     ),
+    "certs": Command(
+        "lessmap.certs", "write a test site's CA, certificates and mTLS + access-control configs"
+    ),
 }
 
 #: Failures a user can fix: one line on stderr and exit code 1, no traceback. Named by
@@ -91,7 +94,7 @@ KNOWN_EXCEPTIONS: tuple[tuple[str, str], ...] = (
 
 
 #: Top-level modules of the optional extras, and the extra that installs each.
-OPTIONAL_MODULES = {"matplotlib": "eval"}
+OPTIONAL_MODULES = {"matplotlib": "eval", "cryptography": "security"}
 
 
 def is_known(exc: BaseException) -> bool:

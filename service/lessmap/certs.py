@@ -1,0 +1,697 @@
+"""``lessmap certs``: a test site's CA, certificates and Zenoh configs (mTLS + access control).
+
+Who may do what is decided by the router, from the common name (CN) of the certificate a
+session presents: ``robot.<fleet>``, ``app.<fleet>`` and the service names (``service`` by
+default). ``access_rules`` is the one place that maps those roles to Zenoh ``access_control``
+rules; the router configs this command writes and the templates in ``deploy/``
+(``--templates``) are both rendered from it, so they cannot drift apart.
+
+Private keys are written with mode 0600 and never overwritten silently: an existing CA is kept
+unless ``--force`` is given (a new CA invalidates every certificate issued before).
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from lessmap.errors import ConfigError
+from lessmap_schemas import keys
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Iterable, Sequence
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+#: Where the templates in ``deploy/`` expect the site's files.
+TEMPLATE_DIR = "/etc/lessmap/tls"
+#: The placeholder fleet name of the templates.
+TEMPLATE_FLEET = "FLEET"
+DEFAULT_ENDPOINT = "tls/127.0.0.1:7447"
+
+P = keys.KEY_PREFIX
+ALL_MESSAGES = [
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+]
+
+
+def robot_name(fleet: str) -> str:
+    """Return the certificate CN (or user name) of the robots of ``fleet``."""
+    return f"robot.{fleet}"
+
+
+def app_name(fleet: str) -> str:
+    """Return the certificate CN (or user name) of the fleet apps of ``fleet``."""
+    return f"app.{fleet}"
+
+
+def _rule(rule_id: str, flow: str, messages: Sequence[str], key_exprs: Sequence[str]) -> Any:
+    return {
+        "id": rule_id,
+        "messages": list(messages),
+        "flows": [flow],
+        "permission": "allow",
+        "key_exprs": list(key_exprs),
+    }
+
+
+def access_rules(
+    fleets: Sequence[str], service_names: Sequence[str], subject_kind: str = "cert_common_names"
+) -> dict[str, Any]:
+    """Return the ``access_control`` section: deny by default, allow each role its keys.
+
+    Ingress rules say what a session may send to the router; egress rules what the router
+    forwards to it (declarations of interest included: a publisher only sends where a
+    subscriber was announced to it).
+
+    Args:
+        fleets: fleet names; each gets a robot and an app subject.
+        service_names: identities of the service instances.
+        subject_kind: ``cert_common_names`` (mTLS) or ``usernames`` (usrpwd).
+    """
+    any_robot = f"{P}/*/*"
+    rules = [
+        _rule(
+            "service-in",
+            "ingress",
+            ["put", "delete", "reply"],
+            [
+                f"{any_robot}/transitions",
+                f"{any_robot}/transitions/@adv/**",
+                f"{any_robot}/errors",
+                f"{any_robot}/state",
+                f"{any_robot}/submaps/*",
+                f"{P}/@/health/*",
+                f"{P}/@/errors/*",
+            ],
+        ),
+        _rule(
+            "service-declare",
+            "ingress",
+            ["declare_queryable", "liveliness_token"],
+            [
+                f"{any_robot}/state",
+                f"{any_robot}/submaps/*",
+                f"{any_robot}/transitions/@adv/**",
+                f"{P}/@/health/*",
+                f"{P}/@/instances/*",
+            ],
+        ),
+        _rule(
+            "service-read",
+            "ingress",
+            ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"],
+            [f"{any_robot}/frames", f"{any_robot}/frames/@adv/**", f"{P}/@/instances/*"],
+        ),
+        _rule(
+            "service-out",
+            "egress",
+            ALL_MESSAGES,
+            [
+                f"{any_robot}/frames",
+                f"{any_robot}/frames/@adv/**",
+                f"{any_robot}/transitions",
+                f"{any_robot}/transitions/@adv/**",
+                f"{any_robot}/errors",
+                f"{any_robot}/state",
+                f"{any_robot}/submaps/*",
+                f"{P}/@/health/*",
+                f"{P}/@/instances/*",
+                f"{P}/@/errors/*",
+            ],
+        ),
+    ]
+    # The service declares its subscriber and queryables with wildcards (every fleet at once).
+    # A declaration is forwarded to a client only where a rule *includes* its whole key
+    # expression, and a client that never learns of the subscriber sends it nothing (Zenoh
+    # filters at the writer): robots and apps must see these, and only these, wildcards.
+    rules.append(
+        _rule(
+            "see-service",
+            "egress",
+            ["declare_subscriber", "declare_queryable"],
+            [f"{any_robot}/frames", f"{any_robot}/state", f"{any_robot}/submaps/*"],
+        )
+    )
+    subjects: list[dict[str, Any]] = [{"id": "service", subject_kind: list(service_names)}]
+    policies: list[dict[str, Any]] = [
+        {"rules": ["service-in", "service-declare", "service-read", "service-out"],
+         "subjects": ["service"]}
+    ]  # fmt: skip
+    for fleet in fleets:
+        robots = f"{P}/{fleet}/*"
+        rules += [
+            # Frames and session ends, and what the robot's AdvancedPublisher declares: the
+            # cache queryable and its replies, the publisher's liveliness token.
+            _rule(f"robot-{fleet}-put", "ingress", ["put"], [f"{robots}/frames"]),
+            _rule(
+                f"robot-{fleet}-cache",
+                "ingress",
+                ["declare_queryable", "reply", "liveliness_token"],
+                [f"{robots}/frames/@adv/**"],
+            ),
+            # The SDK's robot follows its own errors and state and waits for the service.
+            _rule(
+                f"robot-{fleet}-read",
+                "ingress",
+                ["declare_subscriber", "query", "liveliness_query"],
+                [f"{robots}/errors", f"{robots}/state", f"{P}/@/instances/*"],
+            ),
+            _rule(
+                f"robot-{fleet}-out",
+                "egress",
+                ALL_MESSAGES,
+                [
+                    f"{robots}/frames",
+                    f"{robots}/frames/@adv/**",
+                    f"{robots}/errors",
+                    f"{robots}/state",
+                    f"{P}/@/instances/*",
+                ],
+            ),
+            # Fleet apps read their fleet's outputs (with the transitions' history and
+            # recovery under @adv) and the service's liveliness and health.
+            _rule(
+                f"app-{fleet}-read",
+                "ingress",
+                [
+                    "declare_subscriber",
+                    "query",
+                    "liveliness_query",
+                    "declare_liveliness_subscriber",
+                ],
+                [
+                    f"{robots}/transitions",
+                    f"{robots}/transitions/@adv/**",
+                    f"{robots}/errors",
+                    f"{robots}/state",
+                    f"{robots}/submaps/*",
+                    f"{P}/@/health/*",
+                    f"{P}/@/instances/*",
+                ],
+            ),
+            _rule(
+                f"app-{fleet}-out",
+                "egress",
+                ALL_MESSAGES,
+                [
+                    f"{robots}/transitions",
+                    f"{robots}/transitions/@adv/**",
+                    f"{robots}/errors",
+                    f"{robots}/state",
+                    f"{robots}/submaps/*",
+                    f"{P}/@/health/*",
+                    f"{P}/@/instances/*",
+                ],
+            ),
+        ]
+        subjects += [
+            {"id": f"robot-{fleet}", subject_kind: [robot_name(fleet)]},
+            {"id": f"app-{fleet}", subject_kind: [app_name(fleet)]},
+        ]
+        policies += [
+            {
+                "rules": [
+                    f"robot-{fleet}-put",
+                    f"robot-{fleet}-cache",
+                    f"robot-{fleet}-read",
+                    f"robot-{fleet}-out",
+                    "see-service",
+                ],
+                "subjects": [f"robot-{fleet}"],
+            },
+            {
+                "rules": [f"app-{fleet}-read", f"app-{fleet}-out", "see-service"],
+                "subjects": [f"app-{fleet}"],
+            },
+        ]
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def router_config(
+    folder: str,
+    fleets: Sequence[str],
+    service_names: Sequence[str],
+    endpoint: str = DEFAULT_ENDPOINT,
+) -> dict[str, Any]:
+    """Return the router's config: TLS with client certificates, deny-by-default ACL."""
+    return {
+        "mode": "router",
+        "listen": {"endpoints": [endpoint]},
+        "scouting": {"multicast": {"enabled": False}},
+        "timestamping": {"enabled": True},
+        "transport": {
+            "link": {
+                "tls": {
+                    "root_ca_certificate": f"{folder}/ca.pem",
+                    "listen_private_key": f"{folder}/router.key",
+                    "listen_certificate": f"{folder}/router.pem",
+                    "enable_mtls": True,
+                }
+            }
+        },
+        "access_control": access_rules(fleets, service_names),
+    }
+
+
+def client_config(folder: str, identity: str, endpoint: str = DEFAULT_ENDPOINT) -> dict[str, Any]:
+    """Return a client's config: connect over TLS, prove ``identity`` with its certificate."""
+    return {
+        "mode": "client",
+        "connect": {"endpoints": [endpoint]},
+        "scouting": {"multicast": {"enabled": False}},
+        "timestamping": {"enabled": True},
+        "transport": {
+            "link": {
+                "tls": {
+                    "root_ca_certificate": f"{folder}/ca.pem",
+                    "connect_private_key": f"{folder}/{identity}.key",
+                    "connect_certificate": f"{folder}/{identity}.pem",
+                    "enable_mtls": True,
+                    # The router's certificate must name the host dialled (its SAN).
+                    "verify_name_on_connect": True,
+                }
+            }
+        },
+    }
+
+
+def usrpwd_router_config(
+    folder: str,
+    fleets: Sequence[str],
+    service_names: Sequence[str],
+    endpoint: str = DEFAULT_ENDPOINT,
+) -> dict[str, Any]:
+    """Return a router config that authenticates by user name and password over TLS."""
+    conf = router_config(folder, fleets, service_names, endpoint)
+    del conf["transport"]["link"]["tls"]["enable_mtls"]
+    conf["transport"]["auth"] = {
+        "usrpwd": {
+            # One `user:password` line per identity, e.g. `robot.warehouse:<secret>`.
+            "dictionary_file": f"{folder}/credentials.txt",
+        }
+    }
+    conf["access_control"] = access_rules(fleets, service_names, "usernames")
+    return conf
+
+
+def usrpwd_client_config(
+    folder: str, identity: str, endpoint: str = DEFAULT_ENDPOINT
+) -> dict[str, Any]:
+    """Return a client config that logs in as ``identity`` over server-authenticated TLS."""
+    conf = client_config(folder, identity, endpoint)
+    conf["transport"]["link"]["tls"] = {
+        "root_ca_certificate": f"{folder}/ca.pem",
+        "verify_name_on_connect": True,
+    }
+    conf["transport"]["auth"] = {"usrpwd": {"user": identity, "password": "CHANGE-ME"}}
+    return conf
+
+
+def render(config: dict[str, Any], header: str) -> str:
+    """Return ``config`` as JSON5 text (JSON with ``//`` comments), short lists on one line."""
+    lines = [f"// {line}".rstrip() for line in header.strip().splitlines()]
+    return "\n".join(lines) + "\n" + _dump(config, 0) + "\n"
+
+
+def _dump(value: Any, indent: int, width: int = 100) -> str:
+    flat = _inline(value)
+    if not isinstance(value, dict | list) or 2 * indent + len(flat) <= width - 20:
+        return flat
+    pad = "  " * (indent + 1)
+    if isinstance(value, dict):
+        items = [f"{pad}{k}: {_dump(v, indent + 1)}" for k, v in value.items()]
+        opening, ending = "{", "}"
+    else:
+        items = [f"{pad}{_dump(v, indent + 1)}" for v in value]
+        opening, ending = "[", "]"
+    return opening + "\n" + ",\n".join(items) + ",\n" + "  " * indent + ending
+
+
+def _inline(value: Any) -> str:
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k}: {_inline(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, list):
+        return "[" + ", ".join(_inline(v) for v in value) + "]"
+    return json.dumps(value, ensure_ascii=False)
+
+
+# -- the site -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Site:
+    """What ``make_site`` wrote: the folder and every config file, by role."""
+
+    folder: Path
+    router: Path
+    services: dict[str, Path]
+    robots: dict[str, Path]
+    apps: dict[str, Path]
+
+
+def _check_names(fleets: Sequence[str], service_names: Sequence[str]) -> None:
+    if not fleets:
+        msg = "give at least one --fleet"
+        raise ConfigError(msg)
+    for name in [*fleets, *service_names]:
+        try:
+            keys.validate_name(name, "fleet" if name in fleets else "service name")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+    for name in service_names:
+        if name == "router" or name.startswith(("robot.", "app.", "ca")):
+            msg = f"service name {name!r} would clash with another identity"
+            raise ConfigError(msg)
+    if len(set(fleets)) != len(fleets) or len(set(service_names)) != len(service_names):
+        msg = "fleet and service names must be distinct"
+        raise ConfigError(msg)
+
+
+def make_site(
+    out: Path,
+    fleets: Sequence[str],
+    service_names: Sequence[str] = ("service",),
+    *,
+    endpoint: str = DEFAULT_ENDPOINT,
+    router_hosts: Iterable[str] = (),
+    days: int = 365,
+    force: bool = False,
+) -> Site:
+    """Write a CA, one certificate per identity and the Zenoh configs of a test site.
+
+    Args:
+        out: the folder (created); configs name its absolute path.
+        fleets: a robot and an app identity per fleet.
+        service_names: one identity per name (certificate CN).
+        endpoint: where the router listens and the clients connect.
+        router_hosts: more DNS names or IP addresses for the router certificate
+            (127.0.0.1 and localhost are always in it).
+        days: validity of every certificate.
+        force: replace an existing CA (every older certificate stops working).
+
+    Raises:
+        ConfigError: a bad name, or a CA already in ``out`` without ``force``.
+    """
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    _check_names(fleets, service_names)
+    out.mkdir(parents=True, exist_ok=True)
+    folder = out.resolve()
+    if (folder / "ca.key").exists() and not force:
+        msg = f"{out / 'ca.key'} exists: keep it, or give --force to replace the CA"
+        raise ConfigError(msg)
+    now = datetime.datetime.now(datetime.UTC)
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_cert = _certificate("lessmap test CA", ca_key, None, None, now, days, ca=True)
+    _write_key(folder / "ca.key", ca_key)
+    (folder / "ca.pem").write_bytes(_pem(ca_cert))
+    hosts = ["127.0.0.1", "localhost", *router_hosts]
+    _issue(folder, "router", ca_key, ca_cert, now, days, hosts)
+    identities = [*service_names]
+    for fleet in fleets:
+        identities += [robot_name(fleet), app_name(fleet)]
+    for identity in identities:
+        _issue(folder, identity, ca_key, ca_cert, now, days, ())
+
+    header = (
+        f"Written by `lessmap certs` for fleets {', '.join(fleets)}.\n"
+        "See docs/SECURITY.md; every path below is in this folder."
+    )
+    d = str(folder)
+    router = folder / "zenoh-router-mtls.json5"
+    router.write_text(render(router_config(d, fleets, service_names, endpoint), header))
+    services = {}
+    for name in service_names:
+        services[name] = folder / f"zenoh-{name}-mtls.json5"
+        services[name].write_text(render(client_config(d, name, endpoint), header))
+    robots, apps = {}, {}
+    for fleet in fleets:
+        robots[fleet] = folder / f"zenoh-robot-{fleet}-mtls.json5"
+        robots[fleet].write_text(render(client_config(d, robot_name(fleet), endpoint), header))
+        apps[fleet] = folder / f"zenoh-app-{fleet}-mtls.json5"
+        apps[fleet].write_text(render(client_config(d, app_name(fleet), endpoint), header))
+    return Site(folder, router, services, robots, apps)
+
+
+def _pem(cert: x509.Certificate) -> bytes:
+    from cryptography.hazmat.primitives import serialization
+
+    return cert.public_bytes(serialization.Encoding.PEM)
+
+
+def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
+    from cryptography.hazmat.primitives import serialization
+
+    data = key.private_bytes(
+        serialization.Encoding.PEM,
+        serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption(),
+    )
+    # Created 0600 (never world-readable, not even for a moment), replaced if it exists.
+    path.unlink(missing_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as file:
+        file.write(data)
+
+
+def _issue(
+    folder: Path,
+    name: str,
+    ca_key: ec.EllipticCurvePrivateKey,
+    ca_cert: x509.Certificate,
+    now: datetime.datetime,
+    days: int,
+    hosts: Sequence[str],
+) -> None:
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = _certificate(name, key, ca_key, ca_cert, now, days, ca=False, hosts=hosts)
+    _write_key(folder / f"{name}.key", key)
+    (folder / f"{name}.pem").write_bytes(_pem(cert))
+
+
+def _certificate(
+    common_name: str,
+    key: ec.EllipticCurvePrivateKey,
+    ca_key: ec.EllipticCurvePrivateKey | None,
+    ca_cert: x509.Certificate | None,
+    now: datetime.datetime,
+    days: int,
+    *,
+    ca: bool,
+    hosts: Sequence[str] = (),
+) -> x509.Certificate:
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+    issuer = ca_cert.subject if ca_cert is not None else subject
+    public = key.public_key()
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(issuer)
+        .public_key(public)
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=ca, path_length=0 if ca else None), critical=True)
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=not ca,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=ca,
+                crl_sign=ca,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+    )
+    if not ca:
+        builder = builder.add_extension(
+            x509.ExtendedKeyUsage(
+                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
+            ),
+            critical=False,
+        )
+    if ca_cert is not None:
+        builder = builder.add_extension(
+            x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_cert.public_key()),  # type: ignore[arg-type]
+            critical=False,
+        )
+    if hosts:
+        names: list[x509.GeneralName] = []
+        for host in hosts:
+            try:
+                names.append(x509.IPAddress(ipaddress.ip_address(host)))
+            except ValueError:
+                names.append(x509.DNSName(host))
+        builder = builder.add_extension(x509.SubjectAlternativeName(names), critical=False)
+    return builder.sign(ca_key if ca_key is not None else key, hashes.SHA256())
+
+
+# -- templates (deploy/) ------------------------------------------------------------------------
+
+TEMPLATE_HEADER = """\
+{what}
+Template: replace every FLEET by your fleet's name (add a subject, a policy and the rules of
+each further fleet, or let `lessmap certs --out DIR --fleet F [--fleet G]` write this file
+filled in), and put the files it names in {folder}. See docs/SECURITY.md.
+Listens on (or connects to) loopback only: to open it, put the address of one interface,
+e.g. "tls/10.0.0.5:7447" (never 0.0.0.0), and the router's name or IP in its certificate
+(`lessmap certs --router-host`).
+"""
+
+
+def templates() -> dict[str, str]:
+    """Return the deploy/ config templates, by file name (placeholder fleet and paths)."""
+    d, fleet, service = TEMPLATE_DIR, TEMPLATE_FLEET, "service"
+
+    def head(what: str) -> str:
+        return TEMPLATE_HEADER.format(what=what, folder=d)
+
+    return {
+        "zenoh-router-mtls.json5": render(
+            router_config(d, [fleet], [service]),
+            head(
+                "Zenoh router for lessmap: TLS, client certificates required (mTLS), and\n"
+                "access control that denies everything not allowed below, by certificate CN.\n"
+                "Run: zenohd -c zenoh-router-mtls.json5 (or any Zenoh router, e.g. Python's)."
+            ),
+        ),
+        "zenoh-service-mtls.json5": render(
+            client_config(d, service),
+            head("A lessmap service instance: `lessmap serve --zenoh-config THIS`."),
+        ),
+        "zenoh-robot-mtls.json5": render(
+            client_config(d, robot_name(fleet)),
+            head(
+                "A robot of FLEET (certificate CN robot.FLEET):\n"
+                "lessmap_client.connect(endpoint, config_file=THIS).robot(...)."
+            ),
+        ),
+        "zenoh-fleetapp-mtls.json5": render(
+            client_config(d, app_name(fleet)),
+            head(
+                "A fleet app of FLEET (certificate CN app.FLEET):\n"
+                "lessmap_client.connect(endpoint, config_file=THIS)."
+            ),
+        ),
+        "zenoh-router-usrpwd.json5": render(
+            usrpwd_router_config(d, [fleet], [service]),
+            head(
+                "Zenoh router for lessmap: TLS (server certificate only), user name and\n"
+                "password per role (credentials.txt: one `user:password` line each, mode 0600),\n"
+                "access control by user name. mTLS (zenoh-router-mtls.json5) is preferred."
+            ),
+        ),
+        "zenoh-robot-usrpwd.json5": render(
+            usrpwd_client_config(d, robot_name(fleet)),
+            head(
+                "A robot of FLEET logging in as robot.FLEET (zenoh-router-usrpwd.json5).\n"
+                "Set the password; the same file pattern serves app.FLEET and service."
+            ),
+        ),
+    }
+
+
+# -- the command --------------------------------------------------------------------------------
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap certs``."""
+    parser.description = (
+        "Write a test site's CA, a router certificate (SAN 127.0.0.1, localhost), one "
+        "certificate and key per role and fleet (CN robot.F, app.F, and the service names), "
+        "and the Zenoh configs of each role with mTLS and deny-by-default access control. "
+        "Keys are written mode 0600. See docs/SECURITY.md."
+    )
+    parser.add_argument("--out", type=Path, required=True, help="folder to write to")
+    parser.add_argument(
+        "--fleet", action="append", default=[], help="a fleet name (repeat for more fleets)"
+    )
+    parser.add_argument(
+        "--service-names",
+        nargs="+",
+        default=["service"],
+        metavar="NAME",
+        help="certificate CN of each service identity (default: service)",
+    )
+    parser.add_argument(
+        "--endpoint",
+        default=DEFAULT_ENDPOINT,
+        help=f"where the router listens and clients connect (default: {DEFAULT_ENDPOINT})",
+    )
+    parser.add_argument(
+        "--router-host",
+        action="append",
+        default=[],
+        metavar="HOST",
+        help="another DNS name or IP address of the router (its certificate's SAN)",
+    )
+    parser.add_argument("--days", type=int, default=365, help="validity (default: 365)")
+    parser.add_argument("--force", action="store_true", help="replace an existing CA")
+    parser.add_argument(
+        "--templates",
+        action="store_true",
+        help="write only the config templates of deploy/ (placeholder fleet FLEET) to --out",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``lessmap certs``."""
+    if args.templates:
+        args.out.mkdir(parents=True, exist_ok=True)
+        for name, text in templates().items():
+            (args.out / name).write_text(text, encoding="utf-8")
+        return 0
+    if args.days < 1:
+        msg = "--days must be at least 1"
+        raise ConfigError(msg)
+    site = make_site(
+        args.out,
+        args.fleet,
+        args.service_names,
+        endpoint=args.endpoint,
+        router_hosts=args.router_host,
+        days=args.days,
+        force=args.force,
+    )
+    files = {
+        "router": str(site.router),
+        "services": {k: str(v) for k, v in site.services.items()},
+        "robots": {k: str(v) for k, v in site.robots.items()},
+        "apps": {k: str(v) for k, v in site.apps.items()},
+    }
+    sys.stdout.write(json.dumps(files) + "\n")
+    return 0
