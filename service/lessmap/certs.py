@@ -562,14 +562,19 @@ def _certificate(
 
 # -- templates (deploy/) ------------------------------------------------------------------------
 
-TEMPLATE_HEADER = """\
-{what}
-Template: replace every FLEET by your fleet's name (add a subject, a policy and the rules of
-each further fleet, or let `lessmap certs --out DIR --fleet F [--fleet G]` write this file
-filled in), and put the files it names in {folder}. See docs/SECURITY.md.
-Listens on (or connects to) loopback only: to open it, put the address of one interface,
-e.g. "tls/10.0.0.5:7447" (never 0.0.0.0), and the router's name or IP in its certificate
-(`lessmap certs --router-host`).
+ROUTER_NOTE = """\
+Template: replace FLEET by your fleet's name; for more fleets, repeat the FLEET rules, subjects
+and policy per fleet, or let `lessmap certs --out DIR --fleet F [--fleet G]` write this file
+filled in. Put the files it names in {folder}. See docs/SECURITY.md.
+Listens on loopback only. To open it, listen on the address of one interface, e.g.
+"tls/10.0.0.5:7447" (never 0.0.0.0), with that name or IP in the router's certificate
+(`lessmap certs --router-host 10.0.0.5`).
+"""
+
+CLIENT_NOTE = """\
+Template: replace FLEET by your fleet's name and 127.0.0.1 by the router's address (a name or
+IP in its certificate), and put the files it names in {folder}; `lessmap certs` writes it
+filled in. See docs/SECURITY.md.
 """
 
 
@@ -577,13 +582,16 @@ def templates() -> dict[str, str]:
     """Return the deploy/ config templates, by file name (placeholder fleet and paths)."""
     d, fleet, service = TEMPLATE_DIR, TEMPLATE_FLEET, "service"
 
-    def head(what: str) -> str:
-        return TEMPLATE_HEADER.format(what=what, folder=d)
+    def router(what: str) -> str:
+        return what + "\n" + ROUTER_NOTE.format(folder=d)
+
+    def client(what: str) -> str:
+        return what + "\n" + CLIENT_NOTE.format(folder=d)
 
     return {
         "zenoh-router-mtls.json5": render(
             router_config(d, [fleet], [service]),
-            head(
+            router(
                 "Zenoh router for lessmap: TLS, client certificates required (mTLS), and\n"
                 "access control that denies everything not allowed below, by certificate CN.\n"
                 "Run: zenohd -c zenoh-router-mtls.json5 (or any Zenoh router, e.g. Python's)."
@@ -591,35 +599,36 @@ def templates() -> dict[str, str]:
         ),
         "zenoh-service-mtls.json5": render(
             client_config(d, service),
-            head("A lessmap service instance: `lessmap serve --zenoh-config THIS`."),
+            client("A lessmap service instance (CN service): `lessmap serve --zenoh-config THIS`."),
         ),
         "zenoh-robot-mtls.json5": render(
             client_config(d, robot_name(fleet)),
-            head(
+            client(
                 "A robot of FLEET (certificate CN robot.FLEET):\n"
-                "lessmap_client.connect(endpoint, config_file=THIS).robot(...)."
+                "lessmap_client.connect(endpoint, config_file=THIS).robot(FLEET, name)."
             ),
         ),
         "zenoh-fleetapp-mtls.json5": render(
             client_config(d, app_name(fleet)),
-            head(
+            client(
                 "A fleet app of FLEET (certificate CN app.FLEET):\n"
                 "lessmap_client.connect(endpoint, config_file=THIS)."
             ),
         ),
         "zenoh-router-usrpwd.json5": render(
             usrpwd_router_config(d, [fleet], [service]),
-            head(
-                "Zenoh router for lessmap: TLS (server certificate only), user name and\n"
+            router(
+                "Zenoh router for lessmap: TLS (server certificate only), a user name and\n"
                 "password per role (credentials.txt: one `user:password` line each, mode 0600),\n"
-                "access control by user name. mTLS (zenoh-router-mtls.json5) is preferred."
+                "access control by user name. Prefer mTLS (zenoh-router-mtls.json5)."
             ),
         ),
         "zenoh-robot-usrpwd.json5": render(
             usrpwd_client_config(d, robot_name(fleet)),
-            head(
+            client(
                 "A robot of FLEET logging in as robot.FLEET (zenoh-router-usrpwd.json5).\n"
-                "Set the password; the same file pattern serves app.FLEET and service."
+                "Set the password and keep this file mode 0600; app.FLEET and service log\n"
+                "in the same way with their own user names."
             ),
         ),
     }
