@@ -399,6 +399,7 @@ def make_site(
     router_hosts: Iterable[str] = (),
     days: int = 365,
     force: bool = False,
+    reuse_ca: bool = False,
 ) -> Site:
     """Write a CA, one certificate per identity and the Zenoh configs of a test site.
 
@@ -411,6 +412,7 @@ def make_site(
             (127.0.0.1 and localhost are always in it).
         days: validity of every certificate.
         force: replace an existing CA (every older certificate stops working).
+        reuse_ca: keep the CA in ``out`` and issue new certificates and keys from it.
 
     Raises:
         ConfigError: a bad name, or a CA already in ``out`` without ``force``.
@@ -420,14 +422,20 @@ def make_site(
     _check_names(fleets, service_names)
     out.mkdir(parents=True, exist_ok=True)
     folder = out.resolve()
-    if (folder / "ca.key").exists() and not force:
-        msg = f"{out / 'ca.key'} exists: keep it, or give --force to replace the CA"
-        raise ConfigError(msg)
     now = datetime.datetime.now(datetime.UTC)
-    ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca_cert = _certificate("lessmap test CA", ca_key, None, None, now, days, ca=True)
-    _write_key(folder / "ca.key", ca_key)
-    (folder / "ca.pem").write_bytes(_pem(ca_cert))
+    if reuse_ca:
+        ca_key, ca_cert = _load_ca(folder)
+    elif (folder / "ca.key").exists() and not force:
+        msg = (
+            f"{out / 'ca.key'} exists: give --reuse-ca to issue new certificates from it, "
+            "or --force to replace the CA"
+        )
+        raise ConfigError(msg)
+    else:
+        ca_key = ec.generate_private_key(ec.SECP256R1())
+        ca_cert = _certificate("lessmap test CA", ca_key, None, None, now, days, ca=True)
+        _write_key(folder / "ca.key", ca_key)
+        (folder / "ca.pem").write_bytes(_pem(ca_cert))
     hosts = ["127.0.0.1", "localhost", *router_hosts]
     _issue(folder, "router", ca_key, ca_cert, now, days, hosts)
     identities = [*service_names]
@@ -454,6 +462,23 @@ def make_site(
         apps[fleet] = folder / f"zenoh-app-{fleet}-mtls.json5"
         apps[fleet].write_text(render(client_config(d, app_name(fleet), endpoint), header))
     return Site(folder, router, services, robots, apps)
+
+
+def _load_ca(folder: Path) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    try:
+        key = serialization.load_pem_private_key((folder / "ca.key").read_bytes(), None)
+        cert = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+    except FileNotFoundError as exc:
+        msg = f"--reuse-ca: no CA in {folder} ({exc.filename} is missing)"
+        raise ConfigError(msg) from exc
+    if not isinstance(key, ec.EllipticCurvePrivateKey):
+        msg = f"--reuse-ca: {folder / 'ca.key'} is not an EC key written by lessmap certs"
+        raise ConfigError(msg)
+    return key, cert
 
 
 def _pem(cert: x509.Certificate) -> bytes:
@@ -669,7 +694,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="another DNS name or IP address of the router (its certificate's SAN)",
     )
     parser.add_argument("--days", type=int, default=365, help="validity (default: 365)")
-    parser.add_argument("--force", action="store_true", help="replace an existing CA")
+    ca = parser.add_mutually_exclusive_group()
+    ca.add_argument("--force", action="store_true", help="replace an existing CA")
+    ca.add_argument(
+        "--reuse-ca",
+        action="store_true",
+        help="keep the CA in --out and re-issue every certificate and key from it",
+    )
     parser.add_argument(
         "--templates",
         action="store_true",
@@ -695,6 +726,7 @@ def run(args: argparse.Namespace) -> int:
         router_hosts=args.router_host,
         days=args.days,
         force=args.force,
+        reuse_ca=args.reuse_ca,
     )
     files = {
         "router": str(site.router),

@@ -66,9 +66,18 @@ def test_an_existing_ca_is_kept_unless_forced(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="--force"):
         make_site(tmp_path, ["f"])
     assert (tmp_path / "ca.pem").read_bytes() == before
+    old_robot = (tmp_path / "robot.f.pem").read_bytes()
+    make_site(tmp_path, ["f", "g"], reuse_ca=True)  # re-issue (and add a fleet), same CA
+    assert (tmp_path / "ca.pem").read_bytes() == before
+    assert (tmp_path / "robot.f.pem").read_bytes() != old_robot
+    ca = x509.load_pem_x509_certificate(before)
+    for name in ["robot.f.pem", "robot.g.pem", "router.pem"]:
+        x509.load_pem_x509_certificate((tmp_path / name).read_bytes()).verify_directly_issued_by(ca)
     make_site(tmp_path, ["f"], force=True)
     assert (tmp_path / "ca.pem").read_bytes() != before
     assert stat.S_IMODE((tmp_path / "ca.key").stat().st_mode) == 0o600
+    with pytest.raises(ConfigError, match="no CA"):
+        make_site(tmp_path / "empty", ["f"], reuse_ca=True)
 
 
 def test_the_command_writes_a_site_and_refuses_to_overwrite_it(
