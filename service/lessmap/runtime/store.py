@@ -77,6 +77,7 @@ class CheckpointStore:
         self.max_bytes = max_bytes
         self._clock = clock
         self._pending: dict[RobotKey, SessionRecord | None] = {}  # None: delete
+        self._in_flight = False  # the writer holds a batch taken from _pending
         self._cond = threading.Condition()
         self._db_lock = threading.Lock()  # one connection, shared by the writer and readers
         self._db: sqlite3.Connection | None = None
@@ -219,10 +220,10 @@ class CheckpointStore:
         return [_record(row) for row in rows]
 
     def flush(self, timeout_s: float = 10.0) -> bool:
-        """Wait until everything saved so far is written; False on timeout."""
+        """Wait until everything saved so far is committed to the file; False on timeout."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
-            while self._pending and self._db is not None:
+            while (self._pending or self._in_flight) and self._db is not None:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     return False
@@ -240,10 +241,15 @@ class CheckpointStore:
                     if not self._pending:
                         break
                 batch, self._pending = self._pending, {}
+                self._in_flight = bool(batch)
                 stopping = self._stopping
             if batch:
                 self._write(batch)
+            # Drop the written records now: kept until the next round, a batch of evicted
+            # sessions (their snapshots) would stay in memory while the writer waits.
+            del batch
             with self._cond:
+                self._in_flight = False
                 self._cond.notify_all()  # flush() waiters
             now = self._clock()
             if now - self._last_prune_s >= _PRUNE_EVERY_S:
