@@ -18,7 +18,13 @@ from lessmap_client import connect
 from lessmap_client.session import open_session
 from lessmap_schemas import encode, encoding, keys
 from lessmap_schemas.codec import decode
-from lessmap_schemas.messages import Frame, SessionState, SubmapSummary, Transition
+from lessmap_schemas.messages import (
+    Frame,
+    SessionEnd,
+    SessionState,
+    SubmapSummary,
+    Transition,
+)
 from tests.conftest import ServeProcess, wait_until
 
 if TYPE_CHECKING:
@@ -130,6 +136,47 @@ def test_a_robot_of_another_fleet_cannot_feed_this_fleet(
     time.sleep(QUIET_S)
     assert app.state(site.fleet, "victim") is None
     assert app.states(site.fleet) == []
+
+
+def test_only_the_fleets_robots_may_end_or_replace_a_robots_session(
+    site: SecureSite,
+    service: ServeProcess,
+    connect_as: Callable[..., Connection],
+    session_as: Callable[..., zenoh.Session],
+) -> None:
+    # The rule (schemas/README.md §6): a SessionEnd or a frame with a new session id is
+    # obeyed from whoever may put on the robot's frames key; access control limits that key
+    # to the robot's fleet. Robot G's SessionEnd and new-session frame for F's robot are
+    # never applied, and F's session goes on.
+    robots = connect_as("robot")
+    app = connect_as("app")
+    assert app.wait_for_service(20.0), service.log()
+    victim = robots.robot(site.fleet, "victim")
+    for seq in range(5):
+        victim.publish([seq, seq + 1, 100])
+    wait_until(
+        lambda: (s := app.state(site.fleet, "victim")) is not None and s.frames_applied == 5,
+        15.0,
+        "the victim's first frames",
+    )
+    intruder = session_as("robot", site.other)
+    end = SessionEnd(session=victim.session_id, last_seq=4, stamp_s=0.0)
+    intruder.put(keys.frames(site.fleet, "victim"), encode(end), encoding=encoding(end))
+    takeover = Frame(session="s-takeover", seq=0, stamp_s=0.0, features=[1])
+    intruder.put(keys.frames(site.fleet, "victim"), encode(takeover), encoding=encoding(takeover))
+    time.sleep(QUIET_S)
+    for seq in range(5, 10):
+        victim.publish([seq, seq + 1, 100])
+    wait_until(
+        lambda: (s := app.state(site.fleet, "victim")) is not None and s.frames_applied == 10,
+        15.0,
+        "the victim's later frames, in the same session",
+    )
+    state = app.state(site.fleet, "victim")
+    assert state is not None
+    assert state.open
+    assert state.session == victim.session_id
+    assert victim.status.closed_by_service is False
 
 
 def test_a_robot_cannot_forge_transitions(
