@@ -2,8 +2,8 @@
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
 session presents: ``robot.<fleet>``, ``app.<fleet>`` and the service names (``service`` by
-default). ``access_rules`` is the one place that maps those roles to Zenoh ``access_control``
-rules; the router configs this command writes and the templates in ``deploy/``
+default). ``lessmap.siteconfig.access_rules`` is the one place that maps those roles to Zenoh
+``access_control`` rules; the router configs this command writes and the templates in ``deploy/``
 (``--templates``) are both rendered from it, so they cannot drift apart.
 
 Private keys are written with mode 0600 and never overwritten silently: an existing CA is kept
@@ -19,9 +19,21 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from lessmap.errors import ConfigError
+from lessmap.siteconfig import (
+    DEFAULT_ENDPOINT,
+    TEMPLATE_DIR,
+    TEMPLATE_FLEET,
+    app_name,
+    client_config,
+    render,
+    robot_name,
+    router_config,
+    usrpwd_client_config,
+    usrpwd_router_config,
+)
 from lessmap_schemas import keys
 
 if TYPE_CHECKING:
@@ -30,332 +42,6 @@ if TYPE_CHECKING:
 
     from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric import ec
-
-#: Where the templates in ``deploy/`` expect the site's files.
-TEMPLATE_DIR = "/etc/lessmap/tls"
-#: The placeholder fleet name of the templates.
-TEMPLATE_FLEET = "FLEET"
-DEFAULT_ENDPOINT = "tls/127.0.0.1:7447"
-
-P = keys.KEY_PREFIX
-ALL_MESSAGES = [
-    "put",
-    "delete",
-    "declare_subscriber",
-    "query",
-    "reply",
-    "declare_queryable",
-    "liveliness_token",
-    "declare_liveliness_subscriber",
-    "liveliness_query",
-]
-
-
-def robot_name(fleet: str) -> str:
-    """Return the certificate CN (or user name) of the robots of ``fleet``."""
-    return f"robot.{fleet}"
-
-
-def app_name(fleet: str) -> str:
-    """Return the certificate CN (or user name) of the fleet apps of ``fleet``."""
-    return f"app.{fleet}"
-
-
-def _rule(rule_id: str, flow: str, messages: Sequence[str], key_exprs: Sequence[str]) -> Any:
-    return {
-        "id": rule_id,
-        "messages": list(messages),
-        "flows": [flow],
-        "permission": "allow",
-        "key_exprs": list(key_exprs),
-    }
-
-
-def access_rules(
-    fleets: Sequence[str], service_names: Sequence[str], subject_kind: str = "cert_common_names"
-) -> dict[str, Any]:
-    """Return the ``access_control`` section: deny by default, allow each role its keys.
-
-    Ingress rules say what a session may send to the router; egress rules what the router
-    forwards to it (declarations of interest included: a publisher only sends where a
-    subscriber was announced to it).
-
-    Args:
-        fleets: fleet names; each gets a robot and an app subject.
-        service_names: identities of the service instances.
-        subject_kind: ``cert_common_names`` (mTLS) or ``usernames`` (usrpwd).
-    """
-    any_robot = f"{P}/*/*"
-    rules = [
-        _rule(
-            "service-in",
-            "ingress",
-            ["put", "delete", "reply"],
-            [
-                f"{any_robot}/transitions",
-                f"{any_robot}/transitions/@adv/**",
-                f"{any_robot}/errors",
-                f"{any_robot}/state",
-                f"{any_robot}/submaps/*",
-                f"{P}/@/health/*",
-                f"{P}/@/errors/*",
-            ],
-        ),
-        _rule(
-            "service-declare",
-            "ingress",
-            ["declare_queryable", "liveliness_token"],
-            [
-                f"{any_robot}/state",
-                f"{any_robot}/submaps/*",
-                f"{any_robot}/transitions/@adv/**",
-                f"{P}/@/health/*",
-                f"{P}/@/instances/*",
-            ],
-        ),
-        _rule(
-            "service-read",
-            "ingress",
-            ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"],
-            [f"{any_robot}/frames", f"{any_robot}/frames/@adv/**", f"{P}/@/instances/*"],
-        ),
-        _rule(
-            "service-out",
-            "egress",
-            ALL_MESSAGES,
-            [
-                f"{any_robot}/frames",
-                f"{any_robot}/frames/@adv/**",
-                f"{any_robot}/transitions",
-                f"{any_robot}/transitions/@adv/**",
-                f"{any_robot}/errors",
-                f"{any_robot}/state",
-                f"{any_robot}/submaps/*",
-                f"{P}/@/health/*",
-                f"{P}/@/instances/*",
-                f"{P}/@/errors/*",
-            ],
-        ),
-    ]
-    # The service declares its subscriber and queryables with wildcards (every fleet at once).
-    # A declaration is forwarded to a client only where a rule *includes* its whole key
-    # expression, and a client that never learns of the subscriber sends it nothing (Zenoh
-    # filters at the writer): robots and apps must see these, and only these, wildcards.
-    rules.append(
-        _rule(
-            "see-service",
-            "egress",
-            ["declare_subscriber", "declare_queryable"],
-            [f"{any_robot}/frames", f"{any_robot}/state", f"{any_robot}/submaps/*"],
-        )
-    )
-    subjects: list[dict[str, Any]] = [{"id": "service", subject_kind: list(service_names)}]
-    policies: list[dict[str, Any]] = [
-        {"rules": ["service-in", "service-declare", "service-read", "service-out"],
-         "subjects": ["service"]}
-    ]  # fmt: skip
-    for fleet in fleets:
-        robots = f"{P}/{fleet}/*"
-        rules += [
-            # Frames and session ends, and what the robot's AdvancedPublisher declares: the
-            # cache queryable and its replies, the publisher's liveliness token.
-            _rule(f"robot-{fleet}-put", "ingress", ["put"], [f"{robots}/frames"]),
-            _rule(
-                f"robot-{fleet}-cache",
-                "ingress",
-                ["declare_queryable", "reply", "liveliness_token"],
-                [f"{robots}/frames/@adv/**"],
-            ),
-            # The SDK's robot follows its own errors and state and waits for the service.
-            _rule(
-                f"robot-{fleet}-read",
-                "ingress",
-                ["declare_subscriber", "query", "liveliness_query"],
-                [f"{robots}/errors", f"{robots}/state", f"{P}/@/instances/*"],
-            ),
-            _rule(
-                f"robot-{fleet}-out",
-                "egress",
-                ALL_MESSAGES,
-                [
-                    f"{robots}/frames",
-                    f"{robots}/frames/@adv/**",
-                    f"{robots}/errors",
-                    f"{robots}/state",
-                    f"{P}/@/instances/*",
-                ],
-            ),
-            # Fleet apps read their fleet's outputs (with the transitions' history and
-            # recovery under @adv) and the service's liveliness and health.
-            _rule(
-                f"app-{fleet}-read",
-                "ingress",
-                [
-                    "declare_subscriber",
-                    "query",
-                    "liveliness_query",
-                    "declare_liveliness_subscriber",
-                ],
-                [
-                    f"{robots}/transitions",
-                    f"{robots}/transitions/@adv/**",
-                    f"{robots}/errors",
-                    f"{robots}/state",
-                    f"{robots}/submaps/*",
-                    f"{P}/@/health/*",
-                    f"{P}/@/instances/*",
-                ],
-            ),
-            _rule(
-                f"app-{fleet}-out",
-                "egress",
-                ALL_MESSAGES,
-                [
-                    f"{robots}/transitions",
-                    f"{robots}/transitions/@adv/**",
-                    f"{robots}/errors",
-                    f"{robots}/state",
-                    f"{robots}/submaps/*",
-                    f"{P}/@/health/*",
-                    f"{P}/@/instances/*",
-                ],
-            ),
-        ]
-        subjects += [
-            {"id": f"robot-{fleet}", subject_kind: [robot_name(fleet)]},
-            {"id": f"app-{fleet}", subject_kind: [app_name(fleet)]},
-        ]
-        policies += [
-            {
-                "rules": [
-                    f"robot-{fleet}-put",
-                    f"robot-{fleet}-cache",
-                    f"robot-{fleet}-read",
-                    f"robot-{fleet}-out",
-                    "see-service",
-                ],
-                "subjects": [f"robot-{fleet}"],
-            },
-            {
-                "rules": [f"app-{fleet}-read", f"app-{fleet}-out", "see-service"],
-                "subjects": [f"app-{fleet}"],
-            },
-        ]
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": rules,
-        "subjects": subjects,
-        "policies": policies,
-    }
-
-
-def router_config(
-    folder: str,
-    fleets: Sequence[str],
-    service_names: Sequence[str],
-    endpoint: str = DEFAULT_ENDPOINT,
-) -> dict[str, Any]:
-    """Return the router's config: TLS with client certificates, deny-by-default ACL."""
-    return {
-        "mode": "router",
-        "listen": {"endpoints": [endpoint]},
-        "scouting": {"multicast": {"enabled": False}},
-        "timestamping": {"enabled": True},
-        "transport": {
-            "link": {
-                "tls": {
-                    "root_ca_certificate": f"{folder}/ca.pem",
-                    "listen_private_key": f"{folder}/router.key",
-                    "listen_certificate": f"{folder}/router.pem",
-                    "enable_mtls": True,
-                }
-            }
-        },
-        "access_control": access_rules(fleets, service_names),
-    }
-
-
-def client_config(folder: str, identity: str, endpoint: str = DEFAULT_ENDPOINT) -> dict[str, Any]:
-    """Return a client's config: connect over TLS, prove ``identity`` with its certificate."""
-    return {
-        "mode": "client",
-        "connect": {"endpoints": [endpoint]},
-        "scouting": {"multicast": {"enabled": False}},
-        "timestamping": {"enabled": True},
-        "transport": {
-            "link": {
-                "tls": {
-                    "root_ca_certificate": f"{folder}/ca.pem",
-                    "connect_private_key": f"{folder}/{identity}.key",
-                    "connect_certificate": f"{folder}/{identity}.pem",
-                    "enable_mtls": True,
-                    # The router's certificate must name the host dialled (its SAN).
-                    "verify_name_on_connect": True,
-                }
-            }
-        },
-    }
-
-
-def usrpwd_router_config(
-    folder: str,
-    fleets: Sequence[str],
-    service_names: Sequence[str],
-    endpoint: str = DEFAULT_ENDPOINT,
-) -> dict[str, Any]:
-    """Return a router config that authenticates by user name and password over TLS."""
-    conf = router_config(folder, fleets, service_names, endpoint)
-    del conf["transport"]["link"]["tls"]["enable_mtls"]
-    conf["transport"]["auth"] = {
-        "usrpwd": {
-            # One `user:password` line per identity, e.g. `robot.warehouse:<secret>`.
-            "dictionary_file": f"{folder}/credentials.txt",
-        }
-    }
-    conf["access_control"] = access_rules(fleets, service_names, "usernames")
-    return conf
-
-
-def usrpwd_client_config(
-    folder: str, identity: str, endpoint: str = DEFAULT_ENDPOINT
-) -> dict[str, Any]:
-    """Return a client config that logs in as ``identity`` over server-authenticated TLS."""
-    conf = client_config(folder, identity, endpoint)
-    conf["transport"]["link"]["tls"] = {
-        "root_ca_certificate": f"{folder}/ca.pem",
-        "verify_name_on_connect": True,
-    }
-    conf["transport"]["auth"] = {"usrpwd": {"user": identity, "password": "CHANGE-ME"}}
-    return conf
-
-
-def render(config: dict[str, Any], header: str) -> str:
-    """Return ``config`` as JSON5 text (JSON with ``//`` comments), short lists on one line."""
-    lines = [f"// {line}".rstrip() for line in header.strip().splitlines()]
-    return "\n".join(lines) + "\n" + _dump(config, 0) + "\n"
-
-
-def _dump(value: Any, indent: int, width: int = 100) -> str:
-    flat = _inline(value)
-    if not isinstance(value, dict | list) or 2 * indent + len(flat) <= width - 20:
-        return flat
-    pad = "  " * (indent + 1)
-    if isinstance(value, dict):
-        items = [f"{pad}{k}: {_dump(v, indent + 1)}" for k, v in value.items()]
-        opening, ending = "{", "}"
-    else:
-        items = [f"{pad}{_dump(v, indent + 1)}" for v in value]
-        opening, ending = "[", "]"
-    return opening + "\n" + ",\n".join(items) + ",\n" + "  " * indent + ending
-
-
-def _inline(value: Any) -> str:
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k}: {_inline(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, list):
-        return "[" + ", ".join(_inline(v) for v in value) + "]"
-    return json.dumps(value, ensure_ascii=False)
 
 
 # -- the site -----------------------------------------------------------------------------------

@@ -15,15 +15,10 @@ import zenoh
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from lessmap.certs import (
-    make_site,
-    render,
-    templates,
-    usrpwd_client_config,
-    usrpwd_router_config,
-)
+from lessmap.certs import make_site, templates
 from lessmap.cli import main
 from lessmap.errors import ConfigError
+from lessmap.siteconfig import render, usrpwd_client_config, usrpwd_router_config
 from lessmap_client.session import open_session
 from tests.conftest import free_port, wait_until
 
