@@ -173,8 +173,6 @@ class Service:
         else:
             log.info("session checkpoints in %s", self.store.path)
             self._check_catchup_budget()
-        for problem in self.store.problems:
-            log.error("%s", problem)
 
     def _check_catchup_budget(self) -> None:
         """Warn when a crash can lose frames that the robots' caches would have held.
