@@ -111,6 +111,32 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         256, ge=1, description="frames coalesced per decision under load (1 = decide every frame)"
     )
 
+    # -- work budgets (docs/BENCHMARKS.md, "Noisy neighbours") --
+    # A frame of k features makes k(k-1)/2 pair updates, a decision costs in proportion to
+    # the CovGraph's edges: these bound the work, where max_nodes_per_session bounds nodes.
+    max_pairs_per_frame: int = Field(
+        200_000,
+        ge=1,
+        description="feature pairs one frame may update, k(k-1)/2 (about 630 features)",
+    )
+    max_edges_per_session: int = Field(
+        1_000_000, ge=1, description="CovGraph edges per session (one decision ~0.3 s at it)"
+    )
+    max_edges_total: int = Field(
+        20_000_000, ge=1, description="CovGraph edges summed over the sessions in memory"
+    )
+    new_sessions_per_s_per_fleet: float = Field(
+        200.0, gt=0.0, description="new sessions a fleet may open per second (token bucket)"
+    )
+    new_sessions_burst: int = Field(
+        2000, ge=1, description="new sessions a fleet may open in a burst"
+    )
+    fair_quantum: int = Field(
+        5_000_000,
+        ge=1000,
+        description="work per robot and scheduling round, in pair updates (fair scheduling)",
+    )
+
     # -- durable sessions --
     # Checkpoints go to <state_dir>/sessions.sqlite3. A restarted instance resumes each
     # session at its checkpoint and asks the robots' publication caches for the frames after

@@ -37,7 +37,15 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     client_session: Callable[[str], zenoh.Session],
     fleet_name: str,
 ) -> None:
-    service = serve("--idle-timeout", "2", "--max-sessions", "20000", metrics=True)
+    service = serve(
+        "--idle-timeout",
+        "2",
+        "--max-sessions",
+        "20000",
+        "--new-sessions-per-s-per-fleet",
+        "100000",
+        metrics=True,
+    )
     session = client_session(service.endpoint)
     wait_until(lambda: "serving as" in service.log(), 30.0, "the service")
 

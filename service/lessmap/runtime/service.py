@@ -19,6 +19,7 @@ from prometheus_client import start_http_server
 
 from lessmap import __version__
 from lessmap.errors import ConfigError
+from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.sessions import SessionTable
@@ -103,6 +104,8 @@ class Service:
             error_burst=s.error_burst,
         )
         params = s.partition_params()
+        ledger = EdgeLedger(s.workers, s.max_edges_total)
+        admission = SessionAdmission(s.new_sessions_per_s_per_fleet, s.new_sessions_burst)
         for index in range(s.workers):
             table = SessionTable(
                 params,
@@ -118,6 +121,11 @@ class Service:
                 # Catch-up with a store only: memory-only keeps today's immediate SEQ_GAP.
                 catchup_max_frames=0 if self.store.path is None else s.catchup_max_frames,
                 catchup_wait_s=s.catchup_wait_s,
+                max_pairs_per_frame=s.max_pairs_per_frame,
+                max_edges=s.max_edges_per_session,
+                ledger=ledger,
+                ledger_slot=index,
+                admission=admission,
             )
             self._shards.append(
                 Shard(
@@ -129,6 +137,7 @@ class Service:
                     queue_bytes=_QUEUE_BYTES_PER_SHARD,
                     linger_s=s.batch_linger_ms / 1000.0,
                     request_catchup=self._request_catchup,
+                    quantum=s.fair_quantum,
                 )
             )
         for shard in self._shards:

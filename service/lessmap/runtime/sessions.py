@@ -20,6 +20,16 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    ``lessmap segment`` does offline.
 4. Limits never grow memory unbounded: at most ``max_sessions`` open sessions per shard and
    ``max_nodes`` features per CovGraph; past either, the message is rejected with an error.
+   Work budgets bound what one frame may cost before it reaches the core: at most
+   ``max_pairs_per_frame`` pair updates (k features make k(k-1)/2; ``LIMIT_EXCEEDED``),
+   at most ``max_edges`` CovGraph edges per session and ``ledger.max_edges_total`` over the
+   instance (``GRAPH_LIMIT``). The edge checks are conservative: a frame is counted as if
+   every pair of its features were a new edge (a session near its budget may see a frame
+   refused that would have added fewer). A refused frame counts as received and rejected.
+   New sessions are admitted at ``admission.rate_per_s`` per fleet (a token bucket); when
+   the shard is full, sessions idle for ``_EVICT_MIN_IDLE_S`` or more are evicted to the
+   store (longest idle first) to make room, and only then is a frame refused
+   (``SESSION_LIMIT``).
 5. Durable sessions (with a ``CheckpointStore`` that reaches a file): a session is checkpointed
    every ``checkpoint_every_frames`` applied frames or ``checkpoint_interval_s``, whichever
    comes first, when it closes and when the service stops. A session that is not in memory
@@ -53,6 +63,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from lessmap.core import GraphError, Partitioner, PartitionParams, snapshot
+from lessmap.runtime.budget import pairs_of
 from lessmap.runtime.store import SessionRecord
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame, SessionEnd, SessionState, SubmapSummary
@@ -61,6 +72,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
     from lessmap.core import Submap, Transition
+    from lessmap.runtime.budget import EdgeLedger, SessionAdmission
     from lessmap.runtime.store import CheckpointStore
 
 log = logging.getLogger(__name__)
@@ -69,6 +81,13 @@ RobotKey = tuple[str, str]  # (fleet, robot)
 
 _CLOSED_IDS_KEPT = 16  # per robot: enough to reject stragglers of recent sessions
 _GAPS_KEPT = 64  # per session: gap ranges remembered to tell OUT_OF_ORDER from DUPLICATE
+_EVICT_MIN_IDLE_S = 1.0  # a full shard evicts sessions idle this long to admit a new one
+_EVICT_BATCH = 16  # sessions evicted at once when the shard is full (amortizes the scan)
+# Cost units of the fair scheduler (shard.py): roughly one pair update each. A frame costs
+# its pairs plus a fixed overhead; a decision costs in proportion to the CovGraph's edges
+# (measured: ~25 ns per pair update, ~0.25 us per edge and decision).
+FRAME_COST = 1000
+DECISION_COST_PER_EDGE = 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +136,7 @@ class RobotSession:
     hold_until_s: float | None = None  # a hold is under way until then
     next_catchup_s: float = 0.0  # no new catch-up query before
     recovered: int = 0  # frames the current hold took from the robot's cache
+    edges: int = 0  # upper bound of the CovGraph's edges (exact after a decision)
 
     def counters(self) -> dict[str, Any]:
         """The non-partitioner part of the session, for its checkpoint (JSON-ready)."""
@@ -223,8 +243,19 @@ class SessionTable:
         catchup_max_frames: int = 0,
         catchup_wait_s: float = 2.0,
         wall_clock: Callable[[], float] = time.time,
+        max_pairs_per_frame: int = 0,
+        max_edges: int = 0,
+        ledger: EdgeLedger | None = None,
+        ledger_slot: int = 0,
+        admission: SessionAdmission | None = None,
     ) -> None:
         self._params = params
+        self._max_pairs = max_pairs_per_frame  # 0: no budget
+        self._max_edges = max_edges  # 0: no budget
+        self._ledger = ledger
+        self._ledger_slot = ledger_slot
+        self._admission = admission
+        self._decide_every = max_batch_frames  # this call's coalescing (``handle_batch``)
         self._catchup_max_frames = catchup_max_frames  # 0: no catch-up, gaps reported at once
         self._catchup_wait_s = catchup_wait_s
         self._holding: set[RobotKey] = set()  # sessions with a hold under way
@@ -239,7 +270,8 @@ class SessionTable:
         self._max_batch_frames = max_batch_frames
         self._idle_timeout_s = idle_timeout_s
         self._clock = clock  # only used to time decisions; activity time is passed in
-        self._open: dict[RobotKey, RobotSession] = {}
+        # Least recently active first: a full shard evicts from the front.
+        self._open: OrderedDict[RobotKey, RobotSession] = OrderedDict()
         self._closed_ids: OrderedDict[RobotKey, deque[str]] = OrderedDict()
         # Closed sessions leave only their final state (the CovGraph is freed), kept for
         # state and submap queries until max_sessions newer ones push it out.
@@ -285,10 +317,38 @@ class SessionTable:
 
     # -- batch -----------------------------------------------------------------------------
 
+    def decision_cost(self, key: RobotKey) -> int:
+        """Estimated cost of one decision of a robot's session, in scheduler cost units."""
+        session = self._open.get(key)
+        edges = 0 if session is None else session.edges
+        return FRAME_COST + DECISION_COST_PER_EDGE * edges
+
+    @property
+    def edges(self) -> int:
+        """Edges held by this table's sessions (an upper bound)."""
+        return sum(s.edges for s in self._open.values())
+
     def handle_batch(
+        self,
+        messages: Iterable[tuple[str, str, Frame | SessionEnd]],
+        now_s: float,
+        decide_every: int | None = None,
+    ) -> Outcome:
+        """Apply a batch of decoded messages (arrival order) and decide once per session.
+
+        ``decide_every`` lowers the coalescing of this call (the fair scheduler asks for 1
+        when a robot's frames fit its share); it never raises it above ``max_batch_frames``.
+        """
+        limit = self._max_batch_frames
+        self._decide_every = limit if decide_every is None else max(1, min(decide_every, limit))
+        try:
+            return self._handle_batch(messages, now_s)
+        finally:
+            self._decide_every = limit
+
+    def _handle_batch(
         self, messages: Iterable[tuple[str, str, Frame | SessionEnd]], now_s: float
     ) -> Outcome:
-        """Apply a batch of decoded messages (arrival order) and decide once per session."""
         outcome = Outcome()
         per_robot: dict[RobotKey, list[Frame | SessionEnd]] = {}
         for fleet, robot, message in messages:
@@ -301,6 +361,8 @@ class SessionTable:
                 # state is suspect), report it, go on. The shard logs the traceback.
                 outcome.failures.append((key, exc))
                 broken = self._open.pop(key, None)
+                if broken is not None:
+                    self._set_edges(broken, 0)
                 self._holding.discard(key)
                 outcome.reject(
                     key[0],
@@ -351,21 +413,16 @@ class SessionTable:
                 return
             if current is not None:
                 self._close(key, "replaced", out)
-            if len(self._open) >= self._max_sessions:
-                out.reject(
-                    fleet,
-                    robot,
-                    session_id,
-                    ErrorCode.SESSION_LIMIT,
-                    f"{len(self._open)} sessions open, the shard limit",
-                    run[0].seq,
-                )
+            refusal = self._admit(fleet, now_s, out)
+            if refusal is not None:
+                out.reject(fleet, robot, session_id, ErrorCode.SESSION_LIMIT, refusal, run[0].seq)
                 return
             current = RobotSession(fleet, robot, session_id, Partitioner(self._params), now_s)
             self._phase_checkpoints(current, now_s)
             self._open[key] = current
             out.opened.append(current)
         current.last_activity_s = now_s
+        self._open.move_to_end(key)
         ordered = sorted(run, key=lambda f: f.seq)
         if self._catchup_max_frames:
             # Lazy on purpose: each frame is routed after the ones before it were applied,
@@ -378,6 +435,34 @@ class SessionTable:
             self._apply_frames(current, ordered, out)
         self._checkpoint_if_due(current, now_s)
 
+    def _admit(self, fleet: str, now_s: float, out: Outcome) -> str | None:
+        """Make room for a new session; return why it cannot be opened, or None."""
+        if self._admission is not None and not self._admission.allow(fleet, now_s):
+            return (
+                f"fleet {fleet!r} opens more than {self._admission.rate_per_s:g} new sessions "
+                f"a second (burst {self._admission.burst}); retry later"
+            )
+        if len(self._open) >= self._max_sessions and self._store is not None:
+            # Longest idle first (``_open`` is in activity order); never one that is busy.
+            for key, session in list(self._open.items())[:_EVICT_BATCH]:
+                if now_s - session.last_activity_s < _EVICT_MIN_IDLE_S:
+                    break
+                self._evict(key, session, now_s, out)
+        if len(self._open) >= self._max_sessions:
+            return (
+                f"{len(self._open)} sessions open, the shard limit, none idle for "
+                f"{_EVICT_MIN_IDLE_S:g} s to evict"
+                if self._store is not None
+                else f"{len(self._open)} sessions open, the shard limit"
+            )
+        return None
+
+    def _set_edges(self, session: RobotSession, edges: int) -> None:
+        """Record a session's edges (0 when it leaves memory) in the instance's ledger."""
+        if self._ledger is not None:
+            self._ledger.add(self._ledger_slot, edges - session.edges)
+        session.edges = edges
+
     def _apply_frames(self, session: RobotSession, frames: Iterable[Frame], out: Outcome) -> None:
         """Apply frames (ascending seq) and decide every ``max_batch_frames`` applied."""
         pending = 0
@@ -385,7 +470,7 @@ class SessionTable:
             if self._apply_frame(session, frame, out):
                 pending += 1
                 session.frames_since_checkpoint += 1
-                if pending >= self._max_batch_frames:
+                if pending >= self._decide_every:
                     self._decide(session, out)
                     pending = 0
         if pending:
@@ -619,6 +704,7 @@ class SessionTable:
             return None
         self._phase_checkpoints(session, now_s)
         self._open[key] = session
+        self._set_edges(session, partitioner.graph.edge_count)
         out.resumed.append(session)
         return session
 
@@ -657,6 +743,11 @@ class SessionTable:
         session.last_seen_seq = frame.seq
         if frame.seq > expected:
             self._count_gap(session, expected, frame.seq - 1, frame.seq, out)
+        refusal = self._over_budget(session, len(frame.features))
+        if refusal is not None:
+            session.frames_rejected += 1
+            out.reject(session.fleet, session.robot, session.session, *refusal, frame.seq)
+            return False
         if p.graph.node_count + len(frame.features) > self._max_nodes and (
             p.graph.node_count + sum(1 for f in set(frame.features) if p.graph.count(f) == 0)
             > self._max_nodes
@@ -684,8 +775,46 @@ class SessionTable:
                 frame.seq,
             )
             return False
+        if self._max_edges or self._ledger is not None:
+            self._set_edges(session, session.edges + pairs_of(len(frame.features)))
         out.frames_applied += 1
         return True
+
+    def _over_budget(self, session: RobotSession, features: int) -> tuple[ErrorCode, str] | None:
+        """Check a frame of ``features`` features against the work budgets (cheap bounds).
+
+        The bounds count every pair as a new edge; only when a bound says the frame could
+        break a budget is the session's exact edge count read (which merges pending pairs)
+        and the check repeated.
+        """
+        pairs = pairs_of(features)
+        if self._max_pairs and pairs > self._max_pairs:
+            return (
+                ErrorCode.LIMIT_EXCEEDED,
+                f"{features} features make {pairs} feature pairs, over the budget "
+                f"max_pairs_per_frame={self._max_pairs}",
+            )
+        ledger = self._ledger
+        if not self._max_edges and ledger is None:
+            return None
+        if (self._max_edges and session.edges + pairs > self._max_edges) or (
+            ledger is not None and ledger.total() + pairs > ledger.max_edges_total
+        ):
+            self._set_edges(session, session.partitioner.graph.edge_count)
+            if self._max_edges and session.edges + pairs > self._max_edges:
+                return (
+                    ErrorCode.GRAPH_LIMIT,
+                    f"CovGraph has {session.edges} edges; a frame of {features} features "
+                    f"could add {pairs}, over the budget max_edges_per_session={self._max_edges}",
+                )
+            if ledger is not None and ledger.total() + pairs > ledger.max_edges_total:
+                return (
+                    ErrorCode.GRAPH_LIMIT,
+                    f"the instance holds {ledger.total()} edges; a frame of {features} features "
+                    f"could add {pairs}, over the budget "
+                    f"max_edges_total={ledger.max_edges_total}",
+                )
+        return None
 
     @staticmethod
     def _count_gap(
@@ -709,6 +838,8 @@ class SessionTable:
         started = self._clock()
         transition = session.partitioner.decide()
         out.decisions.append((self._clock() - started, batch))
+        if self._max_edges or self._ledger is not None:
+            self._set_edges(session, session.partitioner.graph.edge_count)
         if transition is not None:
             out.transitions.append((session, transition))
 
@@ -744,6 +875,7 @@ class SessionTable:
         del self._open[key]
         if session.partitioner.pending_frames:
             self._decide(session, out)
+        self._set_edges(session, 0)
         ids = self._closed_ids.setdefault(key, deque(maxlen=_CLOSED_IDS_KEPT))
         ids.append(session.session)
         self._closed_ids.move_to_end(key)
@@ -767,13 +899,18 @@ class SessionTable:
                     self._close(key, "idle", out)
                     continue
                 # The robot may only be paused: keep its session, free the memory.
-                self._release(session, out, now_s)
-                if self._open.get(key) is not session:
-                    continue  # an end that waited for the catch-up closed it
-                self._checkpoint(session, "evicted", now_s)
-                del self._open[key]
-                out.evicted += 1
+                self._evict(key, session, now_s, out)
         return out
+
+    def _evict(self, key: RobotKey, session: RobotSession, now_s: float, out: Outcome) -> None:
+        """Move a session to the store (which this table has) and free its memory."""
+        self._release(session, out, now_s)
+        if self._open.get(key) is not session:
+            return  # an end that waited for the catch-up closed it
+        self._checkpoint(session, "evicted", now_s)
+        del self._open[key]
+        self._set_edges(session, 0)
+        out.evicted += 1
 
     def close_all(self, cause: str) -> Outcome:
         """Stop: checkpoint every open session (with a store) or close it (without)."""
@@ -791,6 +928,7 @@ class SessionTable:
             self._checkpoint(session, "open", session.last_activity_s)
             out.suspended.append(session.state(self._instance, is_open=True))
             del self._open[key]
+            self._set_edges(session, 0)
         return out
 
 

@@ -1,11 +1,26 @@
 """A shard: one inbound queue, one worker thread, the sessions of the robots hashed to it.
 
 The receive path never blocks Zenoh: the subscriber callback only measures the sample and
-appends it to a shard's queue (bounded in messages and in bytes). The worker drains the
-queue in batches, decodes, hands the batch to its ``SessionTable`` (which coalesces the
-spectral decisions of each session) and publishes what came out. A robot always hashes to
-the same shard, so its frames are handled in order by one thread; shards share nothing but
-the Zenoh session and the metrics.
+appends it to a shard's queue (bounded in messages and in bytes, and per robot to a quarter
+of both, so one robot cannot fill it for the others). A robot always hashes to the same
+shard, so its frames are handled in order by one thread; shards share nothing but the Zenoh
+session, the metrics and the work budgets (``budget.py``).
+
+Fair scheduling: the worker moves what arrived into one lane per robot (still raw bytes,
+still counted against the bounds) and serves the lanes by deficit round robin. Every round,
+each robot with pending messages gets ``fair_quantum`` cost units (roughly pair updates; a
+frame costs its k(k-1)/2 pairs plus a fixed overhead, a decision an estimate from its
+CovGraph's edges, ``SessionTable.decision_cost``) and is served what its deficit affords:
+
+- all of its pending frames with a decision after each, when that fits (a robot that keeps
+  up on its own is never coalesced because another robot was expensive);
+- else as many frames as fit with one decision per ``max_batch_frames`` (the robot's own
+  load coalesces its own frames);
+- else nothing this round (the deficit carries over, so a frame larger than the quantum
+  waits a few rounds while the other robots are served).
+
+A robot's turn is one ``handle_batch`` call under the table's lock, so state queries are
+answered between turns. ``max_batch_frames = 1`` still decides at every frame.
 
 Catch-up: when the table holds frames beyond a gap it returns ``CatchupRequest``s; the worker
 hands them to ``request_catchup`` (the service sends a Zenoh query with callbacks and
@@ -23,7 +38,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from lessmap.runtime.sessions import Outcome, Rejection, SessionTable
+from lessmap.runtime.budget import pairs_of
+from lessmap.runtime.sessions import FRAME_COST, Outcome, Rejection, SessionTable
 from lessmap_schemas.codec import decode_inbound
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.keys import parse_robot_key
@@ -38,7 +54,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-_BATCH_MAX = 4096  # messages taken from the queue per round: bounds one round's latency
+_BATCH_MAX = 4096  # messages moved from the queue to the lanes per round
+_ROBOT_SHARE = 4  # one robot may hold at most 1/_ROBOT_SHARE of the queue (messages, bytes)
 _LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
 
@@ -57,8 +74,18 @@ class Inbound:
     kind: int = LIVE
 
 
+@dataclass(slots=True)
+class _Lane:
+    """One robot's pending messages in the shard, and its deficit (cost units)."""
+
+    items: deque[Inbound]
+    deficit: float = 0.0
+    # The head item decoded (kept when the robot could not afford it this round).
+    head: Frame | SessionEnd | None = None
+
+
 class Shard:
-    """Owns a queue, a worker thread and a session table."""
+    """Owns a queue, per-robot lanes, a worker thread and a session table."""
 
     def __init__(
         self,
@@ -71,6 +98,7 @@ class Shard:
         queue_bytes: int,
         linger_s: float = 0.0,
         request_catchup: Callable[[Shard, CatchupRequest], None] | None = None,
+        quantum: int = 5_000_000,
     ) -> None:
         self.index = index
         self.table = table
@@ -80,9 +108,15 @@ class Shard:
         self._queue: deque[Inbound] = deque()
         self._queue_depth = queue_depth
         self._queue_bytes = queue_bytes
+        # Messages and bytes taken and not yet handled (in the queue or in a lane), in all
+        # and per key: ``offer`` bounds both, the worker gives them back after each turn.
+        self._held = 0
         self._queued_bytes = 0
+        self._per_key: dict[str, list[int]] = {}
         self._linger_s = linger_s
         self._request_catchup = request_catchup
+        self._quantum = quantum
+        self._lanes: dict[tuple[str, str], _Lane] = {}  # insertion order = round order
         self._ready = threading.Condition()
         self._stopping = False
         self._thread = threading.Thread(
@@ -99,17 +133,32 @@ class Shard:
         """Enqueue a sample without blocking; False when the shard is full (caller reports).
 
         The end of a catch-up query is always taken (one per query under way, each a few
-        bytes), so a hold never outlives its query because the queue was full.
+        bytes), so a hold never outlives its query because the queue was full. One robot
+        (key) may hold at most a quarter of the messages and bytes.
         """
         size = len(item.payload)
         with self._ready:
+            load = self._per_key.get(item.key)
             if item.kind != CATCHUP_DONE and (
                 self._stopping
-                or len(self._queue) >= self._queue_depth
+                or self._held >= self._queue_depth
                 or self._queued_bytes + size > self._queue_bytes
+                or (
+                    load is not None
+                    and (
+                        load[0] * _ROBOT_SHARE >= self._queue_depth
+                        or (load[1] + size) * _ROBOT_SHARE > self._queue_bytes
+                    )
+                )
             ):
                 return False
+            if load is None:
+                self._per_key[item.key] = [1, size]
+            else:
+                load[0] += 1
+                load[1] += size
             self._queue.append(item)
+            self._held += 1
             self._queued_bytes += size
             self._ready.notify()
         return True
@@ -121,8 +170,8 @@ class Shard:
             self._ready.notify()
 
     def depth(self) -> int:
-        """Messages waiting."""
-        return len(self._queue)
+        """Messages waiting (in the queue and in the robots' lanes)."""
+        return self._held
 
     # -- worker ------------------------------------------------------------------------------
 
@@ -139,36 +188,58 @@ class Shard:
         if self._thread.is_alive():
             log.warning("shard %d did not drain within %.1f s", self.index, timeout_s)
 
-    def _take(self) -> list[Inbound]:
+    def _collect(self) -> None:
+        """Move what arrived into the robots' lanes; wait for it when no lane has work."""
         with self._ready:
-            while not self._queue and not self._stopping and not self._notes:
+            while not self._queue and not self._lanes and not self._stopping and not self._notes:
                 self._ready.wait(timeout=_IDLE_SWEEP_S / 2)
                 if not self._queue:
                     break
-            linger = 0 < len(self._queue) < _LINGER_BELOW and not self._stopping
+            linger = not self._lanes and 0 < len(self._queue) < _LINGER_BELOW and not self._stopping
         if linger and self._linger_s > 0:
             # Woken by one frame: let the next few milliseconds of frames join this round.
             # A wake-up per frame costs as much CPU as the frame's own work at fleet rates.
             time.sleep(self._linger_s)
         with self._ready:
-            batch: list[Inbound] = []
-            while self._queue and len(batch) < _BATCH_MAX:
+            taken = 0
+            while self._queue and taken < _BATCH_MAX:
                 item = self._queue.popleft()
-                self._queued_bytes -= len(item.payload)
-                batch.append(item)
-            return batch
+                taken += 1
+                try:
+                    fleet, robot, _stream = parse_robot_key(item.key)
+                except WireError as exc:
+                    self._give_back([item])
+                    self._outbox.reject_unattributed(item.key, exc)
+                    continue
+                lane = self._lanes.get((fleet, robot))
+                if lane is None:
+                    lane = self._lanes[(fleet, robot)] = _Lane(deque())
+                lane.items.append(item)
+
+    def _give_back(self, items: list[Inbound]) -> None:
+        """Release the bounds held by handled items (caller may hold ``_ready``: RLock-free)."""
+        for item in items:
+            size = len(item.payload)
+            self._held -= 1
+            self._queued_bytes -= size
+            load = self._per_key.get(item.key)
+            if load is not None:
+                load[0] -= 1
+                load[1] -= size
+                if load[0] <= 0:
+                    del self._per_key[item.key]
 
     def _run(self) -> None:
         while True:
-            batch = self._take()
+            self._collect()
             if self._notes:
                 self._report_notes()
-            if batch:
+            if self._lanes:
                 try:
-                    self._process(batch)
+                    self._round()
                 except Exception:
                     # A bug must not kill the shard: log it, keep serving the other sessions.
-                    log.exception("shard %d failed on a batch of %d", self.index, len(batch))
+                    log.exception("shard %d failed in a round", self.index)
             now = time.monotonic()
             if self.table.holds:
                 with self.lock:
@@ -180,7 +251,7 @@ class Shard:
                     expired = self.table.expire_idle(now)
                 self._publish(expired, now)
             with self._ready:
-                if self._stopping and not self._queue:
+                if self._stopping and not self._queue and not self._lanes:
                     return
 
     def _report_notes(self) -> None:
@@ -202,42 +273,138 @@ class Shard:
             for request in outcome.catchups:
                 self._request_catchup(self, request)
 
-    def _process(self, batch: list[Inbound]) -> None:
+    # -- deficit round robin -----------------------------------------------------------------
+
+    def _round(self) -> None:
+        """Give every robot with pending messages one turn (deficit round robin)."""
+        for key in list(self._lanes):
+            lane = self._lanes[key]
+            lane.deficit += self._quantum
+            self._turn(key, lane)
+            if not lane.items:
+                del self._lanes[key]  # an empty lane keeps no credit (DRR)
+        self._outbox.metrics.queue_depth.set(self._held)
+
+    def _decoded_head(self, key: tuple[str, str], lane: _Lane, out: Outcome) -> bool:
+        """Decode the lane's head (a live sample) into ``lane.head``; drop it if it is bad.
+
+        Returns False when the head was dropped (a decoding failure, reported in ``out``).
+        """
+        if lane.head is not None or lane.items[0].kind != LIVE:
+            return True
+        item = lane.items[0]
+        try:
+            lane.head = decode_inbound(item.payload, self._limits)
+        except WireError as exc:
+            out.rejections.append(Rejection(key[0], key[1], None, exc.code, str(exc), None))
+            lane.items.popleft()
+            with self._ready:
+                self._give_back([item])
+            return False
+        return True
+
+    def _turn(self, key: tuple[str, str], lane: _Lane) -> None:
+        """Serve one robot what its deficit affords, deciding per frame when that fits."""
         now = time.monotonic()
-        decoded: list[tuple[str, str, Frame | SessionEnd]] = []
-        rejections: list[Rejection] = []
-        recovered: list[Inbound] = []
-        for item in batch:
-            if item.kind != LIVE:
-                recovered.append(item)
-                continue
-            self._outbox.metrics.queue_latency_seconds.observe(now - item.received_s)
-            try:
-                fleet, robot, _stream = parse_robot_key(item.key)
-            except WireError as exc:
-                self._outbox.reject_unattributed(item.key, exc)
-                continue
-            try:
-                message = decode_inbound(item.payload, self._limits)
-            except WireError as exc:
-                rejections.append(Rejection(fleet, robot, None, exc.code, str(exc), None))
-                continue
-            log.debug(
-                "<<- %s %s seq=%s", item.key, type(message).__name__, getattr(message, "seq", None)
-            )
-            decoded.append((fleet, robot, message))
+        rejected = Outcome()
         with self.lock:
-            outcome = self.table.handle_batch(decoded, now)
-        outcome.rejections[:0] = rejections
-        self._publish(outcome, now)
-        if recovered:
-            self._recover(recovered, now)
+            decision = self.table.decision_cost(key)
+        # Plan: (item, decoded message or None, its cost without a decision).
+        plan: list[tuple[Inbound, Frame | SessionEnd | None, int]] = []
+        total = 0  # cost of the planned messages, decisions left out
+        fits_per_frame = True  # the plan affords a decision after every message
+        while lane.items and len(plan) < len(lane.items):
+            index = len(plan)
+            if index == 0 and not self._decoded_head(key, lane, rejected):
+                continue
+            item = lane.items[index]
+            message: Frame | SessionEnd | None = None
+            if item.kind == LIVE:
+                if index == 0:
+                    message = lane.head
+                else:
+                    try:
+                        message = decode_inbound(item.payload, self._limits)
+                    except WireError:
+                        break  # reported when it reaches the head of the lane
+            cost = FRAME_COST
+            if isinstance(message, Frame):
+                cost += pairs_of(len(message.features))
+            if fits_per_frame and total + cost + (index + 1) * decision > lane.deficit:
+                fits_per_frame = False
+            if not fits_per_frame and total + cost + decision > lane.deficit:
+                break  # the rest waits for the next round (or more credit)
+            total += cost
+            plan.append((item, message, cost))
+        if rejected.rejections:
+            self._publish(rejected, now)
+        if not plan:
+            return
+        spent = total + (len(plan) if fits_per_frame else 1) * decision
+        lane.deficit = max(0.0, lane.deficit - spent) if len(plan) < len(lane.items) else 0.0
+        for _ in plan:
+            lane.items.popleft()
+        lane.head = None
+        self._serve(key, plan, now, 1 if fits_per_frame else None)
+
+    def _serve(
+        self,
+        key: tuple[str, str],
+        plan: list[tuple[Inbound, Frame | SessionEnd | None, int]],
+        now: float,
+        decide_every: int | None,
+    ) -> None:
+        """Hand one robot's planned messages to the table in arrival order."""
+        fleet, robot = key
+        queue_latency = self._outbox.metrics.queue_latency_seconds
+        live: list[tuple[str, str, Frame | SessionEnd]] = []
+        recovered: list[Inbound] = []
+        items = [item for item, _message, _cost in plan]
+        try:
+            for item, message, _cost in plan:
+                if item.kind != LIVE:
+                    if live:
+                        self._apply(live, now, decide_every)
+                        live = []
+                    recovered.append(item)
+                    continue
+                if recovered:
+                    self._recover(recovered, now)
+                    recovered = []
+                queue_latency.observe(now - item.received_s)
+                if message is None:
+                    try:
+                        message = decode_inbound(item.payload, self._limits)
+                    except WireError as exc:
+                        rejection = Rejection(fleet, robot, None, exc.code, str(exc), None)
+                        self._publish(Outcome(rejections=[rejection]), now)
+                        continue
+                log.debug(
+                    "<<- %s %s seq=%s",
+                    item.key,
+                    type(message).__name__,
+                    getattr(message, "seq", None),
+                )
+                live.append((fleet, robot, message))
+            if live:
+                self._apply(live, now, decide_every)
+            if recovered:
+                self._recover(recovered, now)
+        finally:
+            with self._ready:
+                self._give_back(items)
         done = time.monotonic()
         frame_latency = self._outbox.metrics.frame_latency_seconds
-        for item in batch:
+        for item in items:
             if item.kind == LIVE:
                 frame_latency.observe(done - item.received_s)
-        self._outbox.metrics.queue_depth.set(len(self._queue))
+
+    def _apply(
+        self, live: list[tuple[str, str, Frame | SessionEnd]], now: float, decide_every: int | None
+    ) -> None:
+        with self.lock:
+            outcome = self.table.handle_batch(live, now, decide_every)
+        self._publish(outcome, now)
 
     def _recover(self, items: list[Inbound], now: float) -> None:
         """Hand catch-up replies and ends to the table, in queue order.
