@@ -200,6 +200,7 @@ class Shard:
             # Woken by one frame: let the next few milliseconds of frames join this round.
             # A wake-up per frame costs as much CPU as the frame's own work at fleet rates.
             time.sleep(self._linger_s)
+        unattributed: list[tuple[str, WireError]] = []
         with self._ready:
             taken = 0
             while self._queue and taken < _BATCH_MAX:
@@ -209,12 +210,14 @@ class Shard:
                     fleet, robot, _stream = parse_robot_key(item.key)
                 except WireError as exc:
                     self._give_back([item])
-                    self._outbox.reject_unattributed(item.key, exc)
+                    unattributed.append((item.key, exc))
                     continue
                 lane = self._lanes.get((fleet, robot))
                 if lane is None:
                     lane = self._lanes[(fleet, robot)] = _Lane(deque())
                 lane.items.append(item)
+        for key, error in unattributed:  # outside the lock: the callback never waits on a put
+            self._outbox.reject_unattributed(key, error)
 
     def _give_back(self, items: list[Inbound]) -> None:
         """Release the bounds held by handled items (caller may hold ``_ready``: RLock-free)."""
