@@ -1,0 +1,136 @@
+"""Work budgets and admission of the SessionTable (sans-IO, real frames, a real store)."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from lessmap.core import PartitionParams
+from lessmap.runtime.budget import EdgeLedger, SessionAdmission, pairs_of
+from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.store import CheckpointStore
+from lessmap_schemas.errors import ErrorCode
+from lessmap_schemas.messages import Frame
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
+FLEET = "fleet"
+LASER = PartitionParams.from_profile("laser")
+
+
+def make_table(
+    *,
+    max_pairs: int = 0,
+    max_edges: int = 0,
+    ledger: EdgeLedger | None = None,
+    admission: SessionAdmission | None = None,
+    store: CheckpointStore | None = None,
+    max_sessions: int = 8,
+    max_batch_frames: int = 256,
+) -> SessionTable:
+    return SessionTable(
+        LASER,
+        max_sessions=max_sessions,
+        max_nodes=20_000,
+        max_batch_frames=max_batch_frames,
+        idle_timeout_s=600.0,
+        instance="test",
+        clock=time.perf_counter,
+        store=store,
+        max_pairs_per_frame=max_pairs,
+        max_edges=max_edges,
+        ledger=ledger,
+        admission=admission,
+    )
+
+
+def frame(seq: int, features: Sequence[int], session: str = "s1") -> Frame:
+    return Frame(session=session, seq=seq, stamp_s=float(seq), features=list(features))
+
+
+def test_a_frame_over_the_pair_budget_never_reaches_the_graph_and_is_counted() -> None:
+    table = make_table(max_pairs=pairs_of(100))
+    out = table.handle_batch([(FLEET, "r", frame(0, range(101)))], 0.0)
+    assert [r.code for r in out.rejections] == [ErrorCode.LIMIT_EXCEEDED]
+    assert "max_pairs_per_frame=4950" in out.rejections[0].detail
+    out = table.handle_batch([(FLEET, "r", frame(1, range(100)))], 0.0)
+    assert out.rejections == []
+    state = table.state(FLEET, "r")
+    assert state is not None
+    assert (state.frames_applied, state.frames_rejected, state.frames_missing) == (1, 1, 0)
+    assert state.edges == pairs_of(100)
+
+
+def test_the_edge_budgets_refuse_what_could_cross_them_per_session_and_per_instance() -> None:
+    table = make_table(max_edges=pairs_of(60))
+    # One call, one decision at its end (no transition can shrink the graph in between):
+    # 50 features make 1225 edges; 20 more could add 190 -> 1415 <= 1770, applied; 40 more
+    # could add 780: over the budget, refused, the graph unchanged.
+    run = [frame(0, range(50)), frame(1, range(50, 70)), frame(2, range(100, 140))]
+    out = table.handle_batch([(FLEET, "r", f) for f in run], 0.0)
+    assert [(r.code, r.seq) for r in out.rejections] == [(ErrorCode.GRAPH_LIMIT, 2)]
+    assert "max_edges_per_session=1770" in out.rejections[0].detail
+    state = table.state(FLEET, "r")
+    assert state is not None
+    assert state.edges <= pairs_of(60)
+    assert (state.frames_applied, state.frames_rejected) == (2, 1)
+
+    ledger = EdgeLedger(1, max_edges_total=1500)
+    shared = make_table(ledger=ledger)
+    assert shared.handle_batch([(FLEET, "a", frame(0, range(50)))], 0.0).rejections == []
+    assert ledger.total() == pairs_of(50)
+    out = shared.handle_batch([(FLEET, "b", frame(0, range(1000, 1030)))], 0.0)
+    assert [r.code for r in out.rejections] == [ErrorCode.GRAPH_LIMIT]
+    assert "max_edges_total=1500" in out.rejections[0].detail
+    # A session that leaves memory gives its edges back.
+    shared.close_all("shutdown")
+    assert ledger.total() == 0
+
+
+def test_new_sessions_are_rate_limited_per_fleet() -> None:
+    table = make_table(admission=SessionAdmission(rate_per_s=1.0, burst=2), max_sessions=100)
+    outs = [table.handle_batch([(FLEET, f"r{i}", frame(0, [1, 2]))], 0.0) for i in range(3)]
+    assert [[r.code for r in o.rejections] for o in outs] == [[], [], [ErrorCode.SESSION_LIMIT]]
+    assert "new sessions a second" in outs[2].rejections[0].detail
+    # Another fleet has its own bucket; the first one refills with time.
+    assert table.handle_batch([("other", "r0", frame(0, [1, 2]))], 0.0).rejections == []
+    assert table.handle_batch([(FLEET, "r2", frame(1, [1, 2]))], 1.0).rejections[0].code == (
+        ErrorCode.SEQ_GAP  # opened now; seq 0 was refused, so it is reported missing
+    )
+
+
+def test_a_full_shard_evicts_the_longest_idle_session_to_admit_a_new_one(tmp_path: Path) -> None:
+    store = CheckpointStore(tmp_path)
+    store.open()
+    try:
+        table = make_table(store=store, max_sessions=2)
+        table.handle_batch([(FLEET, "old", frame(0, [1, 2]))], 4.8)
+        table.handle_batch([(FLEET, "recent", frame(0, [3, 4]))], 5.0)
+        # Both are busy (active less than a second ago): nothing can be evicted.
+        busy = table.handle_batch([(FLEET, "new", frame(0, [5, 6]))], 5.5)
+        assert [r.code for r in busy.rejections] == [ErrorCode.SESSION_LIMIT]
+        assert "none idle" in busy.rejections[0].detail
+        out = table.handle_batch([(FLEET, "new2", frame(0, [5, 6]))], 10.0)
+        assert out.rejections == []
+        assert out.evicted == 2  # both idle for 5 s or more, longest idle first
+        assert len(table) == 1
+        # The evicted robot resumes where it stopped.
+        back = table.handle_batch([(FLEET, "old", frame(1, [1, 2]))], 11.0)
+        assert back.rejections == []
+        assert [s.robot for s in back.resumed] == ["old"]
+    finally:
+        store.close()
+
+
+def test_decide_every_lowers_the_coalescing_of_one_call_only() -> None:
+    table = make_table(max_batch_frames=256)
+    run = [(FLEET, "r", frame(s, [s, s + 1])) for s in range(10)]
+    out = table.handle_batch(run[:5], 0.0, decide_every=1)
+    assert [batch for _seconds, batch in out.decisions] == [1] * 5
+    out = table.handle_batch(run[5:], 0.0)
+    assert [batch for _seconds, batch in out.decisions] == [5]
+    one = make_table(max_batch_frames=1)
+    out = one.handle_batch(run, 0.0, decide_every=256)  # never above max_batch_frames
+    assert [batch for _seconds, batch in out.decisions] == [1] * 10
