@@ -20,39 +20,28 @@ import zenoh
 
 from lessmap.frames_file import read_frames
 from lessmap_client import FleetClient, wait_for_service
-from tests.conftest import ServeProcess, dataset, free_port, wait_until
+from tests.conftest import ServeProcess, dataset, wait_until
 from tests.service.test_serve_e2e import as_record, drain, offline_transitions
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator
+    from collections.abc import Callable
     from pathlib import Path
 
 pytestmark = [pytest.mark.timeout(400), pytest.mark.slow]
 
 
-@pytest.fixture
-def router_endpoint() -> Iterator[str]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("router"))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    with zenoh.open(conf):
-        yield endpoint
-
-
 def test_kill_9_during_replay_loses_nothing_and_replay_exits_zero(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
-    router_endpoint: str,
+    router: str,
     fleet_name: str,
     tmp_path: Path,
 ) -> None:
     path = dataset("dlr.frames.jsonl")
     frames = list(read_frames(path))
     expected = offline_transitions(frames)["0"]
-    options = ("-m", "peer", "-e", router_endpoint, "--max-batch-frames", "1")
-    session = client_session(router_endpoint)
+    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1")
+    session = client_session(router)
     with FleetClient(fleet_name, session=session) as client:
         first = serve(*options)
         assert wait_for_service(session, 20.0), first.log()
@@ -71,7 +60,7 @@ def test_kill_9_during_replay_loses_nothing_and_replay_exits_zero(
                     "--speed",
                     "40",
                     "-e",
-                    router_endpoint,
+                    router,
                     "--settle",
                     "5",
                 ],

@@ -9,7 +9,6 @@ checkpoint, come back from the robot's publication cache (the service's catch-up
 
 from __future__ import annotations
 
-import json
 import re
 import signal
 import threading
@@ -24,26 +23,15 @@ from lessmap_client import FleetClient, RobotPublisher
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode
 from lessmap_schemas.messages import Error, Transition
-from tests.conftest import ServeProcess, dataset, free_port, wait_until
+from tests.conftest import ServeProcess, dataset, wait_until
 from tests.service.test_serve_e2e import as_record, drain, offline_transitions, wait_closed
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator
+    from collections.abc import Callable
 
     from lessmap.frames_file import FrameRow
 
 pytestmark = pytest.mark.timeout(300)
-
-
-@pytest.fixture
-def router() -> Iterator[str]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("router"))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    with zenoh.open(conf):
-        yield endpoint
 
 
 def test_sigterm_and_restart_resume_every_session_exactly(
