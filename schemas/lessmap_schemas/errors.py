@@ -69,3 +69,7 @@ class InvalidNameError(WireError):
 
     def __reduce__(self) -> tuple[type[Exception], tuple[object, ...]]:
         return (InvalidNameError, (str(self), self.limit))
+
+
+class FramesFileError(ValueError):
+    """Frames File Error: a line of a frames file is malformed (the message names FILE:LINE)."""

@@ -1,23 +1,22 @@
 """Replay a recorded frames file to the service: one publisher per robot in the file.
 
-The reader mirrors the service's frames-file rules (``lessmap.frames_file``, which this
-package must not import) and their messages: every malformed line is one ``ReplayError``
-``FILE:LINE: what``, with the wire limits the service enforces. It also checks what would
-otherwise only fail half-way through publishing: robot names and increasing seqs per robot.
+The reader applies the contract's frames-file rules (``lessmap_schemas.framesfile``, the
+same as ``lessmap segment``'s): every malformed line is one ``ReplayError`` ``FILE:LINE:
+what``, with the wire limits the service enforces. It also checks what would otherwise only
+fail half-way through publishing: robot names and increasing seqs per robot.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from lessmap_client.errors import SessionClosedError
 from lessmap_client.robot import RobotPublisher
-from lessmap_schemas.errors import InvalidNameError
+from lessmap_schemas import framesfile
+from lessmap_schemas.errors import FramesFileError, InvalidNameError
 from lessmap_schemas.keys import validate_name
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
 
@@ -29,11 +28,6 @@ if TYPE_CHECKING:
 
     from lessmap_client.transport import Host
     from lessmap_schemas.messages import SessionState
-
-#: Longest line read at all (as the service's reader); a full frame needs about 80 kB.
-MAX_LINE_BYTES = 16 * 1024 * 1024
-
-_FIELDS = ("robot", "seq", "stamp", "features")
 
 
 class ReplayError(ValueError):
@@ -65,99 +59,24 @@ def read_recorded(
         ReplayError: a line is not a valid frame (``FILE:LINE: what``).
     """
     last_seq: dict[str, int] = {}
-    with path.open("rb") as handle:
-        number = 0
-        while raw := handle.readline(MAX_LINE_BYTES + 1):
-            number += 1
-            where = f"{path}:{number}"
-            if len(raw) > MAX_LINE_BYTES:
-                msg = f"{where}: line longer than {MAX_LINE_BYTES} bytes"
-                raise ReplayError(msg)
-            try:
-                line = raw.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                msg = f"{where}: not UTF-8 (byte 0x{raw[exc.start]:02x} at column {exc.start + 1})"
-                raise ReplayError(msg) from None
-            if not line.strip():
-                continue
-            frame = _parse(line, where, limits)
+    try:
+        for where, line in framesfile.read_lines(path):
+            row = framesfile.checked_frame(framesfile.parse_object_line(line, where), where, limits)
+            frame = RecordedFrame(
+                robot=str(row["robot"]),
+                seq=row["seq"],
+                stamp_s=float(row["stamp"]),
+                features=list(row["features"]),
+                pose=framesfile.pose_of(row),
+            )
             problem = _sequence_problem(frame, robot_prefix, last_seq, limits)
             if problem is not None:
                 msg = f"{where}: {problem}"
                 raise ReplayError(msg)
             last_seq[frame.robot] = frame.seq
             yield frame
-
-
-def _parse(line: str, where: str, limits: WireLimits) -> RecordedFrame:
-    try:
-        row: Any = json.loads(line)
-    except json.JSONDecodeError as exc:
-        msg = f"{where}: not JSON ({exc.msg} at column {exc.colno})"
-        raise ReplayError(msg) from None
-    except ValueError as exc:  # e.g. an integer of more than 4300 digits
-        msg = f"{where}: not JSON ({exc})"
-        raise ReplayError(msg) from None
-    except RecursionError:
-        msg = f"{where}: not JSON (nested too deeply)"
-        raise ReplayError(msg) from None
-    if not isinstance(row, dict):
-        msg = f"{where}: expected an object, got {type(row).__name__}"
-        raise ReplayError(msg)
-    problem = _problem(row, limits)
-    if problem is not None:
-        msg = f"{where}: {problem}"
-        raise ReplayError(msg)
-    pose = row.get("pose")
-    return RecordedFrame(
-        robot=str(row["robot"]),
-        seq=row["seq"],
-        stamp_s=float(row["stamp"]),
-        features=list(row["features"]),
-        pose=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
-    )
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _problem(row: dict[str, Any], limits: WireLimits) -> str | None:
-    """What is wrong with one frames-file object (the service reader's rules), or None."""
-    missing = [name for name in _FIELDS if name not in row]
-    if missing:
-        return f"missing field {', '.join(map(repr, missing))}"
-    robot, seq, features, pose = row["robot"], row["seq"], row["features"], row.get("pose")
-    if not (isinstance(robot, str) and robot) and not _is_int(robot):
-        return f"robot must be a non-empty string, got {robot!r}"
-    if not _is_int(seq) or seq < 0:
-        return f"seq must be an integer >= 0, got {_short(seq)}"
-    if seq > limits.max_seq:
-        return f"seq {seq} is above the wire limit {limits.max_seq}"
-    if not _is_number(row["stamp"]):
-        return f"stamp must be a finite number, got {_short(row['stamp'])}"
-    if not isinstance(features, list):
-        return f"features must be a list of integers, got {_short(features)}"
-    if len(features) > limits.max_features_per_frame:
-        return (
-            f"{len(features)} features, more than the limit of "
-            f"{limits.max_features_per_frame} per frame"
-        )
-    if pose is not None and not (
-        isinstance(pose, list) and len(pose) == 3 and all(map(_is_number, pose))
-    ):
-        return f"pose must be [x, y, theta] (finite numbers) or null, got {_short(pose)}"
-    for index, feature in enumerate(features):
-        if not _is_int(feature) or not 0 <= feature <= limits.max_feature_id:
-            return (
-                f"feature {index} must be an integer in 0..{limits.max_feature_id}, "
-                f"got {_short(feature)}"
-            )
-    return None
+    except FramesFileError as exc:
+        raise ReplayError(str(exc)) from None
 
 
 def _sequence_problem(
@@ -174,11 +93,6 @@ def _sequence_problem(
     if frame.seq <= previous:
         return f"seq {frame.seq} of robot {frame.robot!r} is not above its previous seq {previous}"
     return None
-
-
-def _short(value: object) -> str:
-    text = json.dumps(value)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 @dataclass(slots=True)
