@@ -94,7 +94,7 @@ def frame_problem(row: dict[str, Any], limits: WireLimits) -> str | None:
     if len(features) > limits.max_features_per_frame:
         return (
             f"{len(features)} features, more than the limit of "
-            f"{limits.max_features_per_frame} per frame (--max-features-per-frame)"
+            f"{limits.max_features_per_frame} per frame"
         )
     if pose is not None and not (
         isinstance(pose, list) and len(pose) == 3 and all(map(_is_number, pose))
