@@ -71,7 +71,11 @@ def run_demo(args: argparse.Namespace) -> int:
     run = simulate(
         args.seed, rooms=args.rooms, robots=args.robots, frames_per_robot=frames_per_robot
     )
-    settings = load_settings(mode="router", listen=(args.listen,), instance="lessmap-demo")
+    # The demo's simulated robots are gone when it ends: nothing to keep for a restart, so
+    # it leaves no session store behind in the user's state directory.
+    settings = load_settings(
+        mode="router", listen=(args.listen,), instance="lessmap-demo", memory_only=True
+    )
     service = Service(settings, ("scouting/multicast/enabled:false",))
     service.start()
     try:
