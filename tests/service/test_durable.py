@@ -42,7 +42,12 @@ FRAMES = walk()
 
 
 def make_table(
-    store: CheckpointStore | None, *, every: int = 25, phase: bool = False
+    store: CheckpointStore | None,
+    *,
+    every: int = 25,
+    phase: bool = False,
+    catchup_max_frames: int = 0,  # 0: no catch-up (the table's default)
+    catchup_wait_s: float = 2.0,
 ) -> SessionTable:
     # phase=False: checkpoints at exact multiples of ``every``, which the tests below pin.
     return SessionTable(
@@ -57,6 +62,8 @@ def make_table(
         checkpoint_every_frames=every,
         checkpoint_interval_s=3600.0,
         checkpoint_phase=phase,
+        catchup_max_frames=catchup_max_frames,
+        catchup_wait_s=catchup_wait_s,
     )
 
 
@@ -308,21 +315,7 @@ def test_checkpoint_frequency_never_changes_decisions(
 
 
 def catchup_table(store: CheckpointStore | None, *, every: int = 25) -> SessionTable:
-    return SessionTable(
-        LASER,
-        max_sessions=8,
-        max_nodes=20_000,
-        max_batch_frames=1,
-        idle_timeout_s=10.0,
-        instance="test",
-        clock=time.perf_counter,
-        store=store,
-        checkpoint_every_frames=every,
-        checkpoint_interval_s=3600.0,
-        catchup_max_frames=100,
-        catchup_wait_s=2.0,
-        checkpoint_phase=False,
-    )
+    return make_table(store, every=every, catchup_max_frames=100, catchup_wait_s=2.0)
 
 
 def test_after_a_crash_the_cache_fills_the_gap_in_seq_order(tmp_path: Path) -> None:
