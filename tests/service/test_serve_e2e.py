@@ -281,7 +281,8 @@ def test_sigterm_during_replay_exits_zero_and_publishes_final_state(
     # it is the session's end.
     assert final.open is durable
     assert final.session == robot.session_id
-    assert final.frames_applied >= published - 1  # everything queued before SIGTERM applied
+    # everything queued before SIGTERM applied
+    assert final.frames_applied >= published - 1, service.log()
     assert "stopped" in service.log()
     state_sub.undeclare()
     robot.close()

@@ -268,10 +268,12 @@ class Service:
             self._reject_on_receipt(shard, key, f"payload of {len(payload)} bytes exceeds {limit=}")
             return
         if not shard.offer(Inbound(time.monotonic(), key, payload.to_bytes())):
-            depth = self.settings.queue_depth
-            self._reject_on_receipt(
-                shard, key, f"shard {shard.index} queue full ({depth=}); frame dropped"
-            )
+            if shard.stopping:
+                detail = "the service is stopping; frame not taken (a restart recovers it)"
+            else:
+                depth = self.settings.queue_depth
+                detail = f"shard {shard.index} queue full ({depth=}); frame dropped"
+            self._reject_on_receipt(shard, key, detail)
 
     def _request_catchup(self, shard: Shard, request: CatchupRequest) -> None:
         """Ask a robot's publication cache for its newest frames (worker thread, no wait).

@@ -119,6 +119,7 @@ class Shard:
         self._lanes: dict[tuple[str, str], _Lane] = {}  # insertion order = round order
         self._ready = threading.Condition()
         self._stopping = False
+        self._abandon = False  # stop overran its time: leave the rest to the robots' caches
         self._thread = threading.Thread(
             target=self._run, name=f"lessmap-shard-{index}", daemon=True
         )
@@ -180,13 +181,34 @@ class Shard:
         self._thread.start()
 
     def stop(self, timeout_s: float) -> None:
-        """Let the worker finish what is queued, then end it."""
+        """Let the worker finish what is queued, then end it.
+
+        A worker that has not drained within ``timeout_s`` is told to stop after its current
+        turn, and waited for: the table is closed only once no worker touches it. What it
+        leaves unapplied is still in the robots' publication caches, and the checkpoint
+        written at the stop says exactly where each session stands, so a restart catches up.
+        """
         with self._ready:
             self._stopping = True
             self._ready.notify()
         self._thread.join(timeout_s)
         if self._thread.is_alive():
-            log.warning("shard %d did not drain within %.1f s", self.index, timeout_s)
+            with self._ready:
+                self._abandon = True
+                left = self._held
+            log.warning(
+                "shard %d did not drain within %.1f s; %d message(s) left unapplied "
+                "(a restart catches up from the robots' caches)",
+                self.index,
+                timeout_s,
+                left,
+            )
+            self._thread.join()
+
+    @property
+    def stopping(self) -> bool:
+        """True once ``stop`` was called: new samples are refused."""
+        return self._stopping
 
     def _collect(self) -> None:
         """Move what arrived into the robots' lanes; wait for it when no lane has work."""
@@ -254,7 +276,7 @@ class Shard:
                     expired = self.table.expire_idle(now)
                 self._publish(expired, now)
             with self._ready:
-                if self._stopping and not self._queue and not self._lanes:
+                if self._abandon or (self._stopping and not self._queue and not self._lanes):
                     return
 
     def _report_notes(self) -> None:
@@ -281,6 +303,8 @@ class Shard:
     def _round(self) -> None:
         """Give every robot with pending messages one turn (deficit round robin)."""
         for key in list(self._lanes):
+            if self._abandon:
+                return
             lane = self._lanes[key]
             lane.deficit += self._quantum
             self._turn(key, lane)
