@@ -6,7 +6,7 @@ Decoding is the service's hot path and its attack surface, so the order of check
 2. msgpack, with every length bounded: an array header claiming n items makes msgpack allocate
    n slots before the items arrive, so unbounded headers would turn a few kilobytes into
    gigabytes (measured with the default bounds: 1023 nested 4096-item headers peak at 34 MB);
-3. envelope: a map, a known `type` accepted here, `v == 1`;
+3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (2);
 4. `Frame.features` length, on the raw list, before pydantic touches it;
 5. pydantic, strict;
 6. limits tighter than the v1 format bounds, if the caller set any.

@@ -2,17 +2,22 @@
 
 Layout (all under `KEY_PREFIX`, one chunk per name):
 
-    lessmap/v1/<fleet>/<robot>/frames          robot -> service  put Frame, SessionEnd
-    lessmap/v1/<fleet>/<robot>/transitions     service -> apps   put Transition
-    lessmap/v1/<fleet>/<robot>/errors          service -> apps   put Error
-    lessmap/v1/<fleet>/<robot>/state           apps -> service   get SessionState
-    lessmap/v1/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
-    lessmap/v1/@/instances/<instance>          service           liveliness token
-    lessmap/v1/@/health/<instance>             apps -> service   get Health
-    lessmap/v1/@/errors/<instance>             service -> ops    put Error (unattributable input)
+    lessmap/v2/<fleet>/<robot>/frames/<p>      robot -> service  put Frame, SessionEnd
+    lessmap/v2/<fleet>/<robot>/transitions     service -> apps   put Transition
+    lessmap/v2/<fleet>/<robot>/errors          service -> apps   put Error
+    lessmap/v2/<fleet>/<robot>/state           apps -> service   get SessionState
+    lessmap/v2/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
+    lessmap/v2/@/instances/<instance>          service           liveliness token
+    lessmap/v2/@/health/<instance>             apps -> service   get Health
+    lessmap/v2/@/errors/<instance>             service -> ops    put Error (unattributable input)
+    lessmap/v2/@/checkpoints/<p>/<fleet>/<robot>  service <-> service  put, get (session state)
+
+`<p>` is the robot's partition (`partition.partition_of`): a service instance subscribes to the
+frames of the partitions it owns only (`frames_of_partition`), so Zenoh's routers deliver it no
+other robot's frames.
 
 Service bookkeeping sits under the `@` chunk: Zenoh never lets `*` or `**` match a chunk that
-starts with `@`, so a fleet-wide `lessmap/v1/**` subscription sees robot traffic only.
+starts with `@`, so a fleet-wide `lessmap/v2/**` subscription sees robot traffic only.
 
 A fleet or robot argument may be `"*"` (any single name) wherever the key is used to subscribe,
 declare a queryable or query; publishers must pass concrete names, which `validate_name` checks.
@@ -24,17 +29,18 @@ import re
 
 from lessmap_schemas.errors import InvalidNameError
 from lessmap_schemas.limits import DEFAULT_LIMITS, MAX_SEQ, WireLimits
+from lessmap_schemas.partition import PARTITIONS, partition_of
 
-KEY_PREFIX = "lessmap/v1"
+WIRE_VERSION = 2
+"""Value of the `v` field of every message and of the `v2` key chunk."""
+KEY_PREFIX = f"lessmap/v{WIRE_VERSION}"
 """First two chunks of every key; the version chunk changes only on a breaking change."""
-WIRE_VERSION = 1
-"""Value of the `v` field of every message and of the `v1` key chunk."""
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$"
 """Names: ASCII letters, digits, `_`, `.`, `-`; not starting with `.` or `-`; 1..64 chars."""
 ANY = "*"
 """Wildcard for exactly one fleet, robot or instance chunk."""
 ROBOT_STREAMS = ("frames", "transitions", "errors", "state")
-"""Streams with a `lessmap/v1/<fleet>/<robot>/<stream>` key; submaps have one more chunk."""
+"""Streams of `lessmap/v2/<fleet>/<robot>/<stream>` keys; frames and submaps have one more chunk."""
 
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 _FIRST = re.compile(r"[A-Za-z0-9_]")
@@ -92,8 +98,27 @@ def _robot_key(fleet: str, robot: str, stream: str) -> str:
 
 
 def frames(fleet: str, robot: str) -> str:
-    """Return the key robots put `Frame` and `SessionEnd` on (one key keeps their order)."""
-    return _robot_key(fleet, robot, "frames")
+    """Return the key a robot puts `Frame` and `SessionEnd` on (one key keeps their order).
+
+    The last chunk is the robot's partition. With a wildcard fleet or robot the partition
+    chunk is a wildcard too (a subscription to every partition of those robots).
+    """
+    key = _robot_key(fleet, robot, "frames")
+    if ANY in (fleet, robot):
+        return f"{key}/{ANY}"
+    return f"{key}/{partition_of(fleet, robot)}"
+
+
+def frames_of_partition(partition: int) -> str:
+    """Return the key expression of every robot's frames in one partition (a subscription)."""
+    return f"{KEY_PREFIX}/{ANY}/{ANY}/frames/{_partition_chunk(partition)}"
+
+
+def _partition_chunk(partition: int) -> str:
+    if type(partition) is not int or not 0 <= partition < PARTITIONS:
+        msg = f"partition must be an int in [0, {PARTITIONS - 1}], not {partition!r}"
+        raise InvalidNameError(msg)
+    return str(partition)
 
 
 def transitions(fleet: str = ANY, robot: str = ANY) -> str:
@@ -139,16 +164,42 @@ def health(instance: str = ANY) -> str:
     return f"{KEY_PREFIX}/@/health/{_chunk(instance, 'instance')}"
 
 
+def checkpoints(partition: int | str = ANY, fleet: str = ANY, robot: str = ANY) -> str:
+    """Return the key of a session checkpoint shipped between service instances.
+
+    Service bookkeeping: the owner of a partition puts its sessions' checkpoints here for the
+    standby, and every instance answers queries for the checkpoints it holds. Pass `"*"` for
+    any chunk to subscribe or query.
+    """
+    chunk = ANY if partition == ANY else _partition_chunk(partition)  # type: ignore[arg-type]
+    return f"{KEY_PREFIX}/@/checkpoints/{chunk}/{_chunk(fleet, 'fleet')}/{_chunk(robot, 'robot')}"
+
+
+def parse_checkpoint_key(key: str) -> tuple[int, str, str]:
+    """Split a concrete `lessmap/v2/@/checkpoints/<p>/<fleet>/<robot>` key."""
+    parts = key.split("/") if type(key) is str else []
+    prefix = f"{KEY_PREFIX}/@/checkpoints"
+    if len(parts) != 7 or "/".join(parts[:4]) != prefix or _ID.fullmatch(parts[4]) is None:
+        msg = f"key {str(key)[:200]!r} is not {prefix}/<p>/<fleet>/<robot>"
+        raise InvalidNameError(msg)
+    partition = int(parts[4])
+    fleet, robot = validate_name(parts[5], "fleet"), validate_name(parts[6], "robot")
+    if partition != partition_of(fleet, robot):
+        msg = f"key {key[:200]!r}: {fleet}/{robot} is in partition {partition_of(fleet, robot)}"
+        raise InvalidNameError(msg)
+    return partition, fleet, robot
+
+
 def service_errors(instance: str = ANY) -> str:
     """Return the key a service instance puts `Error`s on when the key names no valid robot."""
     return f"{KEY_PREFIX}/@/errors/{_chunk(instance, 'instance')}"
 
 
 def parse_robot_key(key: str) -> tuple[str, str, str]:
-    """Split a concrete `lessmap/v1/<fleet>/<robot>/<stream>` key.
+    """Split a concrete `lessmap/v2/<fleet>/<robot>/<stream>` key.
 
     Args:
-        key: A key a sample arrived on, e.g. `lessmap/v1/warehouse/amr-7/frames`.
+        key: A key a sample arrived on, e.g. `lessmap/v2/warehouse/amr-7/frames`.
 
     Returns:
         `(fleet, robot, stream)`, stream one of `ROBOT_STREAMS`.
@@ -156,17 +207,27 @@ def parse_robot_key(key: str) -> tuple[str, str, str]:
     Raises:
         InvalidNameError: Another prefix or stream, a wildcard, or a name breaking the rule.
     """
-    fleet, robot, rest = _split(key, 5)
-    if rest[0] not in ROBOT_STREAMS:
-        msg = (
-            f"key {key[:200]!r} has stream {rest[0]!r}; expected one of {', '.join(ROBOT_STREAMS)}"
-        )
+    fleet, robot, rest = _split(key, 5, 6)
+    stream = rest[0]
+    if stream not in ROBOT_STREAMS:
+        msg = f"key {key[:200]!r} has stream {stream!r}; expected one of {', '.join(ROBOT_STREAMS)}"
         raise InvalidNameError(msg)
-    return fleet, robot, rest[0]
+    if (stream == "frames") != (len(rest) == 2):
+        msg = f"key {key[:200]!r}: only frames keys end with a partition chunk"
+        raise InvalidNameError(msg)
+    if stream == "frames":
+        expected = partition_of(fleet, robot)
+        if rest[1] != str(expected):
+            msg = (
+                f"key {key[:200]!r} names partition {rest[1][:20]!r}, "
+                f"but {fleet}/{robot} is in partition {expected}"
+            )
+            raise InvalidNameError(msg)
+    return fleet, robot, stream
 
 
 def parse_submap_key(key: str) -> tuple[str, str, int]:
-    """Split a concrete `lessmap/v1/<fleet>/<robot>/submaps/<id>` key.
+    """Split a concrete `lessmap/v2/<fleet>/<robot>/submaps/<id>` key.
 
     Args:
         key: A concrete submap key.
@@ -191,12 +252,12 @@ def parse_submap_key(key: str) -> tuple[str, str, int]:
     return fleet, robot, int(text)
 
 
-def _split(key: str, chunks: int) -> tuple[str, str, list[str]]:
+def _split(key: str, *chunks: int) -> tuple[str, str, list[str]]:
     if type(key) is not str:
         msg = f"key must be a str, not {type(key).__name__}"
         raise InvalidNameError(msg)
     parts = key.split("/")
-    if len(parts) != chunks or f"{parts[0]}/{parts[1]}" != KEY_PREFIX:
+    if len(parts) not in chunks or f"{parts[0]}/{parts[1]}" != KEY_PREFIX:
         msg = f"key {key[:200]!r} does not have the form {KEY_PREFIX}/<fleet>/<robot>/..."
         raise InvalidNameError(msg)
     return validate_name(parts[2], "fleet"), validate_name(parts[3], "robot"), parts[4:]

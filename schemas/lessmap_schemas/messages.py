@@ -29,6 +29,7 @@ from pydantic import (
 from lessmap_schemas.errors import ErrorCode, InvalidNameError, WireError
 from lessmap_schemas.keys import NAME_PATTERN
 from lessmap_schemas.limits import MAX_DETAIL_LEN, MAX_FEATURE_ID, MAX_NAME_LEN, MAX_SEQ
+from lessmap_schemas.partition import PARTITIONS
 
 __all__ = [
     "MESSAGE_TYPES",
@@ -39,7 +40,9 @@ __all__ = [
     "Health",
     "InvalidNameError",
     "Message",
+    "Epoch",
     "Name",
+    "PartitionId",
     "Seq",
     "SessionEnd",
     "SessionState",
@@ -57,6 +60,10 @@ Seq = Annotated[int, Field(ge=0, le=MAX_SEQ)]
 """Frame sequence number: 0 <= seq <= 2**53-1, so JavaScript numbers hold it exactly."""
 Count = Annotated[int, Field(ge=0, le=MAX_SEQ)]
 """Non-negative counter, JavaScript-safe."""
+Epoch = Annotated[int, Field(ge=1, le=MAX_SEQ)]
+"""Ownership epoch of a partition: grows each time the partition gets a new owner."""
+PartitionId = Annotated[int, Field(ge=0, lt=PARTITIONS)]
+"""Partition of a robot (see `partition.partition_of`)."""
 FeatureId = Annotated[int, Field(ge=0, le=MAX_FEATURE_ID)]
 """Feature ID: 0 <= id <= 2**63-1 (a signed 64-bit integer)."""
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -88,7 +95,7 @@ class Frame(Message):
     """One sensor frame of a robot session: the features it observed (robot -> service)."""
 
     type: Literal["Frame"] = "Frame"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     session: Name
     """Robot-chosen session id; a restarted robot picks a new one and gets a new CovGraph."""
     seq: Seq
@@ -105,7 +112,7 @@ class SessionEnd(Message):
     """The robot ends its session; the service closes it (robot -> service, on `frames`)."""
 
     type: Literal["SessionEnd"] = "SessionEnd"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     session: Name
     """Session being ended."""
     last_seq: Seq | None
@@ -142,7 +149,7 @@ class Transition(Message):
     """The robot left one area for another (service -> apps)."""
 
     type: Literal["Transition"] = "Transition"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -171,6 +178,10 @@ class Transition(Message):
     """Frames covered by this decision; above 1 when the service coalesced frames under load."""
     instance: Name
     """Service instance that produced the transition."""
+    partition: PartitionId
+    """Partition of the robot."""
+    epoch: Epoch
+    """Ownership epoch of the partition at the instance that produced it (fencing)."""
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:
@@ -188,7 +199,7 @@ class Error(Message):
     """A frame or message was rejected, or frames went missing (service -> apps)."""
 
     type: Literal["Error"] = "Error"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     fleet: Name | None
     """Fleet of the key the input arrived on; null if the key could not be parsed."""
     robot: Name | None
@@ -205,13 +216,15 @@ class Error(Message):
     """When the service saw the problem, in seconds since the Unix epoch (service clock)."""
     instance: Name
     """Service instance that reports the error."""
+    epoch: Epoch | None
+    """Ownership epoch of the robot's partition at that instance; null if unattributable."""
 
 
 class SessionState(Message):
     """Counters and submaps of a robot's current session (reply to a `state` query)."""
 
     type: Literal["SessionState"] = "SessionState"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -220,6 +233,8 @@ class SessionState(Message):
     """The robot's current (latest) session."""
     instance: Name
     """Service instance holding the session."""
+    epoch: Epoch
+    """Ownership epoch of the robot's partition at that instance."""
     open: bool
     """False once a SessionEnd closed the session."""
     last_seq: Seq | None
@@ -248,7 +263,7 @@ class Submap(Message):
     """One submap of a robot's session (reply to a `submaps/<id>` query)."""
 
     type: Literal["Submap"] = "Submap"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -265,7 +280,7 @@ class Health(Message):
     """Liveness figures of one service instance (reply to a `health` query)."""
 
     type: Literal["Health"] = "Health"
-    v: Literal[1] = 1
+    v: Literal[2] = 2
     instance: Name
     """The instance reporting."""
     version: Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
@@ -276,6 +291,14 @@ class Health(Message):
     """Seconds since the instance started."""
     frames_applied: Count
     """Frames applied over all sessions since start."""
+    partitions: list[PartitionId]
+    """Partitions this instance owns, ascending."""
+    standby: list[PartitionId]
+    """Partitions this instance is the standby of, ascending."""
+    queue_depth: Count
+    """Messages received and not yet handled."""
+    lag_s: Annotated[float, Field(ge=0, allow_inf_nan=False)]
+    """Age of the oldest message not yet handled, in seconds (0 when none waits)."""
 
 
 MESSAGE_TYPES: dict[str, type[Message]] = {

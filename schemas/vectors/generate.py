@@ -29,6 +29,7 @@ if str(HERE.parent) not in sys.path:  # run from a checkout without installing t
 import msgpack  # noqa: E402
 
 from lessmap_schemas import MESSAGE_TYPES, WireError, decode, encode  # noqa: E402
+from lessmap_schemas.partition import PARTITIONS, partition_of, ranking, score  # noqa: E402
 
 DROP = object()
 """Override value that removes a field."""
@@ -63,7 +64,7 @@ SUMMARY_B = {"id": 1, "first_seq": 38, "last_seq": 42, "frame_count": 5, "featur
 BASE: dict[str, dict[str, object]] = {
     "Frame": {
         "type": "Frame",
-        "v": 1,
+        "v": 2,
         "session": "run-2024.06_1",
         "seq": 42,
         "stamp_s": 1718000000.25,
@@ -72,14 +73,14 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionEnd": {
         "type": "SessionEnd",
-        "v": 1,
+        "v": 2,
         "session": "run-2024.06_1",
         "last_seq": 42,
         "stamp_s": 1718000100.5,
     },
     "Transition": {
         "type": "Transition",
-        "v": 1,
+        "v": 2,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -94,10 +95,12 @@ BASE: dict[str, dict[str, object]] = {
         "boundary_features": [3],
         "batch_frames": 1,
         "instance": "lessmap-a1",
+        "partition": 29,
+        "epoch": 1718000000123,
     },
     "Error": {
         "type": "Error",
-        "v": 1,
+        "v": 2,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -106,14 +109,16 @@ BASE: dict[str, dict[str, object]] = {
         "seq": 46,
         "stamp_s": 1718000001.0,
         "instance": "lessmap-a1",
+        "epoch": 1718000000123,
     },
     "SessionState": {
         "type": "SessionState",
-        "v": 1,
+        "v": 2,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
         "instance": "lessmap-a1",
+        "epoch": 1718000000123,
         "open": True,
         "last_seq": 42,
         "frames_applied": 43,
@@ -128,7 +133,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Submap": {
         "type": "Submap",
-        "v": 1,
+        "v": 2,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -137,12 +142,16 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Health": {
         "type": "Health",
-        "v": 1,
+        "v": 2,
         "instance": "lessmap-a1",
         "version": "0.1.0",
         "sessions": 12,
         "uptime_s": 3600.5,
         "frames_applied": 123456,
+        "partitions": [3, 29, 60],
+        "standby": [7],
+        "queue_depth": 4,
+        "lag_s": 0.015,
     },
 }
 
@@ -189,9 +198,10 @@ def common(kind: str) -> list[Invalid]:
         ("type nested 1000 deep", pack_map({**base, "type": Raw(deep)}), "UNKNOWN_TYPE", None),
         ("v nested 1000 deep", pack_map({**base, "v": Raw(deep)}), "UNSUPPORTED_VERSION", None),
         ("missing v", pack(edit(base, v=DROP)), "UNSUPPORTED_VERSION", None),
-        ("v is 2", pack(edit(base, v=2)), "UNSUPPORTED_VERSION", None),
+        ("v is 1 (superseded)", pack(edit(base, v=1)), "UNSUPPORTED_VERSION", None),
+        ("v is 3", pack(edit(base, v=3)), "UNSUPPORTED_VERSION", None),
         ("v is true", pack(edit(base, v=True)), "UNSUPPORTED_VERSION", None),
-        ("v is a string", pack(edit(base, v="1")), "UNSUPPORTED_VERSION", None),
+        ("v is a string", pack(edit(base, v="2")), "UNSUPPORTED_VERSION", None),
         ("unknown field", pack(edit(base, color="red")), "INVALID", None),
         ("bin value", pack(edit(base, blob=b"\x00\x01")), "INVALID", None),
         ("extension value", pack(edit(base, ext=msgpack.ExtType(5, b"x"))), "INVALID", None),
@@ -298,6 +308,12 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("fleet with '*'", "BAD_NAME", fleet="*")
         bad("robot with '#'", "BAD_NAME", robot="amr#7")
         bad("instance with '?'", "BAD_NAME", instance="a?")
+        ok("largest epoch, last partition", epoch=2**53 - 1, partition=63)
+        bad("epoch 0", "INVALID", epoch=0)
+        bad("epoch null", "INVALID", epoch=None)
+        bad("epoch 2**53", "INVALID", epoch=2**53)
+        bad("partition 64", "INVALID", partition=64)
+        bad("partition missing", "INVALID", partition=DROP)
     elif kind == "Error":
         ok(
             "nothing known about the sender",
@@ -314,12 +330,14 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("code as int", "INVALID", code=3)
         bad("detail of 1025 chars", "LIMIT_EXCEEDED", "max_detail_len", detail="d" * 1025)
         bad("fleet empty", "BAD_NAME", fleet="")
+        bad("epoch as float", "INVALID", epoch=1.0)
     elif kind == "SessionState":
         ok("closed, no frames yet", open=False, last_seq=None, closed_submaps=[])
         bad("open as int", "INVALID", open=1)
         bad("negative counter", "INVALID", frames_applied=-1)
         bad("closed_submaps of ints", "INVALID", closed_submaps=[1])
         bad("current_submap null", "INVALID", current_submap=None)
+        bad("epoch missing", "INVALID", epoch=DROP)
     elif kind == "Submap":
         ok("open submap", open=True, summary=SUMMARY_B)
         bad("summary missing features", "INVALID", summary=edit(SUMMARY_A, features=DROP))
@@ -331,6 +349,9 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("uptime NaN", "INVALID", uptime_s=float("nan"))
         bad("version empty", "INVALID", version="")
         bad("sessions as string", "INVALID", sessions="12")
+        ok("no partitions yet", partitions=[], standby=[], queue_depth=0, lag_s=0.0)
+        bad("partition 64", "INVALID", partitions=[64])
+        bad("lag negative", "INVALID", lag_s=-0.5)
     return valid, invalid
 
 
@@ -372,9 +393,42 @@ def vectors(kind: str) -> dict[str, object]:
     return {"type": kind, "valid": out_valid, "invalid": out_invalid}
 
 
+def partition_vectors() -> dict[str, object]:
+    """Vectors of the partition function and of the rendezvous ranking (`partition.py`)."""
+    robots = [
+        ("warehouse", "amr-7"),
+        ("warehouse", "amr-8"),
+        ("test", "r0"),
+        ("test", "r1"),
+        ("a", "b"),
+        ("_", "0"),
+        ("fleet.x-1", "robot_" + "z" * 57),
+    ] + [("mrclam6", f"r{i}") for i in range(1, 6)]
+    instances = ["lessmap-a1", "lessmap-b2", "node-c", "host-1234", "x"]
+    return {
+        "type": "partition",
+        "partitions": PARTITIONS,
+        "robots": [
+            {"fleet": fleet, "robot": robot, "partition": partition_of(fleet, robot)}
+            for fleet, robot in robots
+        ],
+        "scores": [
+            {"instance": name, "partition": p, "score_hex": f"{score(name, p):016x}"}
+            for name in instances[:2]
+            for p in (0, 1, 63)
+        ],
+        "rankings": [
+            {"partition": p, "instances": live, "ranking": ranking(p, live)}
+            for p in (0, 1, 2, 29, 63)
+            for live in (instances, instances[:2], instances[:1], [])
+        ],
+    }
+
+
 def render(kind: str) -> str:
     """Return the file text of one vector file."""
-    return json.dumps(vectors(kind), indent=2, sort_keys=True) + "\n"
+    data = partition_vectors() if kind == "partition" else vectors(kind)
+    return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -384,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=HERE, help="output folder")
     args = parser.parse_args(argv)
     stale = []
-    for kind in MESSAGE_TYPES:
+    for kind in [*MESSAGE_TYPES, "partition"]:
         path: Path = args.out / f"{kind}.json"
         text = render(kind)
         if args.check:

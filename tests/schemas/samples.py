@@ -50,6 +50,8 @@ def samples() -> list[Message]:
             boundary_features=[3],
             batch_frames=1,
             instance="lessmap-a1",
+            partition=23,
+            epoch=1,
         ),
         Transition(
             fleet="warehouse",
@@ -66,6 +68,8 @@ def samples() -> list[Message]:
             boundary_features=[],
             batch_frames=4,
             instance="lessmap-a1",
+            partition=0,
+            epoch=2**53 - 1,
         ),
         Error(
             fleet="warehouse",
@@ -76,6 +80,7 @@ def samples() -> list[Message]:
             seq=46,
             stamp_s=1718000001.0,
             instance="lessmap-a1",
+            epoch=1718000000123,
         ),
         Error(
             fleet=None,
@@ -86,12 +91,14 @@ def samples() -> list[Message]:
             seq=None,
             stamp_s=1718000001.0,
             instance="lessmap-a1",
+            epoch=None,
         ),
         SessionState(
             fleet="warehouse",
             robot="amr-7",
             session="run-1",
             instance="lessmap-a1",
+            epoch=7,
             open=True,
             last_seq=42,
             frames_applied=43,
@@ -105,5 +112,15 @@ def samples() -> list[Message]:
             edges=310,
         ),
         Submap(fleet="warehouse", robot="amr-7", session="run-1", summary=CLOSED, open=False),
-        Health(instance="lessmap-a1", version="0.1.0", sessions=3, uptime_s=12.5, frames_applied=9),
+        Health(
+            instance="lessmap-a1",
+            version="0.1.0",
+            sessions=3,
+            uptime_s=12.5,
+            frames_applied=9,
+            partitions=[0, 5, 63],
+            standby=[],
+            queue_depth=0,
+            lag_s=0.0,
+        ),
     ]
