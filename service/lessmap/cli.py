@@ -35,6 +35,16 @@ COMMANDS: dict[str, Command] = {
     "serve": Command(
         "lessmap.runtime.daemon", "run the partition service (a Zenoh daemon for many robots)"
     ),
+    "router": Command(
+        "lessmap.runtime.router",
+        "run a plain Zenoh router for several service instances (no lessmap service in it)",
+    ),
+    "status": Command(
+        "lessmap_client.cli_client",
+        "instances, partitions, owners, standbys and lag of the running service",
+        "configure_status",
+        "run_status",
+    ),
     "segment": Command(
         "lessmap.offline", "segment a recorded frames file offline (one session per robot)"
     ),
