@@ -12,8 +12,10 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from lessmap_schemas import (
     DEFAULT_LIMITS,
     MESSAGE_TYPES,
+    Error,
     ErrorCode,
     Frame,
+    InvalidNameError,
     Message,
     SessionEnd,
     WireError,
@@ -21,7 +23,9 @@ from lessmap_schemas import (
     decode,
     decode_inbound,
     encode,
+    keys as lessmap_keys,
 )
+from lessmap_schemas.partition import partition_of
 from tests.schemas.samples import samples
 
 FUZZ = settings(
@@ -184,3 +188,103 @@ def test_deeply_nested_values(message: Message, field: str, depth: int, leaf: ob
             payload += msgpack.packb(value, use_bin_type=True)
     outcome(bytes(payload), type(message))
     outcome(bytes(payload), (Frame, SessionEnd), SMALL)
+
+
+@FUZZ
+@given(st.sampled_from(samples()), st.integers(-(2**63), 2**64 - 1) | st.floats() | st.none())
+def test_any_version_but_2_is_refused(message: Message, version: object) -> None:
+    fields = {**message.model_dump(), "v": version}
+    result = outcome(msgpack.packb(fields, use_bin_type=True), type(message))
+    if version == 2 and type(version) is int:
+        assert not isinstance(result, WireError)
+    else:
+        assert isinstance(result, WireError)
+        assert result.code is ErrorCode.UNSUPPORTED_VERSION
+
+
+V2_FIELDS = [
+    (model, name)
+    for model in MESSAGE_TYPES.values()
+    for name in ("partition", "epoch", "partitions", "standby", "queue_depth", "lag_s")
+    if name in model.model_fields
+]
+
+
+@FUZZ
+@given(st.sampled_from(V2_FIELDS), st.data())
+def test_v2_fields_take_only_their_range(field: tuple[type[Message], str], data: Any) -> None:
+    model, name = field
+    message = next(m for m in samples() if type(m) is model)
+    value = data.draw(leaves | st.lists(leaves, max_size=4) | st.integers(-5, 70))
+    result = outcome(raw_with(message, name, value), model)
+    if isinstance(result, WireError):
+        return
+    accepted = getattr(result, name)
+    if name == "epoch" and value is None:
+        assert model is Error  # only an Error may name no epoch
+    elif name in ("partition", "epoch", "queue_depth"):
+        assert type(value) is int
+        low, high = {"partition": (0, 63), "epoch": (1, 2**53 - 1)}.get(name, (0, 2**53 - 1))
+        assert low <= value <= high
+    elif name in ("partitions", "standby"):
+        assert all(type(p) is int for p in accepted)
+        assert all(0 <= p <= 63 for p in accepted)
+    else:
+        assert math.isfinite(accepted)
+        assert accepted >= 0
+
+
+def raw_with(message: Message, name: str, value: object) -> bytes:
+    data: bytes = msgpack.packb({**message.model_dump(), name: value}, use_bin_type=True)
+    return data
+
+
+def parsed(parse: Any, key: str) -> Any:
+    """Return what a key parser returns, or the InvalidNameError it raises (nothing else)."""
+    try:
+        return parse(key)
+    except InvalidNameError as exc:
+        return exc
+
+
+def refused(result: object) -> bool:
+    """Check that a refusal is a one-line-sized BAD_NAME; tell whether it was one."""
+    if not isinstance(result, InvalidNameError):
+        return False
+    assert result.code is ErrorCode.BAD_NAME
+    assert 0 < len(str(result)) <= 1024
+    return True
+
+
+chunks = st.text(max_size=8) | st.integers(-100, 200).map(str) | st.sampled_from(["", "*", "**"])
+
+
+@FUZZ
+@given(names, names, chunks)
+def test_frames_keys_need_the_robots_own_partition(fleet: str, robot: str, chunk: str) -> None:
+    key = f"lessmap/v2/{fleet}/{robot}/frames/{chunk}"
+    result = parsed(lessmap_keys.parse_robot_key, key)
+    if refused(result):
+        assert chunk != str(partition_of(fleet, robot))
+    else:
+        assert result == (fleet, robot, "frames")
+        assert lessmap_keys.frames(fleet, robot) == key
+    # Without its partition chunk a v2 frames key names no robot's frames.
+    assert refused(parsed(lessmap_keys.parse_robot_key, f"lessmap/v2/{fleet}/{robot}/frames"))
+
+
+@FUZZ
+@given(
+    st.lists(
+        st.text(max_size=12) | st.sampled_from(["lessmap", "v2", "v1", "frames", "@", "0", "63"]),
+        max_size=8,
+    )
+)
+def test_hostile_keys_parse_or_raise_bad_name(parts: list[str]) -> None:
+    key = "/".join(parts)
+    for parse in (
+        lessmap_keys.parse_robot_key,
+        lessmap_keys.parse_submap_key,
+        lessmap_keys.parse_checkpoint_key,
+    ):
+        refused(parsed(parse, key))

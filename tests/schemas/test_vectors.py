@@ -29,7 +29,9 @@ def cases(group: str) -> list[Any]:
 
 
 def test_one_vector_file_per_message_type() -> None:
-    assert sorted(path.stem for path in VECTORS.glob("*.json")) == sorted(MESSAGE_TYPES)
+    # One file per message type, and partition.json (section 2a; tests/schemas/test_partition.py).
+    expected = sorted([*MESSAGE_TYPES, "partition"])
+    assert sorted(path.stem for path in VECTORS.glob("*.json")) == expected
     for kind in MESSAGE_TYPES:
         data = load(kind)
         assert data["type"] == kind
