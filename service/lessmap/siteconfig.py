@@ -72,6 +72,14 @@ def access_rules(
         subject_kind: ``cert_common_names`` (mTLS) or ``usernames`` (usrpwd).
     """
     any_robot = f"{P}/*/*"
+    # Frames keys end with the robot's partition chunk (schemas/README.md §2a). The rules
+    # name it with `*`: the chunk is computed from the fleet and robot names, so it changes
+    # nothing in who may put what; the fleet chunk alone decides.
+    any_frames = f"{any_robot}/frames/*"
+    # Session checkpoints, shipped between service instances: service identities only (a
+    # forged checkpoint would inject session state). No chunk below starts with `@`, so `**`
+    # covers every partition, fleet and robot.
+    checkpoints = f"{P}/@/checkpoints/**"
     rules = [
         _rule(
             "service-in",
@@ -103,15 +111,23 @@ def access_rules(
             "service-read",
             "ingress",
             ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"],
-            [f"{any_robot}/frames", f"{any_robot}/frames/@adv/**", f"{P}/@/instances/*"],
+            [any_frames, f"{any_frames}/@adv/**", f"{P}/@/instances/*"],
+        ),
+        # The owner puts, the standby subscribes, every instance declares the queryable and
+        # a new owner queries it (schemas/README.md §2a, hand-over).
+        _rule(
+            "service-checkpoints",
+            "ingress",
+            ["put", "delete", "declare_subscriber", "declare_queryable", "query", "reply"],
+            [checkpoints],
         ),
         _rule(
             "service-out",
             "egress",
             ALL_MESSAGES,
             [
-                f"{any_robot}/frames",
-                f"{any_robot}/frames/@adv/**",
+                any_frames,
+                f"{any_frames}/@adv/**",
                 f"{any_robot}/transitions",
                 f"{any_robot}/transitions/@adv/**",
                 f"{any_robot}/errors",
@@ -120,37 +136,41 @@ def access_rules(
                 f"{P}/@/health/*",
                 f"{P}/@/instances/*",
                 f"{P}/@/errors/*",
+                checkpoints,
             ],
         ),
     ]
     # The service declares its subscriber and queryables with wildcards (every fleet at once).
     # A declaration is forwarded to a client only where a rule *includes* its whole key
     # expression, and a client that never learns of the subscriber sends it nothing (Zenoh
-    # filters at the writer): robots and apps must see these, and only these, wildcards.
+    # filters at the writer): robots and apps must see these, and only these, wildcards
+    # (`frames/*` includes the per-partition `frames/<p>` subscribers of the owners).
     rules.append(
         _rule(
             "see-service",
             "egress",
             ["declare_subscriber", "declare_queryable"],
-            [f"{any_robot}/frames", f"{any_robot}/state", f"{any_robot}/submaps/*"],
+            [any_frames, f"{any_robot}/state", f"{any_robot}/submaps/*"],
         )
     )
     subjects: list[dict[str, Any]] = [{"id": "service", subject_kind: list(service_names)}]
     policies: list[dict[str, Any]] = [
-        {"rules": ["service-in", "service-declare", "service-read", "service-out"],
+        {"rules": ["service-in", "service-declare", "service-read", "service-checkpoints",
+                   "service-out"],
          "subjects": ["service"]}
     ]  # fmt: skip
     for fleet in fleets:
         robots = f"{P}/{fleet}/*"
+        frames = f"{robots}/frames/*"  # any partition chunk, this fleet only
         rules += [
             # Frames and session ends, and what the robot's AdvancedPublisher declares: the
             # cache queryable and its replies, the publisher's liveliness token.
-            _rule(f"robot-{fleet}-put", "ingress", ["put"], [f"{robots}/frames"]),
+            _rule(f"robot-{fleet}-put", "ingress", ["put"], [frames]),
             _rule(
                 f"robot-{fleet}-cache",
                 "ingress",
                 ["declare_queryable", "reply", "liveliness_token"],
-                [f"{robots}/frames/@adv/**"],
+                [f"{frames}/@adv/**"],
             ),
             # The SDK's robot follows its own errors and state and waits for the service.
             _rule(
@@ -164,8 +184,8 @@ def access_rules(
                 "egress",
                 ALL_MESSAGES,
                 [
-                    f"{robots}/frames",
-                    f"{robots}/frames/@adv/**",
+                    frames,
+                    f"{frames}/@adv/**",
                     f"{robots}/errors",
                     f"{robots}/state",
                     f"{P}/@/instances/*",

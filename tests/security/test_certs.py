@@ -20,6 +20,7 @@ from lessmap.cli import main
 from lessmap.errors import ConfigError
 from lessmap.siteconfig import render, usrpwd_client_config, usrpwd_router_config
 from lessmap_client.session import open_session
+from lessmap_schemas import keys
 from tests.conftest import free_port, wait_until
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
@@ -159,17 +160,17 @@ def test_user_names_and_passwords_with_access_control(tmp_path: Path) -> None:
         try:
             got: list[str] = []
             sub = service.declare_subscriber(
-                "lessmap/v1/*/*/frames", lambda sample: got.append(str(sample.key_expr))
+                keys.frames("*", "*"), lambda sample: got.append(str(sample.key_expr))
             )
             deadline = time.monotonic() + 10
             while not got and time.monotonic() < deadline:
-                robot.put("lessmap/v1/g/r/frames", b"not mine")  # refused: robot.f is not g
-                robot.put("lessmap/v1/f/r/frames", b"mine")
+                robot.put(keys.frames("g", "r"), b"not mine")  # refused: robot.f is not g
+                robot.put(keys.frames("f", "r"), b"mine")
                 time.sleep(0.1)
             wait_until(lambda: bool(got), 1.0, "robot f's frames at the service")
             time.sleep(0.5)
             sub.undeclare()
-            assert set(got) == {"lessmap/v1/f/r/frames"}
+            assert set(got) == {keys.frames("f", "r")}
         finally:
             robot.close()
             service.close()

@@ -25,6 +25,7 @@ from lessmap_schemas.messages import (
     SubmapSummary,
     Transition,
 )
+from lessmap_schemas.partition import partition_of
 from tests.conftest import ServeProcess, wait_until
 
 if TYPE_CHECKING:
@@ -65,6 +66,8 @@ def forged_transition(fleet: str, robot: str) -> Transition:
         boundary_features=[],
         batch_frames=1,
         instance="evil",
+        partition=partition_of(fleet, robot),
+        epoch=2**40,  # above any real epoch: a client would prefer it
     )
 
 
@@ -251,6 +254,7 @@ def test_only_the_service_may_announce_an_instance_or_answer_for_it(
             robot="amr-1",
             session="forged",
             instance="evil",
+            epoch=2**40,
             open=True,
             last_seq=99,
             frames_applied=100,
