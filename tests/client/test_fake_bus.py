@@ -100,7 +100,7 @@ def test_queries_answer_what_was_stored() -> None:
         assert conn.state("f", "nobody") is None
         assert conn.health() == []
         assert conn.submaps("f", "a") == []
-    bus.instances.clear()
+    bus.instances = []
     with bus.connect() as conn:
         assert not conn.wait_for_service(0.2)
 

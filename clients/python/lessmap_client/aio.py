@@ -110,6 +110,11 @@ class AsyncSubscription(Generic[T]):
         return self._sub.duplicates if self._sub is not None else 0
 
     @property
+    def dropped_stale(self) -> int:
+        """Events dropped for an epoch below the robot's highest (see ``Subscription``)."""
+        return self._sub.dropped_stale if self._sub is not None else 0
+
+    @property
     def undecodable(self) -> int:
         """Events that were not valid messages (logged, skipped)."""
         return self._sub.undecodable if self._sub is not None else 0
@@ -176,6 +181,11 @@ class AsyncRobotPublisher:
         self._lock = asyncio.Lock()  # one put at a time keeps the frames in seq order
 
     @property
+    def partition(self) -> int:
+        """The robot's partition (the last chunk of its frames key)."""
+        return self.sync.partition
+
+    @property
     def session_id(self) -> str:
         """The current session id (it changes when a new session starts)."""
         return self.sync.session_id
@@ -193,6 +203,10 @@ class AsyncRobotPublisher:
     async def state(self, timeout_s: float = 2.0) -> SessionState | None:
         """The service's state of the current session; see ``RobotPublisher.state``."""
         return await asyncio.to_thread(self.sync.state, timeout_s)
+
+    async def wait_for_service(self, timeout_s: float = 10.0) -> bool:
+        """Wait until the robot's partition has an owner; see ``RobotPublisher``."""
+        return await asyncio.to_thread(self.sync.wait_for_service, timeout_s)
 
     async def new_session(self, session_id: str | None = None) -> str:
         """End the current session and start a new one at seq 0."""
@@ -340,6 +354,10 @@ class AsyncConnection:
     async def instances(self, timeout_s: float = 1.0) -> list[str]:
         """See ``Connection.instances``."""
         return await asyncio.to_thread(self.sync.instances, timeout_s)
+
+    async def coverage(self, timeout_s: float = 1.0) -> dict[int, tuple[str | None, str | None]]:
+        """See ``Connection.coverage``."""
+        return await asyncio.to_thread(self.sync.coverage, timeout_s)
 
     async def wait_for_service(self, timeout_s: float = 10.0) -> bool:
         """See ``Connection.wait_for_service``."""

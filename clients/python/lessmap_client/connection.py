@@ -12,11 +12,12 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from lessmap_client.fencing import current_states
 from lessmap_client.robot import RobotPublisher
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.subscription import DEFAULT_MAXSIZE, Subscription
 from lessmap_client.transport import ZenohTransport, wait_for_instances
-from lessmap_schemas import keys
+from lessmap_schemas import keys, partition
 from lessmap_schemas.codec import decode
 from lessmap_schemas.errors import WireError
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
@@ -211,15 +212,23 @@ class Connection:
     # -- queries -----------------------------------------------------------------------------
 
     def state(self, fleet: str, robot: str, timeout_s: float = 2.0) -> SessionState | None:
-        """Return the robot's session state (its open session, else the last closed one)."""
-        found = self._get(keys.state(fleet, robot), SessionState, timeout_s)
+        """Return the robot's session state (its open session, else the last closed one).
+
+        Of several replies (an old and a new owner of the robot's partition), the one with
+        the highest ``epoch`` is current; between equal epochs, the most ``frames_applied``.
+        """
+        found = current_states(self._get(keys.state(fleet, robot), SessionState, timeout_s))
         return found[0] if found else None
 
     def states(
         self, fleet: str = "*", robot: str = "*", timeout_s: float = 2.0
     ) -> list[SessionState]:
-        """Return the session state of every robot of a fleet (or of every fleet)."""
-        return self._get(keys.state(fleet, robot), SessionState, timeout_s)
+        """Return the session state of every robot of a fleet (or of every fleet).
+
+        One state per robot: of several replies for one robot, the one with the highest
+        ``epoch`` (then the most ``frames_applied``), as ``state`` does.
+        """
+        return current_states(self._get(keys.state(fleet, robot), SessionState, timeout_s))
 
     def submap(
         self, fleet: str, robot: str, submap_id: int, timeout_s: float = 2.0
@@ -238,12 +247,27 @@ class Connection:
         return self._get(keys.health(), Health, timeout_s)
 
     def instances(self, timeout_s: float = 1.0) -> list[str]:
-        """Return the names of the service instances alive on the network."""
+        """Return the names of the service instances alive on the network (their tokens)."""
         self._check_open()
-        return self.transport.instances(timeout_s)
+        return sorted(set(self.transport.instances(timeout_s)))
+
+    def coverage(self, timeout_s: float = 1.0) -> dict[int, tuple[str | None, str | None]]:
+        """Return ``{partition: (owner, standby)}`` for every partition, from the live tokens.
+
+        Computed by rendezvous hashing over the instances alive now (contract section 2a),
+        as every instance computes it: with at least one instance alive every partition has
+        an owner, with two or more a standby too. ``(None, None)`` everywhere means no
+        instance is alive, so no robot is served. An instance that has just joined or left
+        may take a moment to act on it: ``Health.partitions`` tells what it serves.
+        """
+        return partition.assignment(self.instances(timeout_s))
 
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
-        """Wait until a lessmap service instance is alive; False after ``timeout_s``."""
+        """Wait until a lessmap service instance is alive; False after ``timeout_s``.
+
+        With one instance alive every partition has an owner (``coverage``), so every robot
+        is served. A robot publisher's own ``wait_for_service`` waits for its partition.
+        """
         self._check_open()
         return wait_for_instances(self.transport, timeout_s)
 

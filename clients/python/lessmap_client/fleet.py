@@ -71,6 +71,16 @@ class FleetClient:
         return self._conn
 
     @property
+    def dropped_stale(self) -> int:
+        """Events dropped for an epoch below the robot's highest (a deposed owner's)."""
+        return sum(s.dropped_stale for s in [self._events, *self._callbacks])
+
+    @property
+    def duplicates(self) -> int:
+        """Transitions dropped as repeats of one already delivered (same identity)."""
+        return sum(s.duplicates for s in [self._events, *self._callbacks])
+
+    @property
     def undecodable(self) -> int:
         """Events and replies that were not valid messages (logged, skipped)."""
         subs = [self._events, *self._callbacks]
@@ -79,7 +89,11 @@ class FleetClient:
     # -- events ------------------------------------------------------------------------------
 
     def next_event(self, timeout_s: float | None = None) -> Transition | Error | None:
-        """Return the next event, or None when ``timeout_s`` passes or the client closes."""
+        """Return the next event, or None when ``timeout_s`` passes or the client closes.
+
+        Events are fenced (a robot's event with an epoch below the highest seen for it is
+        dropped, ``dropped_stale``) and transitions de-duplicated by identity.
+        """
         return self._events.recv(timeout_s)
 
     def next_transition(self, timeout_s: float | None = None) -> Transition | None:
@@ -119,7 +133,11 @@ class FleetClient:
         return self._conn.state(fleet or self._concrete_fleet(), robot, timeout_s)
 
     def states(self, fleet: str | None = None, timeout_s: float = 2.0) -> list[SessionState]:
-        """Return the session state of every robot of a fleet (or of every fleet)."""
+        """Return the session state of every robot of a fleet (or of every fleet).
+
+        One per robot: of several replies, the highest ``epoch``, then the most
+        ``frames_applied``.
+        """
         return self._conn.states(fleet or self.fleet, "*", timeout_s)
 
     def submap(
@@ -139,6 +157,14 @@ class FleetClient:
     def instances(self, timeout_s: float = 1.0) -> list[str]:
         """Return the names of the service instances alive on the network."""
         return self._conn.instances(timeout_s)
+
+    def coverage(self, timeout_s: float = 1.0) -> dict[int, tuple[str | None, str | None]]:
+        """Return ``{partition: (owner, standby)}`` from the live instances; see ``Connection``."""
+        return self._conn.coverage(timeout_s)
+
+    def wait_for_service(self, timeout_s: float = 10.0) -> bool:
+        """Wait until a service instance is alive (then every partition has an owner)."""
+        return self._conn.wait_for_service(timeout_s)
 
     def _concrete_fleet(self) -> str:
         if self.fleet == "*":

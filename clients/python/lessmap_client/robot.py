@@ -5,6 +5,12 @@ Invariants of this file:
 - A robot follows its own ``errors`` key. The transport's callback (Zenoh's thread) only
   appends the raw payload to the robot's bounded inbox; the robot's follower thread decodes
   it, updates the status, queries the service if needed and calls ``on_error``.
+- A robot follows the service instances' liveliness tokens: the transport's callback only
+  updates the set of live instances (and wakes the follower); ``status.owner`` ranks that set
+  for the robot's partition (contract section 2a), and the follower logs when nobody serves
+  the robot any more, and when somebody does again.
+- Reports are fenced by epoch: an ``Error`` whose epoch is below the highest this robot has
+  seen comes from a deposed owner of its partition and is dropped (``reports_stale``).
 - The session id and the numbering change only on the publishing thread (``publish``,
   ``new_session``): a ``SESSION_CLOSED`` report is turned into a flag that the next
   ``publish`` acts on, so frames are never renumbered behind the caller's back mid-call.
@@ -24,9 +30,10 @@ from typing import TYPE_CHECKING
 import zenoh
 
 from lessmap_client.errors import SessionClosedError
+from lessmap_client.fencing import current_states
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
-from lessmap_client.transport import ZenohTransport, wait_for_instances
-from lessmap_schemas import keys
+from lessmap_client.transport import ZenohTransport
+from lessmap_schemas import keys, partition
 from lessmap_schemas.codec import decode, encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
@@ -47,6 +54,7 @@ _END_ENCODING = encoding(SessionEnd)
 _INBOX_MAX = 1000  # error reports waiting for the follower thread; more are dropped, counted
 _HOLDER_QUERY_S = 1.0  # how long the follower asks who holds the robot after SESSION_CLOSED
 _JOIN_TIMEOUT_S = 5.0
+_UNSERVED_GRACE_S = 2.0  # after this long without an owner since start, warn once
 
 
 def new_session_id() -> str:
@@ -71,6 +79,13 @@ class RobotStatus:
         closed_by_service: the service reported the current session closed; the next
             ``publish`` starts a new session (``auto_new_session``) or raises.
         reports_dropped: reports dropped unread because too many were waiting.
+        partition: the robot's partition (``lessmap_schemas.partition.partition_of``), the
+            last chunk of its frames key.
+        owner: the service instance that owns the partition among the live instances (the
+            first by rendezvous ranking), None when no instance is alive: nobody serves the
+            robot, and its frames wait in the publisher's cache for the next owner.
+        reports_stale: reports dropped because their epoch was below the highest this robot
+            had seen (the late report of a deposed owner).
     """
 
     fleet: str
@@ -84,6 +99,9 @@ class RobotStatus:
     last_error: Error | None
     closed_by_service: bool
     reports_dropped: int = 0
+    partition: int = 0
+    owner: str | None = None
+    reports_stale: int = 0
 
     def count(self, code: ErrorCode | str) -> int:
         """Reports received with this code (``"SEQ_GAP"`` or ``ErrorCode.SEQ_GAP``)."""
@@ -105,6 +123,13 @@ class RobotPublisher:
     starts a new session (new id, seq from 0) if ``auto_new_session``, else raises
     ``SessionClosedError``. It never takes a robot name over from another publisher: if the
     service holds another open session for the robot, ``publish`` raises either way.
+
+    The robot belongs to one partition (``partition``; its frames key ends with it), served
+    by the partition's owner among the live service instances. The publisher follows the
+    instances' liveliness tokens: ``status.owner`` is that owner, None when no instance is
+    alive. It logs one warning when the robot becomes unserved (or still is 2 s after start)
+    and one info line when it is served again; ``wait_for_service`` waits for an owner. An
+    unserved robot may keep publishing: the cache keeps its recent frames for the next owner.
 
     Args:
         fleet: fleet name (letters, digits, ``_ . -``; up to 64 characters).
@@ -144,6 +169,7 @@ class RobotPublisher:
         self._limits = limits
         self._on_error = on_error
         self._key = keys.frames(self.fleet, self.robot)
+        self.partition = partition.partition_of(self.fleet, self.robot)
         # Session bookkeeping (the publishing thread and the follower share it).
         self._lock = threading.Lock()
         self._next_seq = 0
@@ -154,8 +180,16 @@ class RobotPublisher:
         self._closed_report: Error | None = None  # SESSION_CLOSED for the current session
         self._holder: str | None = None  # another open session of this robot name, if seen
         self._closed = False
-        # The inbox of raw error reports (Zenoh's thread appends, the follower takes).
-        self._inbox: deque[bytes] = deque()
+        self._highest_epoch = 0  # fencing: the highest epoch of a report about this robot
+        self._stale = 0
+        # Live service instances (the transport's thread updates them under ``_lock``).
+        self._live: set[str] = set()
+        self._live_changed = threading.Condition(self._lock)
+        self._served: str | None = None  # the owner the follower last logged about
+        self._unserved_warned = False
+        # The inbox of raw error reports (Zenoh's thread appends, the follower takes); None
+        # marks a change of the live instances.
+        self._inbox: deque[bytes | None] = deque()
         self._inbox_cond = threading.Condition(threading.Lock())
         self._received = 0
         self._handled = 0
@@ -179,11 +213,14 @@ class RobotPublisher:
         )
         self._follower.start()
         self._errors_handle: Handle | None = None
+        self._instances_handle: Handle | None = None
         try:
             self._errors_handle = self._transport.subscribe(
                 keys.errors(self.fleet, self.robot), self._push_error, history=None
             )
+            self._instances_handle = self._transport.watch_instances(self._on_instance)
         except BaseException:
+            self._release_handles()
             self._stop_follower()
             self._publisher.close()
             if self._owns_transport:
@@ -218,11 +255,30 @@ class RobotPublisher:
                 last_error=self._last_error,
                 closed_by_service=self._closed_report is not None,
                 reports_dropped=self._dropped,
+                partition=self.partition,
+                owner=self._owner(),
+                reports_stale=self._stale,
             )
 
+    def _owner(self) -> str | None:
+        """The owner of the robot's partition among the live instances (holding ``_lock``)."""
+        return partition.owner_and_standby(self.partition, self._live)[0]
+
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
-        """Wait until a lessmap service instance is alive on the network."""
-        return wait_for_instances(self._transport, timeout_s)
+        """Wait until the robot's partition has an owner among the live service instances.
+
+        Returns True at once when it has one (``status.owner``), False after ``timeout_s``
+        without one. Any live instance owns some partitions, and with one alive every
+        partition has an owner.
+        """
+        deadline = time.monotonic() + timeout_s
+        with self._live_changed:
+            while self._owner() is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._live_changed.wait(remaining)
+            return True
 
     def state(self, timeout_s: float = 2.0) -> SessionState | None:
         """Ask the service for the state of the current session (blocks up to ``timeout_s``).
@@ -232,16 +288,18 @@ class RobotPublisher:
         from your thread or ``on_error``, never from a Zenoh callback.
         """
         session_id = self.session_id
+        found = []
         for reply_key, payload in self._transport.get(
             keys.state(self.fleet, self.robot), timeout_s
         ):
             try:
-                state = decode(payload, SessionState)
+                found.append(decode(payload, SessionState))
             except WireError as exc:
                 log.warning("skipped an undecodable reply on %s: %s", reply_key, exc)
-                continue
-            if state.session == session_id:
-                return state
+        # Of several replies (an old and a new owner), the highest epoch is current.
+        current = current_states(found)
+        if current and current[0].session == session_id:
+            return current[0]
         return None
 
     def publish(
@@ -363,6 +421,51 @@ class RobotPublisher:
                 lambda: self._handled >= target or self._stopping, timeout_s
             )
 
+    # -- the service's instances ------------------------------------------------------------
+
+    def _on_instance(self, instance: str, alive: bool) -> None:
+        """Note a token that appeared or left (the transport's thread: no log, no Zenoh)."""
+        with self._lock:
+            if alive:
+                self._live.add(instance)
+            else:
+                self._live.discard(instance)
+            self._live_changed.notify_all()
+        with self._inbox_cond:
+            if not self._stopping:
+                self._inbox.append(None)
+                self._received += 1
+                self._inbox_cond.notify_all()
+
+    def _check_owner(self, *, startup: bool = False) -> None:
+        """Log when the robot becomes unserved, and when it is served again (follower)."""
+        with self._lock:
+            owner = self._owner()
+            before, self._served = self._served, owner
+            warned = self._unserved_warned
+            if owner is None and not warned and (before is not None or startup):
+                self._unserved_warned = True
+            elif owner is not None:
+                self._unserved_warned = False
+        if owner is None and not warned and (before is not None or startup):
+            log.warning(
+                "%s/%s: no live lessmap instance owns partition %d: the robot is not served "
+                "(its recent frames wait in the publisher's cache for the next owner)",
+                self.fleet,
+                self.robot,
+                self.partition,
+            )
+        elif owner is not None and warned:
+            log.info(
+                "%s/%s: partition %d is served again, by %s",
+                self.fleet,
+                self.robot,
+                self.partition,
+                owner,
+            )
+        elif owner != before and owner is not None:
+            log.debug("%s/%s: partition %d owner %s", self.fleet, self.robot, self.partition, owner)
+
     # -- the service's reports -------------------------------------------------------------
 
     def _push_error(self, payload: bytes) -> None:
@@ -379,15 +482,31 @@ class RobotPublisher:
 
     def _follow(self) -> None:
         """The follower thread: handle reports one by one until the publisher closes."""
+        grace_until: float | None = time.monotonic() + _UNSERVED_GRACE_S
         while True:
             with self._inbox_cond:
                 while not self._inbox and not self._stopping:
-                    self._inbox_cond.wait()
+                    if grace_until is None:
+                        self._inbox_cond.wait()
+                        continue
+                    remaining = grace_until - time.monotonic()
+                    if remaining <= 0:
+                        break
+                    self._inbox_cond.wait(remaining)
                 if self._stopping:
                     return
-                payload = self._inbox.popleft()
+                payload = self._inbox.popleft() if self._inbox else None
+                check_startup = grace_until is not None and time.monotonic() >= grace_until
+            if check_startup:
+                grace_until = None
+                self._check_owner(startup=True)
+                if payload is None:
+                    continue
             try:
-                self._handle(payload)
+                if payload is None:
+                    self._check_owner()
+                else:
+                    self._handle(payload)
             except Exception:
                 log.exception("%s/%s: handling an error report failed", self.fleet, self.robot)
             with self._inbox_cond:
@@ -405,6 +524,11 @@ class RobotPublisher:
         with self._lock:
             if error.session is not None and error.session not in self._sessions:
                 return  # about another publisher's session of this robot name
+            if error.epoch is not None:
+                if error.epoch < self._highest_epoch:
+                    self._stale += 1  # a deposed owner's late report
+                    return
+                self._highest_epoch = error.epoch
             self._errors[str(error.code)] += 1
             self._last_error = error
             current = self.session_id
@@ -441,11 +565,13 @@ class RobotPublisher:
             replies = self._transport.get(keys.state(self.fleet, self.robot), _HOLDER_QUERY_S)
         except Exception:  # a closed transport: nobody to ask
             return None
+        found = []
         for _, payload in replies:
             try:
-                state = decode(payload, SessionState)
+                found.append(decode(payload, SessionState))
             except WireError:
                 continue
+        for state in current_states(found):  # the current owner's answer only
             if state.open and state.session != current and state.session not in self._sessions:
                 return state.session
         return None
@@ -459,6 +585,13 @@ class RobotPublisher:
             self._transport.put(self._key, encode(end), _END_ENCODING)
         except Exception:  # zenoh.ZError, or a transport already closed
             log.warning("could not send the end of session %s", session_id)
+
+    def _release_handles(self) -> None:
+        for name in ("_errors_handle", "_instances_handle"):
+            handle = getattr(self, name)
+            setattr(self, name, None)
+            if handle is not None:
+                handle.close()
 
     def _stop_follower(self) -> None:
         with self._inbox_cond:
@@ -478,9 +611,7 @@ class RobotPublisher:
             last = self._next_seq - 1 if self._next_seq else None
         if still_open:
             self._send_end(self.session_id, last)
-        handle, self._errors_handle = self._errors_handle, None
-        if handle is not None:
-            handle.close()
+        self._release_handles()
         self._stop_follower()
         self._publisher.close()
         if self._host is not None:

@@ -10,8 +10,11 @@ Invariants of this file:
   ``dropped`` (the queue keeps the oldest ones, so what a slow reader gets is an unbroken
   prefix; the same policy as nats.py's pending limits). A warning is logged from the reader's
   side when it notices new drops.
-- Decoding and de-duplication happen on the reader's thread (``recv``) or on the
+- Decoding, fencing and de-duplication happen on the reader's thread (``recv``) or on the
   subscription's own dispatcher thread (handler mode).
+- Fencing (contract section 2a): per robot, the highest ``epoch`` seen on a ``Transition`` or
+  an ``Error`` is kept; an event with a lower epoch (a deposed owner's late event) is dropped
+  and counted in ``dropped_stale``, before the de-duplication by identity.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from collections import OrderedDict, deque
 from typing import TYPE_CHECKING, Generic, TypeVar
 
 from lessmap_schemas.errors import WireError
-from lessmap_schemas.messages import Transition
+from lessmap_schemas.messages import Error, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -38,6 +41,7 @@ T = TypeVar("T")
 #: Events a subscription buffers by default before it drops new ones.
 DEFAULT_MAXSIZE = 10_000
 _SEEN_KEPT = 100_000  # transition identities remembered for de-duplication
+_EPOCHS_KEPT = 100_000  # robots whose highest epoch is remembered for fencing
 _JOIN_TIMEOUT_S = 5.0
 
 
@@ -50,9 +54,14 @@ class Subscription(Generic[T]):
     Zenoh's threads, so it may block or call the connection's queries; an exception in it is
     logged and the next event still arrives. Without one, the caller reads the queue.
 
-    Transitions are de-duplicated by identity ``(fleet, robot, session, closed.id)``: the
-    history recovered on joining and the live stream may overlap, and a service fail-over may
-    repeat one.
+    Events are fenced by epoch: per robot ``(fleet, robot)``, the subscription keeps the
+    highest ``epoch`` it has seen on a ``Transition`` or an ``Error`` (an ``Error`` whose
+    epoch is null is never fenced) and drops an event with a lower one, the late event of an
+    instance that no longer owns the robot's partition; ``dropped_stale`` counts them.
+
+    Transitions are then de-duplicated by identity ``(fleet, robot, session, closed.id)``: the
+    history recovered on joining and the live stream may overlap, and a new owner of a
+    partition computes the transitions after its checkpoint again; ``duplicates`` counts them.
     """
 
     def __init__(
@@ -79,7 +88,9 @@ class Subscription(Generic[T]):
         self._closed = False
         self.undecodable = 0  # payloads that were not valid messages (logged, skipped)
         self.duplicates = 0  # transitions skipped as repeats
+        self.dropped_stale = 0  # events skipped for an epoch below the robot's highest
         self._seen: OrderedDict[tuple[str, str, str, int], None] = OrderedDict()
+        self._epochs: OrderedDict[tuple[str, str], int] = OrderedDict()
         self._handles: list[Handle] = []
         self._dispatcher: threading.Thread | None = None
         if handler is not None:
@@ -184,10 +195,28 @@ class Subscription(Generic[T]):
             self.undecodable += 1
             log.warning("subscription %s skipped an undecodable event: %s", self.name, exc)
             return None
+        if isinstance(event, Transition | Error) and self._is_stale(event):
+            self.dropped_stale += 1
+            log.debug("subscription %s dropped a stale event (epoch %s)", self.name, event.epoch)
+            return None
         if isinstance(event, Transition) and self._is_repeat(event):
             self.duplicates += 1
             return None
         return event
+
+    def _is_stale(self, event: Transition | Error) -> bool:
+        """Whether the event's epoch is below the highest seen for its robot (then keep it)."""
+        if event.epoch is None or event.fleet is None or event.robot is None:
+            return False
+        robot = (event.fleet, event.robot)
+        highest = self._epochs.get(robot)
+        if highest is not None and event.epoch < highest:
+            return True
+        self._epochs[robot] = event.epoch
+        self._epochs.move_to_end(robot)
+        if len(self._epochs) > _EPOCHS_KEPT:
+            self._epochs.popitem(last=False)
+        return False
 
     def _is_repeat(self, t: Transition) -> bool:
         identity = (t.fleet, t.robot, t.session, t.closed.id)

@@ -24,6 +24,13 @@ handlers are still called on their subscription's thread), ``*`` matches one key
 ``**`` any number, transitions are retained (``history`` per key) for subscriptions that ask
 for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
 stored. The fake is no service: publishing frames produces no transitions by itself.
+
+Contract v2: robots put their frames on ``lessmap/v2/<fleet>/<robot>/frames/<partition>``;
+a frames key naming another partition reaches no service and is counted in
+``misrouted_sent``. The bus's ``instances`` are the live service instances (their liveliness
+tokens): robot publishers follow them (``status.owner``), ``coverage()`` ranks them. Events
+carry an ``epoch``: publish one with a lower epoch than an earlier one for the same robot to
+test that your app never sees a deposed owner's late event (the SDK drops it).
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from lessmap_client.connection import Connection
 from lessmap_schemas import keys
@@ -48,6 +55,7 @@ from lessmap_schemas.messages import (
     SubmapSummary,
     Transition,
 )
+from lessmap_schemas.partition import partition_of
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -57,6 +65,7 @@ if TYPE_CHECKING:
 __all__ = ["FakeBus", "Sent", "make_error", "make_state", "make_transition"]
 
 FAKE_INSTANCE = "fake"
+_UNSET: Any = object()
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,19 +99,56 @@ class FakeBus:
 
     Args:
         history: transitions retained per robot for subscriptions with ``history``.
-        instances: service instances reported alive (``wait_for_service`` is True while
-            this is not empty); mutable.
+        instances: service instances alive at first (their liveliness tokens): every
+            partition has an owner while there is one (``wait_for_service`` is True); change
+            them with ``instances = [...]``, ``add_instance`` and ``remove_instance``, which
+            robot publishers on the bus follow at once.
     """
 
     def __init__(self, *, history: int = 64, instances: Sequence[str] = (FAKE_INSTANCE,)) -> None:
-        self.instances = list(instances)
         self._history = history
         self._lock = threading.RLock()
+        self._instances: list[str] = []
+        self._watchers: list[_FakeWatcher] = []
         self._subscribers: list[_FakeSubscriber] = []
         self._retained: dict[str, deque[bytes]] = {}
         self._replies: dict[str, bytes] = {}
         self._sent: list[Sent] = []
         self.undecodable_sent = 0  # robot payloads that were not Frames or SessionEnds
+        self.misrouted_sent = 0  # robot payloads put on a frames key of another partition
+        self.instances = instances
+
+    # -- service instances (liveliness tokens) ----------------------------------------------
+
+    @property
+    def instances(self) -> tuple[str, ...]:
+        """The live service instances, in the order they appeared (read-only; assign to set)."""
+        with self._lock:
+            return tuple(self._instances)
+
+    @instances.setter
+    def instances(self, names: Sequence[str]) -> None:
+        wanted = list(dict.fromkeys(keys.validate_name(n, "instance") for n in names))
+        with self._lock:
+            gone = [n for n in self._instances if n not in wanted]
+            new = [n for n in wanted if n not in self._instances]
+            self._instances = wanted
+            for name in gone:
+                self._notify(name, alive=False)
+            for name in new:
+                self._notify(name, alive=True)
+
+    def add_instance(self, name: str) -> None:
+        """Declare a service instance's liveliness token (no-op if it is alive)."""
+        self.instances = [*self.instances, name]
+
+    def remove_instance(self, name: str) -> None:
+        """Drop a service instance's liveliness token, as when it stops or crashes."""
+        self.instances = [n for n in self.instances if n != name]
+
+    def _notify(self, name: str, *, alive: bool) -> None:
+        for watcher in list(self._watchers):
+            watcher.deliver(name, alive)
 
     def connect(self) -> Connection:
         """Open a connection to this bus (the same ``Connection`` API as ``connect()``)."""
@@ -111,7 +157,18 @@ class FakeBus:
     # -- what the service would publish -------------------------------------------------------
 
     def publish_transition(self, transition: Transition) -> None:
-        """Publish a transition as the service would (retained for late subscribers)."""
+        """Publish a transition as the service would (retained for late subscribers).
+
+        Raises:
+            ValueError: its ``partition`` is not the robot's (no service would publish it).
+        """
+        expected = partition_of(transition.fleet, transition.robot)
+        if transition.partition != expected:
+            msg = (
+                f"transition of {transition.fleet}/{transition.robot} names partition "
+                f"{transition.partition}; the robot is in partition {expected}"
+            )
+            raise ValueError(msg)
         self.put(keys.transitions(transition.fleet, transition.robot), encode(transition))
 
     def publish_error(self, error: Error) -> None:
@@ -128,7 +185,7 @@ class FakeBus:
             if key.endswith("/transitions"):
                 kept = self._retained.setdefault(key, deque(maxlen=self._history))
                 kept.append(payload)
-            if key.endswith("/frames"):
+            if _is_frames_key(key):
                 self._record(key, payload)
             for subscriber in list(self._subscribers):
                 if key_matches(subscriber.key, key):
@@ -181,7 +238,11 @@ class FakeBus:
         ]
 
     def _record(self, key: str, payload: bytes) -> None:
-        fleet, robot, _ = keys.parse_robot_key(key)
+        try:
+            fleet, robot, _ = keys.parse_robot_key(key)
+        except WireError:
+            self.misrouted_sent += 1  # another partition's key: no instance subscribes to it
+            return
         try:
             message = decode_inbound(payload)
         except WireError:
@@ -209,6 +270,19 @@ class FakeBus:
             if subscriber in self._subscribers:
                 self._subscribers.remove(subscriber)
 
+    def _watch(self, deliver: Callable[[str, bool], None]) -> _FakeWatcher:
+        watcher = _FakeWatcher(self, deliver)
+        with self._lock:
+            for name in self._instances:  # history: the tokens alive now
+                deliver(name, True)
+            self._watchers.append(watcher)
+        return watcher
+
+    def _unwatch(self, watcher: _FakeWatcher) -> None:
+        with self._lock:
+            if watcher in self._watchers:
+                self._watchers.remove(watcher)
+
     def _get(self, key: str) -> list[tuple[str, bytes]]:
         with self._lock:
             return [(k, v) for k, v in self._replies.items() if key_matches(key, k)]
@@ -222,6 +296,20 @@ class _FakeSubscriber:
 
     def close(self) -> None:
         self.bus._unsubscribe(self)
+
+
+class _FakeWatcher:
+    def __init__(self, bus: FakeBus, deliver: Callable[[str, bool], None]) -> None:
+        self.bus = bus
+        self.deliver = deliver
+
+    def close(self) -> None:
+        self.bus._unwatch(self)
+
+
+def _is_frames_key(key: str) -> bool:
+    parts = key.split("/")
+    return len(parts) >= 5 and parts[4] == "frames"
 
 
 class _FakePublisher:
@@ -266,6 +354,10 @@ class _FakeTransport:
         self._check()
         return list(self._bus.instances)
 
+    def watch_instances(self, deliver: Callable[[str, bool], None]) -> Handle:
+        self._check()
+        return self._bus._watch(deliver)
+
     def publisher(self, key: str, encoding: str, cache: int) -> Publisher:
         self._check()
         return _FakePublisher(self._bus, key)
@@ -292,10 +384,13 @@ def make_transition(
     closed_features: Sequence[int] = (1, 2, 3),
     opened_features: Sequence[int] = (3, 4, 5),
     instance: str = FAKE_INSTANCE,
+    epoch: int = 1,
 ) -> Transition:
     """Return a consistent ``Transition``: submap ``closed_id`` closed, the next one opened.
 
-    Frames are numbered 10 per submap unless ``seq`` (the detection frame) is given.
+    Frames are numbered 10 per submap unless ``seq`` (the detection frame) is given. The
+    partition is the robot's; ``epoch`` is the producing owner's ownership epoch (a later
+    owner has a higher one).
     """
     first = closed_id * 10
     detect = first + 10 if seq is None else seq
@@ -328,6 +423,8 @@ def make_transition(
         boundary_features=sorted(set(closed_features) & set(opened_features)),
         batch_frames=1,
         instance=instance,
+        partition=partition_of(fleet, robot),
+        epoch=epoch,
     )
 
 
@@ -340,8 +437,12 @@ def make_state(
     frames_applied: int = 0,
     transitions: int = 0,
     instance: str = FAKE_INSTANCE,
+    epoch: int = 1,
 ) -> SessionState:
-    """Return a ``SessionState`` with ``transitions`` closed submaps and consistent counters."""
+    """Return a ``SessionState`` with ``transitions`` closed submaps and consistent counters.
+
+    ``epoch`` is the answering instance's ownership epoch (the highest reply is current).
+    """
     closed = [
         SubmapSummary(id=i, first_seq=i * 10, last_seq=i * 10 + 9, frame_count=10, features=[])
         for i in range(transitions)
@@ -360,6 +461,7 @@ def make_state(
         robot=robot,
         session=session,
         instance=instance,
+        epoch=epoch,
         open=open,
         last_seq=last,
         frames_applied=frames_applied,
@@ -383,8 +485,15 @@ def make_error(
     session: str | None = None,
     seq: int | None = None,
     instance: str = FAKE_INSTANCE,
+    epoch: int | None = _UNSET,
 ) -> Error:
-    """Return an ``Error`` report as the service would publish it."""
+    """Return an ``Error`` report as the service would publish it.
+
+    ``epoch`` defaults to 1 for an error about a robot and to None (unattributable) for one
+    that names no robot.
+    """
+    if epoch is _UNSET:
+        epoch = 1 if fleet is not None and robot is not None else None
     return Error(
         fleet=fleet,
         robot=robot,
@@ -394,4 +503,5 @@ def make_error(
         seq=seq,
         stamp_s=time.time(),
         instance=instance,
+        epoch=epoch,
     )

@@ -20,6 +20,7 @@ import zenoh
 from zenoh import ext
 
 from lessmap_client.session import service_instances
+from lessmap_schemas import keys
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -62,6 +63,14 @@ class Transport(Protocol):
 
     def instances(self, timeout_s: float) -> list[str]:
         """Return the names of the lessmap service instances alive."""
+
+    def watch_instances(self, deliver: Callable[[str, bool], None]) -> Handle:
+        """Call ``deliver(instance, alive)`` for every instance token, present and to come.
+
+        The instances alive when it is declared are delivered as ``alive=True`` first (a
+        liveliness subscriber with history); then each token that appears or disappears.
+        ``deliver`` runs on the transport's thread and must not block.
+        """
 
     def publisher(self, key: str, encoding: str, cache: int) -> Publisher:
         """Declare a publisher keeping ``cache`` recent samples for late joiners."""
@@ -195,6 +204,22 @@ class ZenohTransport:
     def instances(self, timeout_s: float) -> list[str]:
         """See ``Transport.instances``."""
         return service_instances(self.session, timeout_s)
+
+    def watch_instances(self, deliver: Callable[[str, bool], None]) -> Handle:
+        """See ``Transport.watch_instances``."""
+        prefix = keys.instance_token("x")[:-1]
+
+        def on_sample(sample: zenoh.Sample) -> None:  # Zenoh's thread: hand over and return
+            key = str(sample.key_expr)
+            if key.startswith(prefix):
+                deliver(key[len(prefix) :], sample.kind == zenoh.SampleKind.PUT)
+
+        entity = self.session.liveliness().declare_subscriber(
+            keys.instances(), on_sample, history=True
+        )
+        handle = _ZenohHandle(self, entity)
+        self._remember(handle)
+        return handle
 
     def publisher(self, key: str, encoding: str, cache: int) -> Publisher:
         """See ``Transport.publisher``."""
