@@ -172,11 +172,17 @@ def access_rules(
                 ["declare_queryable", "reply", "liveliness_token"],
                 [f"{frames}/@adv/**"],
             ),
-            # The SDK's robot follows its own errors and state and waits for the service.
+            # The SDK's robot follows its own errors and state, and the service instances'
+            # tokens (its partition's owner, schemas/README.md §2a).
             _rule(
                 f"robot-{fleet}-read",
                 "ingress",
-                ["declare_subscriber", "query", "liveliness_query"],
+                [
+                    "declare_subscriber",
+                    "query",
+                    "liveliness_query",
+                    "declare_liveliness_subscriber",
+                ],
                 [f"{robots}/errors", f"{robots}/state", f"{P}/@/instances/*"],
             ),
             _rule(

@@ -95,6 +95,8 @@ def test_a_robot_and_an_app_of_one_fleet_work_end_to_end(
     events = app.subscribe_transitions(site.fleet)
     robot = connect_as("robot").robot(site.fleet, "amr-1")
     assert robot.wait_for_service(10.0)
+    # The robot follows the instances' tokens (a liveliness subscriber): it sees its owner.
+    assert robot.status.owner == service.instance
     walk_two_rooms(robot)
 
     transition = events.recv(timeout_s=15.0)
