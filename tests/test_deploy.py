@@ -22,6 +22,9 @@ from lessmap.runtime.router import router_config
 from lessmap.settings import LimitSettings, ServiceSettings
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
+from lessmap_schemas.codec import decode
+from lessmap_schemas.messages import Health
+from lessmap_schemas.partition import PARTITIONS
 from tests.conftest import wait_until
 
 DEPLOY = Path(__file__).resolve().parents[1] / "deploy"
@@ -122,16 +125,25 @@ def test_the_local_cluster_starts_two_routers_and_three_instances_and_stops_them
         assert set(pids) == {"router-a", "router-b", "local-1", "local-2", "local-3"}
         assert "stop:" in started.stdout
         endpoints = dict(line.split() for line in (folder / "endpoints").read_text().splitlines())
-        expected = {keys.instance_token(f"local-{i}") for i in (1, 2, 3)}
-        for endpoint in endpoints.values():  # each router sees every instance (the mesh)
-            session = open_session([endpoint], timeout_s=20.0)
-            try:
-                wait_until(
-                    partial(sees, session, expected),
-                    60.0,
-                    f"the three instances' tokens through {endpoint}",
-                )
-            finally:
+        sessions = [open_session([endpoint], timeout_s=20.0) for endpoint in endpoints.values()]
+        try:
+            # Each router sees every instance (the mesh) ...
+            expected = {keys.instance_token(f"local-{i}") for i in (1, 2, 3)}
+            for session in sessions:
+                wait_until(partial(sees, session, expected), 60.0, "the three instances' tokens")
+            # ... and an instance killed -9 leaves both (its TCP link closes with it).
+            os.kill(pids["local-2"], signal.SIGKILL)
+            expected -= {keys.instance_token("local-2")}
+            for session in sessions:
+                wait_until(partial(sees, session, expected), 30.0, "local-2's token to go")
+            # The survivors own every partition between them (their Health replies).
+            wait_until(
+                partial(owned_by, sessions[0], {"local-1", "local-3"}),
+                60.0,
+                "local-1 and local-3 to own all 64 partitions",
+            )
+        finally:
+            for session in sessions:
                 session.close()
         stopped = run("stop")
         assert stopped.returncode == 0, stopped.stderr
@@ -149,6 +161,20 @@ def sees(session: zenoh.Session, expected: set[str]) -> bool:
     """Return whether the liveliness tokens of the instances are exactly ``expected``."""
     replies = session.liveliness().get(keys.instances(), timeout=1.0)
     return {str(r.ok.key_expr) for r in replies if r.ok is not None} == expected
+
+
+def owned_by(session: zenoh.Session, instances: set[str]) -> bool:
+    """Return whether exactly ``instances`` answer health and own the 64 partitions."""
+    owners: dict[int, list[str]] = {}
+    answered = set()
+    for reply in session.get(keys.health(), timeout=2.0):
+        if reply.ok is None:
+            continue
+        health = decode(reply.ok.payload.to_bytes(), Health)
+        answered.add(health.instance)
+        for partition in health.partitions:
+            owners.setdefault(partition, []).append(health.instance)
+    return answered == instances and all(len(owners.get(p, [])) == 1 for p in range(PARTITIONS))
 
 
 def alive(pid: int) -> bool:
