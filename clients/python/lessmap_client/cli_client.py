@@ -1,4 +1,4 @@
-"""Client-side subcommands of ``lessmap``: replay, sim, watch (wired in by ``lessmap.cli``)."""
+"""Client-side subcommands of ``lessmap``: replay, watch, status (wired in by ``lessmap.cli``)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from lessmap_client.fleet import FleetClient
     from lessmap_client.subscription import Subscription
     from lessmap_client.watch import FleetView
-    from lessmap_schemas.messages import Error, SessionState
+    from lessmap_schemas.messages import Error, Health, SessionState
 
 
 def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
@@ -261,3 +261,189 @@ def follow(
                     sys.stdout.flush()
     except KeyboardInterrupt:
         pass
+
+
+# -- lessmap status --------------------------------------------------------------------------
+
+
+def configure_status(status: argparse.ArgumentParser) -> None:
+    """Define ``lessmap status`` (run by ``run_status``)."""
+    status.description = (
+        "Show the running lessmap service: its live instances (liveliness tokens) with their "
+        "Health (version, uptime, sessions, queue depth, lag, partitions owned and shadowed), "
+        "then, for each of the 64 partitions, its owner and standby as every participant "
+        "computes them (rendezvous hashing over the live instances) and whether the owner "
+        "says it serves the partition. A disagreement (an owner that has not taken its "
+        "partition yet, an instance still serving a partition it no longer owns) is flagged; "
+        "it is normal for a moment after an instance joins or leaves. Exit code 1 when no "
+        "instance answers."
+    )
+    status.add_argument("--json", action="store_true", help="print one JSON object")
+    status.add_argument(
+        "--timeout",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="seconds to wait for liveliness and Health replies (default 2)",
+    )
+    status.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="seconds to wait for the router (default 5)",
+    )
+    add_zenoh_options(status)
+
+
+def run_status(args: argparse.Namespace) -> int:
+    """Run ``lessmap status``."""
+    from lessmap_client.connection import connect
+
+    for flag, value in (("--timeout", args.timeout), ("--connect-timeout", args.connect_timeout)):
+        if not value > 0 or value == float("inf"):
+            sys.stderr.write(f"lessmap status: {flag} must be a positive number of seconds\n")
+            return 1
+    targets = endpoints(args)
+    with connect(targets, mode=args.mode, timeout_s=args.connect_timeout) as conn:
+        live = conn.instances(args.timeout)
+        healths = conn.health(args.timeout)
+    if not live and not healths:
+        sys.stderr.write(
+            f"lessmap status: no lessmap instance answered at {', '.join(targets)} "
+            f"within {args.timeout:g} s\n"
+        )
+        return 1
+    report = status_report(live, healths)
+    if args.json:
+        sys.stdout.write(json.dumps(report) + "\n")
+    else:
+        sys.stdout.write(render_status(report))
+    return 0
+
+
+def status_report(live: list[str], healths: list[Health]) -> dict[str, Any]:
+    """Compare the rendezvous assignment over ``live`` with what each instance reports.
+
+    Returns the JSON object ``lessmap status --json`` prints: ``instances`` (one entry per
+    instance with a token or a Health reply), ``partitions`` (owner, standby, and the flags
+    of each partition), ``disagreements`` (partitions with a flag) and ``ok``.
+    """
+    from lessmap_schemas.partition import assignment
+
+    by_name: dict[str, Health] = {}
+    for health in healths:  # an instance answering twice (two routes): keep one
+        by_name.setdefault(health.instance, health)
+    alive = sorted(set(live))
+    table = assignment(alive)
+    instances = []
+    for name in sorted(set(alive) | set(by_name)):
+        h = by_name.get(name)
+        should_own = sorted(p for p, (owner, _) in table.items() if owner == name)
+        instances.append(
+            {
+                "instance": name,
+                "alive": name in alive,
+                "health": h is not None,
+                "version": None if h is None else h.version,
+                "uptime_s": None if h is None else round(h.uptime_s, 3),
+                "sessions": None if h is None else h.sessions,
+                "frames_applied": None if h is None else h.frames_applied,
+                "queue_depth": None if h is None else h.queue_depth,
+                "lag_s": None if h is None else round(h.lag_s, 3),
+                "partitions": None if h is None else list(h.partitions),
+                "standby": None if h is None else list(h.standby),
+                "owned": None if h is None else len(h.partitions),
+                "standby_count": None if h is None else len(h.standby),
+                "should_own": len(should_own),
+            }
+        )
+    partitions = []
+    for p, (owner, standby) in sorted(table.items()):
+        holders = sorted(n for n, h in by_name.items() if p in h.partitions)
+        flags = []
+        owner_health = None if owner is None else by_name.get(owner)
+        if owner is None:
+            flags.append("no owner: no instance is alive")
+        elif owner_health is None:
+            flags.append(f"owner {owner} did not answer the Health query")
+        elif p not in owner_health.partitions:
+            flags.append(f"owner {owner} has not taken it yet")
+        for other in holders:
+            if other != owner:
+                flags.append(f"{other} still serves it")
+        partitions.append(
+            {
+                "partition": p,
+                "owner": owner,
+                "standby": standby,
+                "owner_agrees": None if owner_health is None else p in owner_health.partitions,
+                "served_by": holders,
+                "flags": flags,
+            }
+        )
+    for entry in instances:
+        if not entry["alive"]:
+            entry["note"] = "answers Health but has no liveliness token"
+        elif not entry["health"]:
+            entry["note"] = "alive but did not answer the Health query"
+    disagreements = sum(1 for entry in partitions if entry["flags"])
+    return {
+        "instances": instances,
+        "partitions": partitions,
+        "disagreements": disagreements,
+        "ok": disagreements == 0,
+    }
+
+
+def render_status(report: dict[str, Any]) -> str:
+    """Render a ``status_report`` as the text tables of ``lessmap status``."""
+
+    def cell(value: object) -> str:
+        return "-" if value is None else str(value)
+
+    head = ["instance", "version", "uptime_s", "sessions", "queue", "lag_s", "owns", "standby"]
+    rows = [
+        [
+            entry["instance"],
+            cell(entry["version"]),
+            cell(entry["uptime_s"]),
+            cell(entry["sessions"]),
+            cell(entry["queue_depth"]),
+            cell(entry["lag_s"]),
+            f"{cell(entry['owned'])}/{entry['should_own']}",
+            cell(entry["standby_count"]),
+        ]
+        for entry in report["instances"]
+    ]
+    lines = _table(head, rows)
+    for entry in report["instances"]:
+        if "note" in entry:
+            lines.append(f"  ! {entry['instance']}: {entry['note']}")
+    lines.append("")
+    prow = [
+        [
+            str(entry["partition"]),
+            cell(entry["owner"]),
+            cell(entry["standby"]),
+            "; ".join(entry["flags"]) or "ok",
+        ]
+        for entry in report["partitions"]
+    ]
+    lines += _table(["partition", "owner", "standby", "agrees"], prow)
+    total = len(report["partitions"])
+    bad = report["disagreements"]
+    lines.append("")
+    lines.append(
+        f"{total - bad} of {total} partitions served as the live instances rank them"
+        + (f"; {bad} disagree (normal for a moment after a join or a leave)" if bad else "")
+    )
+    return "\n".join(lines) + "\n"
+
+
+def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
+    return [
+        "  ".join(value.ljust(width) for value, width in zip(row, widths, strict=True)).rstrip()
+        for row in [head, *rows]
+    ]

@@ -194,10 +194,21 @@ class ZenohTransport:
         return handle
 
     def get(self, key: str, timeout_s: float) -> list[tuple[str, bytes]]:
-        """See ``Transport.get``."""
+        """See ``Transport.get``.
+
+        Every matching queryable is asked and every reply kept: several instances answer
+        for one robot during a hand-over (old and new owner) on the same key, and Zenoh's
+        default consolidation would keep only one of them, not necessarily the current.
+        """
+        replies = self.session.get(
+            key,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout_s,
+        )
         return [
             (str(reply.ok.key_expr), reply.ok.payload.to_bytes())
-            for reply in self.session.get(key, timeout=timeout_s)
+            for reply in replies
             if reply.ok is not None
         ]
 
