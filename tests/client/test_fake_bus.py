@@ -180,12 +180,17 @@ async def _take(sub: aio.AsyncSubscription[Transition], n: int):  # type: ignore
 @pytest.mark.parametrize(
     ("pattern", "key", "matches"),
     [
-        ("lessmap/v1/*/*/transitions", "lessmap/v1/f/r/transitions", True),
-        ("lessmap/v1/f/*/transitions", "lessmap/v1/g/r/transitions", False),
-        ("lessmap/v1/**", "lessmap/v1/f/r/errors", True),
-        ("lessmap/v1/*/*/errors", "lessmap/v1/@/errors/i", False),
-        ("lessmap/v1/**", "lessmap/v1/@/errors/i", False),
-        ("lessmap/v1/f/r/submaps/*", "lessmap/v1/f/r/submaps/3", True),
+        ("lessmap/v2/*/*/transitions", "lessmap/v2/f/r/transitions", True),
+        ("lessmap/v2/f/*/transitions", "lessmap/v2/g/r/transitions", False),
+        ("lessmap/v2/**", "lessmap/v2/f/r/errors", True),
+        ("lessmap/v2/*/*/errors", "lessmap/v2/@/errors/i", False),
+        ("lessmap/v2/**", "lessmap/v2/@/errors/i", False),
+        ("lessmap/v2/**", "lessmap/v2/@/instances/i", False),
+        ("lessmap/v2/f/r/submaps/*", "lessmap/v2/f/r/submaps/3", True),
+        ("lessmap/v2/*/*/frames/23", "lessmap/v2/warehouse/amr-7/frames/23", True),
+        ("lessmap/v2/*/*/frames/22", "lessmap/v2/warehouse/amr-7/frames/23", False),
+        ("lessmap/v2/*/*/frames/*", "lessmap/v2/warehouse/amr-7/frames/23", True),
+        ("lessmap/v1/*/*/transitions", "lessmap/v2/f/r/transitions", False),
     ],
 )
 def test_key_matching_follows_zenoh(pattern: str, key: str, matches: bool) -> None:
@@ -218,3 +223,116 @@ def test_async_robot_follows_its_errors_and_new_sessions() -> None:
     assert errors == 1
     assert count == 1
     assert first != second
+
+
+def test_the_fake_routes_v2_frames_keys_and_counts_misrouted_ones() -> None:
+    from lessmap_schemas.codec import encode
+    from lessmap_schemas.messages import Frame
+    from lessmap_schemas.partition import partition_of
+
+    bus = FakeBus()
+    p = partition_of("warehouse", "amr-7")
+    payload = encode(Frame(session="s", seq=0, stamp_s=0.0, features=[1]))
+    bus.put(f"lessmap/v2/warehouse/amr-7/frames/{p}", payload)
+    bus.put(f"lessmap/v2/warehouse/amr-7/frames/{(p + 1) % 64}", payload)  # another partition
+    bus.put("lessmap/v2/warehouse/amr-7/frames", payload)  # v1 shape: no partition chunk
+    assert [f.seq for f in bus.frames("warehouse", "amr-7")] == [0]
+    assert bus.misrouted_sent == 2
+    with bus.connect() as conn, conn.robot("warehouse", "amr-7") as robot:
+        robot.publish([2])
+    assert len(bus.frames("warehouse", "amr-7")) == 2
+    assert bus.misrouted_sent == 2
+
+
+def test_the_fake_emits_v2_events_and_the_sdk_fences_them() -> None:
+    from lessmap_schemas.partition import partition_of
+
+    bus = FakeBus()
+    t = make_transition("f", "r")
+    assert (t.partition, t.epoch, t.v) == (partition_of("f", "r"), 1, 2)
+    assert make_state("f", "r").epoch == 1
+    assert make_error("f", "r").epoch == 1
+    assert make_error(None, None, ErrorCode.MALFORMED).epoch is None
+    with pytest.raises(ValueError, match="partition"):
+        bus.publish_transition(t.model_copy(update={"partition": (t.partition + 1) % 64}))
+    with bus.connect() as conn:
+        events = conn.subscribe_events("f")
+        bus.publish_transition(make_transition("f", "r", closed_id=0, epoch=7))
+        bus.publish_transition(make_transition("f", "r", closed_id=1, epoch=6))  # deposed owner
+        bus.publish_error(make_error("f", "r", epoch=6))
+        bus.publish_error(make_error("f", "r", detail="unattributed", epoch=None))
+        bus.publish_transition(make_transition("f", "other", closed_id=0, epoch=1))
+        bus.publish_transition(make_transition("f", "r", closed_id=0, epoch=8))  # recomputed
+        bus.publish_transition(make_transition("f", "r", closed_id=1, epoch=8))
+        got = []
+        while (event := events.try_recv()) is not None:
+            got.append(event)
+        assert [(e.type, e.robot, e.epoch) for e in got] == [
+            ("Transition", "r", 7),
+            ("Error", "r", None),
+            ("Transition", "other", 1),
+            ("Transition", "r", 8),
+        ]
+        assert (events.dropped_stale, events.duplicates) == (2, 1)
+
+
+def test_states_keep_the_highest_epoch_per_robot() -> None:
+    bus = FakeBus()
+    # The fake keeps one answer per key; two owners' answers need two keys' worth of robots.
+    bus.set_state(make_state("f", "a", frames_applied=5, epoch=3))
+    with bus.connect() as conn:
+        assert [s.epoch for s in conn.states("f")] == [3]
+    from lessmap_client.fencing import current_states
+
+    old = make_state("f", "a", frames_applied=50, epoch=3, instance="old")
+    new = make_state("f", "a", frames_applied=10, epoch=4, instance="new")
+    more = make_state("f", "a", frames_applied=11, epoch=4, instance="more")
+    other = make_state("f", "b", epoch=1)
+    assert current_states([old, other, new, more]) == [more, other]
+    assert current_states([new, old]) == [new]
+
+
+def test_instances_are_tokens_the_robots_follow() -> None:
+    from lessmap_schemas.partition import PARTITIONS, assignment, owner_and_standby
+
+    bus = FakeBus(instances=[])
+    with bus.connect() as conn, conn.robot("f", "r") as robot:
+        assert robot.status.owner is None
+        assert not robot.wait_for_service(0.05)
+        assert not conn.wait_for_service(0.05)
+        assert conn.coverage() == {p: (None, None) for p in range(PARTITIONS)}
+        bus.add_instance("a")
+        assert robot.status.owner == "a"
+        assert robot.wait_for_service(0.0)
+        bus.instances = ["a", "b", "c"]
+        expected = owner_and_standby(robot.partition, ["a", "b", "c"])
+        assert robot.status.owner == expected[0]
+        assert conn.coverage() == assignment(["c", "b", "a"])
+        assert conn.instances() == ["a", "b", "c"]
+        for name in ["a", "b", "c"]:
+            bus.remove_instance(name)
+        assert robot.status.owner is None
+        assert bus.instances == ()
+        with pytest.raises(InvalidNameError):
+            bus.add_instance("bad/name")
+
+
+def test_async_coverage_and_robot_service() -> None:
+    async def scenario() -> tuple[bool, bool, str | None, int]:
+        bus = FakeBus(instances=[])
+        async with aio.AsyncConnection(bus.connect()) as conn:
+            robot = await conn.robot("f", "r")
+            before = await robot.wait_for_service(0.05)
+            bus.add_instance("only")
+            after = await robot.wait_for_service(1.0)
+            coverage = await conn.coverage()
+            owners = {owner for owner, _ in coverage.values()}
+            sub = await conn.subscribe_transitions("f")
+            bus.publish_transition(make_transition("f", "r", closed_id=0, epoch=2))
+            bus.publish_transition(make_transition("f", "r", closed_id=1, epoch=1))
+            assert await sub.recv(5.0) is not None
+            assert await sub.recv(0.2) is None
+            await robot.close()
+            return before, after, owners.pop() if len(owners) == 1 else None, sub.dropped_stale
+
+    assert asyncio.run(scenario()) == (False, True, "only", 1)

@@ -28,7 +28,6 @@ if TYPE_CHECKING:
 
     import zenoh
 
-    from lessmap_client.subscription import Subscription
     from lessmap_schemas.messages import Error, SessionState, Transition
 
 pytestmark = pytest.mark.timeout(120)
@@ -43,19 +42,16 @@ def put(session: zenoh.Session, message: Transition | Error) -> None:
     session.put(key, encode(message), encoding=encoding(message))
 
 
-def until_subscribed(
-    session: zenoh.Session, sub: Subscription[Transition | Error], fleet: str
-) -> None:
-    """Put probe transitions of another robot until the subscription delivers one."""
+def until_subscribed(session: zenoh.Session, recv: Callable[[float], object], fleet: str) -> None:
+    """Put probe transitions of another robot until the subscriber's ``recv`` gets one."""
     probe_id = iter(range(10_000))
 
     def delivered() -> bool:
         put(session, make_transition(fleet, "probe", closed_id=next(probe_id), epoch=1))
-        event = sub.recv(0.2)
-        return event is not None
+        return recv(0.2) is not None
 
     wait_until(delivered, 20.0, "the subscription to be declared")
-    while sub.recv(0.3) is not None:  # probes still on the way
+    while recv(0.3) is not None:  # probes still on the way
         pass
 
 
@@ -64,7 +60,7 @@ def test_a_forged_transition_with_a_lower_epoch_is_dropped(
 ) -> None:
     service = client_session(router)
     with connect(router) as conn, FleetClient(fleet_name, session=conn, history=0) as fleet:
-        until_subscribed(service, fleet._events, fleet_name)
+        until_subscribed(service, fleet.next_event, fleet_name)
         put(service, make_transition(fleet_name, "r1", closed_id=0, epoch=5, instance="new"))
         first = fleet.next_transition(10.0)
         assert first is not None
@@ -98,7 +94,7 @@ def test_errors_are_fenced_unless_their_epoch_is_null(
     service = client_session(router)
     with connect(router) as conn:
         events = conn.subscribe_events(fleet_name, history=False)
-        until_subscribed(service, events, fleet_name)
+        until_subscribed(service, events.recv, fleet_name)
         put(service, make_transition(fleet_name, "r1", epoch=10))
         first = events.recv(10.0)  # errors come on another key: no order across keys
         assert first is not None
@@ -117,7 +113,7 @@ def test_errors_are_fenced_unless_their_epoch_is_null(
 
 def serve_states(session: zenoh.Session, states: list[SessionState]) -> list[object]:
     """Declare one queryable per reply, as several instances would answer."""
-    queryables = []
+    queryables: list[object] = []
     for state in states:
         key, payload = keys.state(state.fleet, state.robot), encode(state)
 
@@ -165,29 +161,33 @@ def test_a_robot_knows_whether_its_partition_has_an_owner(
     caplog.set_level(logging.INFO, logger="lessmap_client.robot")
     with connect(router) as conn, conn.robot(fleet_name, "r1") as robot:
         p = partition_of(fleet_name, "r1")
+
+        def owner() -> str | None:  # read afresh each time
+            return robot.status.owner
+
         assert robot.partition == robot.status.partition == p
-        assert robot.status.owner is None
+        assert owner() is None
         assert not robot.wait_for_service(0.5)
         assert conn.coverage() == {q: (None, None) for q in range(PARTITIONS)}
 
         x = service.liveliness().declare_token(keys.instance_token("x"))
         assert robot.wait_for_service(20.0)
-        assert robot.status.owner == "x"
+        assert owner() == "x"
         y = service.liveliness().declare_token(keys.instance_token("y"))
         expected = owner_and_standby(p, ["x", "y"])
         wait_until(lambda: conn.instances() == ["x", "y"], 20.0, "both tokens")
         assert conn.coverage() == assignment(["x", "y"])
         assert conn.coverage()[p] == expected
-        wait_until(lambda: robot.status.owner == expected[0], 20.0, "the owner among x and y")
+        wait_until(lambda: owner() == expected[0], 20.0, "the owner among x and y")
 
         caplog.clear()
         x.undeclare()
         y.undeclare()
-        wait_until(lambda: robot.status.owner is None, 20.0, "the tokens to go")
+        wait_until(lambda: owner() is None, 20.0, "the tokens to go")
         assert not robot.wait_for_service(0.2)
         robot.publish([1, 2, 3])  # an unserved robot may publish: the cache keeps the frame
         z = service.liveliness().declare_token(keys.instance_token("z"))
-        wait_until(lambda: robot.status.owner == "z", 20.0, "a new owner")
+        wait_until(lambda: owner() == "z", 20.0, "a new owner")
         assert robot.wait_for_service(0.0)
         assert robot.flush_errors(5.0)
         records = [r for r in caplog.records if r.name == "lessmap_client.robot"]
@@ -212,9 +212,11 @@ def test_a_robot_drops_a_deposed_owners_error(
                 service, make_error(fleet_name, "r1", code, detail, session=session_id, epoch=epoch)
             )
 
-        wait_until(
-            lambda: report("probe", 20) or robot.status.count("SEQ_GAP") > 0, 20.0, "a report"
-        )
+        def probed() -> bool:
+            report("probe", 20)
+            return robot.status.count("SEQ_GAP") > 0
+
+        wait_until(probed, 20.0, "a report")
         report("closed by a deposed owner", 19, "SESSION_CLOSED")
         report("current owner", 20)
 
