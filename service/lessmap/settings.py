@@ -19,7 +19,7 @@ import socket
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -187,10 +187,20 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         le=100.0,
         description="after waking on a quiet queue, wait for more frames (ms)",
     )
-    # Static sharding across instances: this instance serves the robots whose frames key
-    # hashes (crc32) to shard_index modulo shard_count; run one instance per index.
-    shard_index: int = Field(0, ge=0, description="this instance's shard (see --shard I/N)")
-    shard_count: int = Field(1, ge=1, le=1024, description="instances sharing the fleet")
+    # Several instances: partitions are owned by rendezvous hashing over the live instances
+    # (schemas/README.md section 2a); nothing to configure but distinct instance names.
+    fence_after_s: float = Field(
+        2.0,
+        gt=0.0,
+        le=60.0,
+        description="a stall of the process longer than this drops every partition (fencing)",
+    )
+    handover_fetch_s: float = Field(
+        2.0,
+        gt=0.0,
+        le=60.0,
+        description="when taking a partition over, wait this long at most for its checkpoints",
+    )
 
     # -- outputs --
     transition_cache: int = Field(
@@ -251,15 +261,6 @@ class ServiceSettings(BaseSettings, PartitionSettings):
             :64
         ]
         return validate_name(cleaned.lstrip(".-") or "lessmap", "instance")
-
-    @field_validator("shard_count")
-    @classmethod
-    def _shard_in_range(cls, value: int, info: ValidationInfo) -> int:
-        index = info.data.get("shard_index")
-        if index is not None and index >= value:
-            msg = f"shard_index {index} must be below shard_count {value}"
-            raise ValueError(msg)
-        return value
 
     def resolved_state_dir(self) -> Path:
         """The state directory: the setting, else the XDG state home's ``lessmap`` folder."""
@@ -404,7 +405,7 @@ def settings_from_args(
     extra: Mapping[str, Any] | None = None,
     extra_flags: Mapping[str, str] | None = None,
 ) -> ServiceSettings:
-    """Build the settings from the flags that were given (plus ``extra`` values, e.g. --shard).
+    """Build the settings from the flags that were given (plus ``extra`` values from other flags).
 
     Raises:
         ConfigError: one line naming the invalid setting and its source.

@@ -5,12 +5,11 @@ from __future__ import annotations
 import logging
 import signal
 import threading
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import zenoh
 from threadpoolctl import threadpool_limits
 
-from lessmap.errors import ConfigError
 from lessmap.runtime.service import Service
 from lessmap.settings import add_settings_flags, settings_from_args
 
@@ -26,19 +25,13 @@ log = logging.getLogger(__name__)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    """Define ``lessmap serve``: one flag per settings field, plus --shard I/N and --cfg."""
+    """Define ``lessmap serve``: one flag per settings field, plus --cfg."""
     parser.description = (
         "Run the partition service in the foreground until SIGTERM/SIGINT. With no Zenoh "
         "option it opens its own router on tcp/127.0.0.1:7447. Settings come from defaults "
         "< --config FILE (JSON or TOML) < LESSMAP_* environment < these flags."
     )
     specs = add_settings_flags(parser)
-    parser.add_argument(
-        "--shard",
-        metavar="I/N",
-        help="serve only the robots whose key hashes to I of N (sets --shard-index and "
-        "--shard-count; run one instance per I)",
-    )
     parser.add_argument(
         "--cfg",
         action="append",
@@ -51,24 +44,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap serve`` with the settings its flags, environment and file give."""
     specs: list[FlagSpec] = args.settings_flags
-    shard = shard_values(args.shard)
-    settings = settings_from_args(args, specs, shard, dict.fromkeys(shard, "--shard"))
+    settings = settings_from_args(args, specs)
     return serve(settings, args.cfg or ())
-
-
-def shard_values(text: str | None) -> dict[str, Any]:
-    """Parse ``--shard I/N`` into the two settings.
-
-    Raises:
-        ConfigError: the text is not two integers separated by a slash.
-    """
-    if text is None:
-        return {}
-    index, sep, count = text.partition("/")
-    if not sep or not index.isdigit() or not count.isdigit():
-        msg = f"--shard expects I/N, e.g. 0/2, got {text!r}"
-        raise ConfigError(msg)
-    return {"shard_index": int(index), "shard_count": int(count)}
 
 
 def serve(settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> int:

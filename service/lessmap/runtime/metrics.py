@@ -42,6 +42,33 @@ class ServiceMetrics:
         self.errors_suppressed = Counter(
             "lessmap_errors_suppressed", "Error events held back by the rate limit", registry=r
         )
+        self.events_fenced = Counter(
+            "lessmap_events_fenced",
+            "Transitions, errors and states not published: the robot's partition is not owned",
+            registry=r,
+        )
+        self.frames_foreign = Counter(
+            "lessmap_frames_foreign",
+            "Frames of a partition this instance no longer owns (left to its new owner)",
+            registry=r,
+        )
+        self.partitions_owned = Gauge(
+            "lessmap_partitions_owned", "Partitions this instance owns", registry=r
+        )
+        self.partition_moves = Counter(
+            "lessmap_partition_moves",
+            "Partitions taken over or handed over",
+            ["direction"],
+            registry=r,
+        )
+        self.checkpoints_shipped = Counter(
+            "lessmap_checkpoints_shipped", "Checkpoints put for the standby", registry=r
+        )
+        self.checkpoints_received = Counter(
+            "lessmap_checkpoints_received",
+            "Checkpoints taken from other instances (as standby or when taking over)",
+            registry=r,
+        )
         self.sessions_opened = Counter("lessmap_sessions_opened", "Sessions opened", registry=r)
         self.sessions_closed = Counter(
             "lessmap_sessions_closed", "Sessions closed, by cause", ["cause"], registry=r

@@ -3,6 +3,10 @@
 Called from shard worker threads only (never from a Zenoh callback). Transitions go out
 through one ``AdvancedPublisher`` per robot with a cache, so a fleet app that joins late or
 misses samples recovers the recent ones; errors are rate-limited per robot.
+
+The fence: nothing about a robot is published unless ``epoch_for(fleet, robot)`` gives the
+epoch of its partition, i.e. this instance owns the partition and was not frozen since
+(``ownership.py``). Every transition and error carries that epoch.
 """
 
 from __future__ import annotations
@@ -23,8 +27,11 @@ from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Error, SessionState, Transition
+from lessmap_schemas.partition import partition_of
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from lessmap.core import Transition as CoreTransition
     from lessmap.runtime.metrics import ServiceMetrics
     from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
@@ -39,7 +46,9 @@ _ERROR_ENCODING = zenoh.Encoding(encoding(Error))
 _STATE_ENCODING = zenoh.Encoding(encoding(SessionState))
 
 
-def wire_transition(session: RobotSession, transition: CoreTransition, instance: str) -> Transition:
+def wire_transition(
+    session: RobotSession, transition: CoreTransition, instance: str, epoch: int = 1
+) -> Transition:
     """Convert a core transition of a session to the wire message."""
     return Transition(
         fleet=session.fleet,
@@ -56,6 +65,8 @@ def wire_transition(session: RobotSession, transition: CoreTransition, instance:
         boundary_features=list(transition.boundary_features),
         batch_frames=transition.batch_frames,
         instance=instance,
+        partition=partition_of(session.fleet, session.robot),
+        epoch=epoch,
     )
 
 
@@ -72,8 +83,11 @@ class Outbox:
         max_publishers: int,
         error_rate_per_s: float,
         error_burst: int,
+        epoch_for: Callable[[str, str], int | None] | None = None,
     ) -> None:
         self.metrics = metrics
+        # The fence (module docstring); a lone instance without ownership owns everything.
+        self._epoch_for = epoch_for if epoch_for is not None else (lambda _fleet, _robot: 1)
         self._session = session
         self._instance = instance
         self._cache = transition_cache
@@ -139,7 +153,7 @@ class Outbox:
             release_free_memory()  # evicted graphs are freed: let the process shrink
         for state in outcome.suspended:  # stop with a store: the session lives on
             m.sessions.dec()
-            self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
+            self._put_state(state)
         for session, transition in outcome.transitions:
             self._put_transition(session, transition)
         for rejection in outcome.rejections:
@@ -166,7 +180,7 @@ class Outbox:
                     "transitions": state.transitions,
                 },
             )
-            self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
+            self._put_state(state)
 
     def _count_rejection(self, code: ErrorCode) -> None:
         if code in _NOT_REJECTIONS or code in _DUPLICATES:
@@ -191,13 +205,32 @@ class Outbox:
             seq=None,
             stamp_s=time.time(),
             instance=self._instance,
+            epoch=None,
         )
         self._put(self._service_errors_key, encode(error), _ERROR_ENCODING)
 
     # -- puts --------------------------------------------------------------------------------
 
+    def _fenced(self, fleet: str, robot: str) -> int | None:
+        """The epoch to publish under, or None (counted): this instance may not speak."""
+        epoch = self._epoch_for(fleet, robot)
+        if epoch is None:
+            self.metrics.events_fenced.inc()
+        return epoch
+
+    def _put_state(self, state: SessionState) -> None:
+        epoch = self._fenced(state.fleet, state.robot)
+        if epoch is None:
+            return
+        if state.epoch != epoch:
+            state = state.model_copy(update={"epoch": epoch})
+        self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
+
     def _put_transition(self, session: RobotSession, transition: CoreTransition) -> None:
-        message = wire_transition(session, transition, self._instance)
+        epoch = self._fenced(session.fleet, session.robot)
+        if epoch is None:
+            return
+        message = wire_transition(session, transition, self._instance, epoch)
         self.metrics.transitions.labels(reason=message.reason).inc()
         log.debug(
             "->> TRANSITION %s/%s seq=%d %s",
@@ -239,6 +272,9 @@ class Outbox:
             return publisher
 
     def _put_error(self, rejection: Rejection, now_s: float) -> None:
+        epoch = self._fenced(rejection.fleet, rejection.robot)
+        if epoch is None:
+            return
         with self._limiter_lock:
             # One bucket per robot and code: a flood of one kind of fault never hides the
             # first report of another.
@@ -259,6 +295,7 @@ class Outbox:
             seq=rejection.seq,
             stamp_s=time.time(),
             instance=self._instance,
+            epoch=epoch,
         )
         self.metrics.errors_published.inc()
         self._put(keys.errors(rejection.fleet, rejection.robot), encode(error), _ERROR_ENCODING)

@@ -1,12 +1,23 @@
-"""The partition service: Zenoh declarations, shards, queries, lifecycle.
+"""The partition service: Zenoh declarations, shards, queries, ownership, lifecycle.
 
-Threads: Zenoh's own (callbacks: enqueue only), one worker per shard, one query server, and
-the caller's (``Service.start``/``stop``; ``serve`` parks it on a stop event). Callbacks never
-call Zenoh or block; queries are answered from the query thread under the shard's lock.
+Threads: Zenoh's own (callbacks: enqueue only), one worker per shard, one query server, the
+ownership thread (liveliness changes, taking over and handing over partitions, storing the
+checkpoints shipped by the owners this instance stands by for), a heartbeat (freeze detection
+for the fence, ``ownership.py``), and the caller's (``Service.start``/``stop``; ``serve``
+parks it on a stop event). Callbacks never call Zenoh or block; queries are answered from the
+query thread under the shard's lock.
+
+Partitions (``schemas/README.md`` section 2a): the instance subscribes to the frames of the
+partitions it owns only. Taking a partition over: query every instance for the partition's
+checkpoints (the newest of each robot goes to the local store), take an epoch, subscribe; a
+robot's next frame resumes its session from the store and fetches what is missing from the
+robot's cache (the same path as after a restart). Handing one over: close the fence,
+unsubscribe, checkpoint and drop its sessions.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import queue
 import threading
@@ -22,15 +33,17 @@ from lessmap.errors import ConfigError
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.ownership import Change, Ownership
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, RECOVERED, Inbound, Shard
-from lessmap.runtime.store import CheckpointStore, StoreError
+from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
 from lessmap.runtime.zenoh_config import service_config
 from lessmap.settings import EMBEDDED_ENDPOINT
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.messages import Health, SessionState, Submap
+from lessmap_schemas.partition import PARTITIONS, partition_of
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -43,6 +56,11 @@ log = logging.getLogger(__name__)
 
 _QUEUE_BYTES_PER_SHARD = 256 * 1024 * 1024
 _QUIET_S = 0.3  # no sample for this long: the inbound path has settled
+_HEARTBEAT_S = 0.1  # freeze detection (fence_after_s is far above it)
+_CHECKPOINT_ENCODING = zenoh.Encoding("application/octet-stream")
+
+partition_cached = functools.lru_cache(maxsize=1 << 16)(partition_of)
+"""``partition_of`` with a memory: the checkpoint queries filter every stored robot by it."""
 
 
 class Service:
@@ -70,6 +88,19 @@ class Service:
         self._started_s = time.monotonic()
         self._last_sample_s = 0.0
         self.metrics_port: int | None = None
+        self.ownership = Ownership(settings.instance, freeze_s=settings.fence_after_s)
+        self._frame_subs: dict[int, zenoh.Subscriber[None]] = {}
+        self._standby_subs: dict[int, zenoh.Subscriber[None]] = {}
+        self._liveliness_sub: zenoh.Subscriber[None] | None = None
+        # Liveliness changes, freezes and shipped checkpoints, for the ownership thread.
+        self._control: queue.SimpleQueue[tuple[str, object] | None] = queue.SimpleQueue()
+        self._control_thread = threading.Thread(
+            target=self._run_control, name="lessmap-ownership", daemon=True
+        )
+        self._heartbeat_stop = threading.Event()
+        self._heartbeat_thread = threading.Thread(
+            target=self._run_heartbeat, name="lessmap-heartbeat", daemon=True
+        )
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -102,6 +133,7 @@ class Service:
             max_publishers=s.max_sessions,
             error_rate_per_s=s.error_rate_per_s,
             error_burst=s.error_burst,
+            epoch_for=self.ownership.epoch_for,
         )
         params = s.partition_params()
         ledger = EdgeLedger(s.workers, s.max_edges_total)
@@ -126,6 +158,7 @@ class Service:
                 ledger=ledger,
                 ledger_slot=index,
                 admission=admission,
+                epoch_of=self.ownership.last_epoch,
             )
             self._shards.append(
                 Shard(
@@ -138,6 +171,7 @@ class Service:
                     linger_s=s.batch_linger_ms / 1000.0,
                     request_catchup=self._request_catchup,
                     quantum=s.fair_quantum,
+                    owns=self.ownership.owns,
                 )
             )
         for shard in self._shards:
@@ -149,17 +183,28 @@ class Service:
             session.declare_queryable(f"{any_robot}/submaps/*", self._queries.put)
         )
         self._declared.append(session.declare_queryable(keys.health(s.instance), self._queries.put))
-        # A plain subscriber; catch-up is an explicit query of the robot's publication cache
-        # (``_request_catchup``), sent by the worker when its session table holds frames
-        # beyond a gap. An AdvancedSubscriber with history was tried and is not used: the
-        # robots' publishers have no sample miss detection (no sequence numbers), so it
-        # orders each publisher's samples by timestamp and dropped history older than a
-        # live sample that overtook it (frame 0 of a new session, then others), and with
-        # ``detect_late_publishers`` on a wildcard every new robot costs a history query of
-        # its whole cache. The query below is asked only on a gap, for one robot, and the
-        # table puts what comes back in seq order itself.
-        self._declared.append(session.declare_subscriber(f"{any_robot}/frames", self._on_sample))
+        # Checkpoints: every instance answers for those it holds (a new owner asks).
+        self._declared.append(session.declare_queryable(keys.checkpoints(), self._queries.put))
+        # Frames: one plain subscriber per owned partition (``_take``). Catch-up is an
+        # explicit query of the robot's publication cache (``_request_catchup``), sent by the
+        # worker when its session table holds frames beyond a gap. An AdvancedSubscriber with
+        # history was tried and is not used: the robots' publishers have no sample miss
+        # detection (no sequence numbers), so it orders each publisher's samples by
+        # timestamp and dropped history older than a live sample that overtook it (frame 0
+        # of a new session, then others), and with ``detect_late_publishers`` on a wildcard
+        # every new robot costs a history query of its whole cache. The query is asked only
+        # on a gap, for one robot, and the table puts what comes back in seq order itself.
+        self.store.on_written = self._ship
         self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
+        self._liveliness_sub = session.liveliness().declare_subscriber(
+            keys.instances(), self._on_liveliness, history=True
+        )
+        # Take this instance's partitions before saying it serves; later changes arrive on
+        # the ownership thread.
+        self.ownership.start_clock()
+        self._heartbeat_thread.start()
+        self._apply(self.ownership.set_live(self._live_instances()))
+        self._control_thread.start()
         if s.metrics_port is not None:
             server, _thread = start_http_server(
                 s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
@@ -167,12 +212,14 @@ class Service:
             self._metrics_server = server
             self.metrics_port = server.server_port
         log.info(
-            "lessmap %s serving as %s (%s, %d shard(s), profile %s)%s",
+            "lessmap %s serving as %s (%s, %d shard(s), profile %s, %d of %d partitions)%s",
             __version__,
             s.instance,
             "embedded router on tcp/127.0.0.1:7447" if s.embedded else "joined Zenoh network",
             s.workers,
             s.profile,
+            len(self.ownership.owned()),
+            PARTITIONS,
             f", metrics on http://{s.metrics_addr}:{self.metrics_port}/metrics"
             if self.metrics_port is not None
             else "",
@@ -215,6 +262,17 @@ class Service:
         """Stop taking frames, finish the queued ones, publish final states, close Zenoh."""
         log.info("stopping %s", self.settings.instance)
         self._let_inbound_settle(min(timeout_s / 2, self.settings.shutdown_grace_s))
+        self._heartbeat_stop.set()
+        self._control.put(None)
+        if self._control_thread.is_alive():
+            self._control_thread.join(max(1.0, self.settings.handover_fetch_s + 1.0))
+        if self._liveliness_sub is not None:
+            self._liveliness_sub.undeclare()
+            self._liveliness_sub = None
+        for subs in (self._frame_subs, self._standby_subs):
+            for sub in subs.values():
+                sub.undeclare()
+            subs.clear()
         for declared in reversed(self._declared):
             declared.undeclare()  # type: ignore[no-untyped-call]
         self._declared.clear()
@@ -256,9 +314,12 @@ class Service:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
+        chunk = key.rsplit("/", 1)[-1]
+        if chunk.isdigit() and self.ownership.epoch_of(int(chunk)) is None:
+            # In flight when the partition moved, or during a freeze: the owner has it.
+            self.metrics.frames_foreign.inc()
+            return
         shard = self._shard_of(key)
-        if shard is None:
-            return  # another instance's robot (static sharding of the fleet by key hash)
         self._last_sample_s = time.monotonic()
         self.metrics.frames_received.inc()
         payload = sample.payload
@@ -288,7 +349,7 @@ class Service:
         key = keys.frames(request.fleet, request.robot)
         max_payload = self.settings.limits.max_payload_bytes
         done = Inbound(0.0, key, request.session.encode(), CATCHUP_DONE)
-        if session is None:
+        if session is None or not self.ownership.owns(request.fleet, request.robot):
             shard.offer(done)
             return
 
@@ -317,17 +378,9 @@ class Service:
             log.warning("catch-up query of %s failed: %s", key, exc)
             shard.offer(done)
 
-    def _shard_of(self, key: str) -> Shard | None:
-        """Return the shard that owns a robot's key, or None when another instance does.
-
-        One hash decides both levels: ``h % shard_count`` picks the instance (``--shard I/N``),
-        the rest picks the worker inside it, so a robot always lands in the same place.
-        """
-        digest = zlib.crc32(key.encode())
-        count = self.settings.shard_count
-        if digest % count != self.settings.shard_index:
-            return None
-        return self._shards[(digest // count) % len(self._shards)]
+    def _shard_of(self, key: str) -> Shard:
+        """Return the shard (worker) of a robot's key: always the same one for a robot."""
+        return self._shards[zlib.crc32(key.encode()) % len(self._shards)]
 
     @staticmethod
     def _reject_on_receipt(shard: Shard, key: str, detail: str) -> None:
@@ -354,11 +407,16 @@ class Service:
         if text.startswith(f"{keys.KEY_PREFIX}/@/health/"):
             self._reply_health(query)
             return
+        if text.startswith(f"{keys.KEY_PREFIX}/@/checkpoints/"):
+            self._reply_checkpoints(query)
+            return
         is_submap = "/submaps/" in text
         for shard in self._shards:
             with shard.lock:
                 robots = shard.table.robots()
                 for fleet, robot in robots:
+                    if self.ownership.epoch_for(fleet, robot) is None:
+                        continue  # handed over (or frozen): the owner answers
                     if is_submap:
                         self._reply_submaps(query, shard, fleet, robot)
                         continue
@@ -392,12 +450,261 @@ class Service:
             sessions=sum(len(shard.table) for shard in self._shards),
             uptime_s=time.monotonic() - self._started_s,
             frames_applied=self._outbox.frames_applied if self._outbox is not None else 0,
+            partitions=sorted(self.ownership.owned()),
+            standby=self.ownership.standby(),
+            queue_depth=sum(shard.depth() for shard in self._shards),
+            lag_s=max((shard.lag_s(time.monotonic()) for shard in self._shards), default=0.0),
         )
         query.reply(
             keys.health(self.settings.instance),
             encode(health),
             encoding=zenoh.Encoding(encoding(Health)),
         )
+
+    def _reply_checkpoints(self, query: zenoh.Query) -> None:
+        """Answer with the checkpoints this instance holds that the selector asks for."""
+        selector = query.key_expr
+        chunks = str(selector).split("/")
+        wanted = int(chunks[4]) if len(chunks) > 4 and chunks[4].isdigit() else None
+
+        def asked(fleet: str, robot: str) -> bool:
+            p = partition_cached(fleet, robot)
+            if wanted is not None and p != wanted:
+                return False
+            return selector.intersects(zenoh.KeyExpr(keys.checkpoints(p, fleet, robot)))
+
+        for record in self.store.records_where(asked):
+            key = keys.checkpoints(partition_cached(record.fleet, record.robot), *record.key)
+            query.reply(key, record.to_bytes(), encoding=_CHECKPOINT_ENCODING)
+
+    # -- ownership ---------------------------------------------------------------------------
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:  # Zenoh's thread: enqueue only
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        kind = "join" if sample.kind == zenoh.SampleKind.PUT else "leave"
+        self._control.put((kind, name))
+
+    def _live_instances(self) -> list[str]:
+        """Ask the network for the live instance tokens (this one included)."""
+        assert self._session is not None
+        names = [self.settings.instance]
+        try:
+            replies = self._session.liveliness().get(keys.instances(), timeout=1.0)
+            for reply in replies:
+                if reply.ok is not None:
+                    names.append(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        except zenoh.ZError as exc:
+            log.warning("could not list the live instances: %s", exc)
+        return names
+
+    def _run_heartbeat(self) -> None:
+        while not self._heartbeat_stop.wait(_HEARTBEAT_S):
+            if self.ownership.tick():
+                self._control.put(("frozen", None))
+
+    def _run_control(self) -> None:
+        while True:
+            item = self._control.get()
+            if item is None:
+                return
+            kind, value = item
+            try:
+                if kind == "join":
+                    self._apply(self.ownership.join(str(value)))
+                elif kind == "leave":
+                    self._apply(self.ownership.leave(str(value)))
+                elif kind == "checkpoint":
+                    self._take_replica(*value)  # type: ignore[misc]
+                elif kind == "frozen":
+                    self._after_freeze()
+            except Exception:
+                # A bug must not stop ownership changes: log it, keep going.
+                log.exception("ownership change %s %s failed", kind, value)
+
+    def _after_freeze(self) -> None:
+        """The process stalled past the fence: drop everything, then take back what is ours."""
+        log.warning(
+            "%s stalled for more than %.1f s: every partition dropped (another instance may "
+            "have taken them over); rejoining",
+            self.settings.instance,
+            self.settings.fence_after_s,
+        )
+        self._hand_over(sorted(self._frame_subs))
+        for p in list(self._standby_subs):
+            self._standby_subs.pop(p).undeclare()
+        self._apply(self.ownership.set_live(self._live_instances()))
+
+    def _apply(self, change: Change) -> None:
+        """Carry out a change of ownership (ownership thread, or ``start``)."""
+        if not change:
+            return
+        self._hand_over(change.lost)
+        session = self._session
+        assert session is not None
+        for p in change.standby_lost:
+            self.ownership.set_standby(p, on=False)
+            sub = self._standby_subs.pop(p, None)
+            if sub is not None:
+                sub.undeclare()
+        for p in change.standby_gained:
+            self.ownership.set_standby(p, on=True)
+            if self.store.path is not None and p not in self._standby_subs:
+                self._standby_subs[p] = session.declare_subscriber(
+                    keys.checkpoints(p), self._on_replica
+                )
+        if change.gained:
+            self._take(change.gained)
+        self.metrics.partitions_owned.set(len(self.ownership.owned()))
+
+    def _hand_over(self, partitions: Sequence[int]) -> None:
+        """Close the fence, unsubscribe, checkpoint and drop the partitions' sessions."""
+        if not partitions:
+            return
+        leaving = set(partitions)
+        for p in partitions:
+            self.ownership.release(p)
+            sub = self._frame_subs.pop(p, None)
+            if sub is not None:
+                sub.undeclare()
+        now = time.monotonic()
+        dropped = 0
+        for shard in self._shards:
+            with shard.lock:
+                out = shard.table.hand_over(
+                    lambda fleet, robot: partition_cached(fleet, robot) in leaving, now
+                )
+            dropped += out.evicted
+            if self._outbox is not None:
+                self._outbox.publish(out, now)  # counters only: the fence is closed
+        self.metrics.partition_moves.labels(direction="out").inc(len(partitions))
+        log.info(
+            "handed over %d partition(s) (%d session(s) checkpointed): %s",
+            len(partitions),
+            dropped,
+            _ranges(partitions),
+        )
+
+    def _take(self, partitions: Sequence[int]) -> None:
+        """Fetch the partitions' newest checkpoints, take epochs, subscribe to their frames."""
+        started = time.monotonic()
+        fetched = self._fetch_checkpoints(partitions)
+        session = self._session
+        assert session is not None
+        for p in partitions:
+            self.ownership.acquire(p)
+            if p not in self._frame_subs:
+                self._frame_subs[p] = session.declare_subscriber(
+                    keys.frames_of_partition(p), self._on_sample
+                )
+        self.metrics.partition_moves.labels(direction="in").inc(len(partitions))
+        log.info(
+            "took %d partition(s) in %.0f ms (%d checkpoint(s) from other instances): %s",
+            len(partitions),
+            (time.monotonic() - started) * 1000.0,
+            fetched,
+            _ranges(partitions),
+        )
+
+    def _fetch_checkpoints(self, partitions: Sequence[int]) -> int:
+        """Ask every instance for the partitions' checkpoints; keep the newest per robot."""
+        session = self._session
+        if session is None or self.store.path is None or len(self.ownership.live) < 2:
+            return 0
+        replies: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        ended = threading.Semaphore(0)
+
+        def on_reply(reply: zenoh.Reply) -> None:  # Zenoh's thread: enqueue only
+            if reply.ok is not None:
+                replies.put((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+
+        def on_end() -> None:
+            ended.release()
+
+        wait_s = self.settings.handover_fetch_s
+        asked = 0
+        for p in partitions:
+            try:
+                session.get(
+                    keys.checkpoints(p),
+                    zenoh.handlers.Callback(on_reply, on_end),
+                    target=zenoh.QueryTarget.ALL,
+                    consolidation=zenoh.ConsolidationMode.NONE,
+                    timeout=wait_s,
+                )
+                asked += 1
+            except zenoh.ZError as exc:
+                log.warning("checkpoint query of partition %d failed: %s", p, exc)
+        deadline = time.monotonic() + wait_s + 0.5
+        for _ in range(asked):
+            if not ended.acquire(timeout=max(0.0, deadline - time.monotonic())):
+                log.warning("checkpoint queries unanswered after %.1f s; going on", wait_s)
+                break
+        taken = 0
+        while not replies.empty():
+            key, payload = replies.get()
+            if self._store_replica(key, payload):
+                taken += 1
+        return taken
+
+    def _on_replica(self, sample: zenoh.Sample) -> None:  # Zenoh's thread: enqueue only
+        self._control.put(("checkpoint", (str(sample.key_expr), sample.payload.to_bytes())))
+
+    def _take_replica(self, key: str, payload: bytes) -> None:
+        p = key.split("/")[4] if key.count("/") >= 4 else ""
+        if p.isdigit() and self.ownership.epoch_of(int(p)) is not None:
+            return  # this instance owns it: a deposed owner's late checkpoint
+        self._store_replica(key, payload)
+
+    def _store_replica(self, key: str, payload: bytes) -> bool:
+        """Keep a checkpoint shipped or returned by another instance, if it is newer."""
+        try:
+            partition, fleet, robot = keys.parse_checkpoint_key(key)
+            record = SessionRecord.from_bytes(payload)
+        except (WireError, ValueError) as exc:
+            log.warning("ignored a checkpoint on %s: %s", key[:200], exc)
+            return False
+        if record.key != (fleet, robot):
+            log.warning("ignored a checkpoint on %s: it is %s/%s's", key[:200], *record.key)
+            return False
+        self.ownership.saw_epoch(partition, record.epoch)
+        if self.store.offer(record):
+            self.metrics.checkpoints_received.inc()
+            return True
+        return False
+
+    def _ship(self, records: list[SessionRecord]) -> None:
+        """Put the checkpoints just written for the standby (the store's writer thread)."""
+        session = self._session
+        if session is None or len(self.ownership.live) < 2:
+            return  # alone: nobody to ship to
+        for record in records:
+            p = partition_cached(record.fleet, record.robot)
+            if self.ownership.epoch_of(p) is None:
+                continue  # not ours (a replica, or handed over)
+            try:
+                session.put(
+                    keys.checkpoints(p, record.fleet, record.robot),
+                    record.to_bytes(),
+                    encoding=_CHECKPOINT_ENCODING,
+                )
+                self.metrics.checkpoints_shipped.inc()
+            except zenoh.ZError as exc:
+                log.warning("could not ship the checkpoint of %s/%s: %s", *record.key, exc)
+
+
+def _ranges(partitions: Sequence[int]) -> str:
+    """'0-3,7,9-10' for [0, 1, 2, 3, 7, 9, 10]."""
+    out: list[str] = []
+    ordered = sorted(partitions)
+    start = prev = ordered[0] if ordered else 0
+    for p in [*ordered[1:], None]:
+        if p is not None and p == prev + 1:
+            prev = p
+            continue
+        out.append(str(start) if start == prev else f"{start}-{prev}")
+        if p is not None:
+            start = prev = p
+    return ",".join(out) if ordered else "-"
 
 
 __all__ = ["Service", "WireError"]

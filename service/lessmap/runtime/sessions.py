@@ -157,7 +157,7 @@ class RobotSession:
         self.last_seen_seq = self.restored_seq = None if seen is None else int(seen)
         self.gaps.extend((int(lo), int(hi)) for lo, hi in meta["gaps"])
 
-    def state(self, instance: str, *, is_open: bool) -> SessionState:
+    def state(self, instance: str, *, is_open: bool, epoch: int = 1) -> SessionState:
         """Return the session's state as the wire message."""
         p = self.partitioner
         return SessionState(
@@ -165,6 +165,7 @@ class RobotSession:
             robot=self.robot,
             session=self.session,
             instance=instance,
+            epoch=epoch,
             open=is_open,
             last_seq=p.last_seq,
             frames_applied=p.frames_applied,
@@ -248,8 +249,11 @@ class SessionTable:
         ledger: EdgeLedger | None = None,
         ledger_slot: int = 0,
         admission: SessionAdmission | None = None,
+        epoch_of: Callable[[str, str], int] | None = None,
     ) -> None:
         self._params = params
+        # Epoch of a robot's partition at this instance, for states and checkpoints.
+        self._epoch_of = epoch_of if epoch_of is not None else (lambda _fleet, _robot: 1)
         self._max_pairs = max_pairs_per_frame  # 0: no budget
         self._max_edges = max_edges  # 0: no budget
         self._ledger = ledger
@@ -289,7 +293,9 @@ class SessionTable:
         key = (fleet, robot)
         session = self._open.get(key)
         if session is not None:
-            return session.state(self._instance, is_open=True)
+            return session.state(
+                self._instance, is_open=True, epoch=self._epoch_of(session.fleet, session.robot)
+            )
         final = self._final_states.get(key)
         if final is not None or self._store is None:
             return final
@@ -628,6 +634,7 @@ class SessionTable:
     def _record(self, session: RobotSession, status: str, *, is_open: bool) -> SessionRecord:
         closed_ids = list(self._closed_ids.get((session.fleet, session.robot), ()))
         keep_graph = status != "closed"
+        epoch = self._epoch_of(session.fleet, session.robot)
         return SessionRecord(
             fleet=session.fleet,
             robot=session.robot,
@@ -637,7 +644,10 @@ class SessionTable:
             meta={
                 **session.counters(),
                 "closed_ids": closed_ids,
-                "state": session.state(self._instance, is_open=is_open).model_dump(mode="json"),
+                "epoch": epoch,
+                "state": session.state(self._instance, is_open=is_open, epoch=epoch).model_dump(
+                    mode="json"
+                ),
             },
             snapshot=snapshot.to_bytes(session.partitioner) if keep_graph else None,
             updated_s=self._wall_clock(),
@@ -881,7 +891,9 @@ class SessionTable:
         self._closed_ids.move_to_end(key)
         while len(self._closed_ids) > 4 * self._max_sessions:
             self._closed_ids.popitem(last=False)
-        final = session.state(self._instance, is_open=False)
+        final = session.state(
+            self._instance, is_open=False, epoch=self._epoch_of(session.fleet, session.robot)
+        )
         if self._store is not None:
             self._store.save(self._record(session, "closed", is_open=False))
         self._final_states[key] = final
@@ -926,9 +938,34 @@ class SessionTable:
             if session.partitioner.pending_frames:
                 self._decide(session, out)
             self._checkpoint(session, "open", session.last_activity_s)
-            out.suspended.append(session.state(self._instance, is_open=True))
+            epoch = self._epoch_of(session.fleet, session.robot)
+            out.suspended.append(session.state(self._instance, is_open=True, epoch=epoch))
             del self._open[key]
             self._set_edges(session, 0)
+        return out
+
+    def hand_over(self, leaving: Callable[[str, str], bool], now_s: float) -> Outcome:
+        """Checkpoint and drop the sessions of robots whose partition this instance lost.
+
+        Frames held for a catch-up are dropped, not applied: the new owner resumes at the
+        checkpoint and fetches them from the robot's cache itself. Nothing is published
+        (the fence is already closed for these robots).
+        """
+        out = Outcome()
+        for key, session in list(self._open.items()):
+            if not leaving(*key):
+                continue
+            session.held.clear()
+            session.held_end = None
+            session.hold_until_s = None
+            self._holding.discard(key)
+            if self._store is not None:
+                self._checkpoint(session, "open", now_s)
+            del self._open[key]
+            self._set_edges(session, 0)
+            out.evicted += 1
+        for key in [k for k in self._closed_ids if leaving(*k)]:
+            del self._closed_ids[key]
         return out
 
 

@@ -99,8 +99,12 @@ class Shard:
         linger_s: float = 0.0,
         request_catchup: Callable[[Shard, CatchupRequest], None] | None = None,
         quantum: int = 5_000_000,
+        owns: Callable[[str, str], bool] | None = None,
     ) -> None:
         self.index = index
+        # False for a robot whose partition this instance handed over: its queued frames are
+        # left to the new owner (which fetches them from the robot's cache).
+        self._owns = owns
         self.table = table
         self.lock = threading.Lock()  # guards ``table`` between the worker and queries
         self._outbox = outbox
@@ -173,6 +177,17 @@ class Shard:
     def depth(self) -> int:
         """Messages waiting (in the queue and in the robots' lanes)."""
         return self._held
+
+    def lag_s(self, now: float) -> float:
+        """Age of the oldest message waiting, seconds (0 when none waits)."""
+        with self._ready:
+            oldest = [self._queue[0].received_s] if self._queue else []
+            # The lanes are the worker's; a racy read of their heads is good enough here.
+            oldest += [
+                lane.items[0].received_s for lane in list(self._lanes.values()) if lane.items
+            ]
+        live = [t for t in oldest if t > 0.0]
+        return max(0.0, now - min(live)) if live else 0.0
 
     # -- worker ------------------------------------------------------------------------------
 
@@ -332,6 +347,14 @@ class Shard:
 
     def _turn(self, key: tuple[str, str], lane: _Lane) -> None:
         """Serve one robot what its deficit affords, deciding per frame when that fits."""
+        if self._owns is not None and not self._owns(*key):
+            dropped = list(lane.items)
+            lane.items.clear()
+            lane.head = None
+            with self._ready:
+                self._give_back(dropped)
+            self._outbox.metrics.frames_foreign.inc(len(dropped))
+            return
         now = time.monotonic()
         rejected = Outcome()
         with self.lock:

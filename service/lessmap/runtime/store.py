@@ -18,15 +18,19 @@ Rules of this file:
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import sqlite3
 import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO
+
+import msgpack
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -34,8 +38,10 @@ log = logging.getLogger(__name__)
 RobotKey = tuple[str, str]  # (fleet, robot)
 
 STORE_FILE = "sessions.sqlite3"
-_SCHEMA_VERSION = 1
+LOCK_FILE = "instance.lock"
+_SCHEMA_VERSION = 2  # 2: records carry the partition epoch (wire contract v2)
 _PRUNE_EVERY_S = 30.0
+_WIRE_VERSION = 1  # of a record shipped between instances (SessionRecord.to_bytes)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -55,6 +61,64 @@ class SessionRecord:
     def key(self) -> RobotKey:
         """(fleet, robot)."""
         return (self.fleet, self.robot)
+
+    @property
+    def epoch(self) -> int:
+        """Partition epoch of the instance that wrote the record (1 if it had none)."""
+        return int(self.meta.get("epoch", 1))
+
+    def newer_than(self, other: SessionRecord | None) -> bool:
+        """True when this record supersedes ``other`` (a higher epoch, then a higher seq)."""
+        if other is None:
+            return True
+        mine = (self.epoch, -1 if self.last_seq is None else self.last_seq)
+        theirs = (other.epoch, -1 if other.last_seq is None else other.last_seq)
+        return mine > theirs
+
+    def to_bytes(self) -> bytes:
+        """Serialize for shipping to another instance (service-internal, msgpack)."""
+        return bytes(
+            msgpack.packb(
+                {
+                    "ckpt": _WIRE_VERSION,
+                    "fleet": self.fleet,
+                    "robot": self.robot,
+                    "session": self.session,
+                    "status": self.status,
+                    "last_seq": self.last_seq,
+                    "meta": json.dumps(self.meta),
+                    "snapshot": self.snapshot,
+                    "updated_s": self.updated_s,
+                },
+                use_bin_type=True,
+            )
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> SessionRecord:
+        """Read a shipped record; ValueError when it is not one."""
+        try:
+            obj = msgpack.unpackb(data, raw=False, strict_map_key=True)
+            if not isinstance(obj, dict) or obj.get("ckpt") != _WIRE_VERSION:
+                msg = "not a version-1 checkpoint record"
+                raise ValueError(msg)
+            record = cls(
+                fleet=str(obj["fleet"]),
+                robot=str(obj["robot"]),
+                session=str(obj["session"]),
+                status=str(obj["status"]),
+                last_seq=None if obj["last_seq"] is None else int(obj["last_seq"]),
+                meta=json.loads(obj["meta"]),
+                snapshot=None if obj["snapshot"] is None else bytes(obj["snapshot"]),
+                updated_s=float(obj["updated_s"]),
+            )
+        except (KeyError, TypeError, ValueError, msgpack.UnpackException) as exc:
+            msg = f"unreadable checkpoint record: {exc}"
+            raise ValueError(msg) from exc
+        if record.status not in ("open", "evicted", "closed") or not isinstance(record.meta, dict):
+            msg = f"unreadable checkpoint record: status {record.status!r}"
+            raise ValueError(msg)
+        return record
 
 
 class StoreError(RuntimeError):
@@ -78,6 +142,7 @@ class CheckpointStore:
         self._clock = clock
         self._pending: dict[RobotKey, SessionRecord | None] = {}  # None: delete
         self._in_flight = False  # the writer holds a batch taken from _pending
+        self._lock_file: BinaryIO | None = None
         self._cond = threading.Condition()
         self._db_lock = threading.Lock()  # one connection, shared by the writer and readers
         self._db: sqlite3.Connection | None = None
@@ -85,6 +150,9 @@ class CheckpointStore:
         self._stopping = False
         self._last_prune_s = 0.0
         self.problems: list[str] = []  # what went wrong on open, for the service to report
+        # Called by the writer thread with the records it just committed (shipping to the
+        # standby); it must not block for long.
+        self.on_written: Callable[[list[SessionRecord]], None] | None = None
         self.writes = 0  # records committed (metric)
         self.write_seconds = 0.0
 
@@ -108,8 +176,20 @@ class CheckpointStore:
             return
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._lock_file = (self.path.parent / LOCK_FILE).open("a+b")
         except OSError as exc:
             msg = f"state directory {self.path.parent}: {exc.strerror or exc}"
+            raise StoreError(msg) from exc
+        try:
+            # One instance per state directory: two would overwrite each other's rows.
+            fcntl.flock(self._lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            self._lock_file.close()
+            self._lock_file = None
+            msg = (
+                f"state directory {self.path.parent} is in use by another lessmap instance; "
+                "give each instance its own --state-dir"
+            )
             raise StoreError(msg) from exc
         try:
             self._db = self._connect()
@@ -169,6 +249,9 @@ class CheckpointStore:
             if self._db is not None:
                 self._db.close()
                 self._db = None
+        if self._lock_file is not None:
+            self._lock_file.close()  # releases the flock
+            self._lock_file = None
 
     # -- records -----------------------------------------------------------------------------
 
@@ -208,6 +291,47 @@ class CheckpointStore:
             ).fetchone()
         return None if row is None else _record(row)
 
+    def offer(self, record: SessionRecord) -> bool:
+        """Save a record shipped by another instance if it is newer than what is held.
+
+        Reads the file (call it off the receive path). Returns True when saved.
+        """
+        if self.path is None:
+            return False
+        try:
+            current = self.load(record.key)
+        except sqlite3.Error:
+            current = None
+        if not record.newer_than(current):
+            return False
+        with self._cond:
+            pending = self._pending.get(record.key)
+            if pending is not None and not record.newer_than(pending):
+                return False
+            self._pending[record.key] = record
+            self._cond.notify()
+        return True
+
+    def records_where(self, keep: Callable[[str, str], bool]) -> list[SessionRecord]:
+        """The latest record (pending or written) of every robot for which ``keep`` is True."""
+        with self._cond:
+            pending = {k: r for k, r in self._pending.items() if keep(*k)}
+        with self._db_lock:
+            if self._db is None:
+                names = []
+            else:
+                names = [
+                    (fleet, robot)
+                    for fleet, robot in self._db.execute("SELECT fleet, robot FROM sessions")
+                    if keep(fleet, robot) and (fleet, robot) not in pending
+                ]
+        out = [r for r in pending.values() if r is not None]
+        for key in names:
+            record = self.load(key)
+            if record is not None:
+                out.append(record)
+        return out
+
     def records(self) -> list[SessionRecord]:
         """Every written record (pending ones not included): for start-up and tests."""
         with self._db_lock:
@@ -245,6 +369,11 @@ class CheckpointStore:
                 stopping = self._stopping
             if batch:
                 self._write(batch)
+                if self.on_written is not None:
+                    try:
+                        self.on_written([r for r in batch.values() if r is not None])
+                    except Exception:  # shipping must never stop the writer
+                        log.exception("state store: shipping checkpoints failed")
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
             del batch
