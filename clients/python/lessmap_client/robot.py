@@ -495,13 +495,14 @@ class RobotPublisher:
                     self._inbox_cond.wait(remaining)
                 if self._stopping:
                     return
-                payload = self._inbox.popleft() if self._inbox else None
+                popped = bool(self._inbox)
+                payload = self._inbox.popleft() if popped else None
                 check_startup = grace_until is not None and time.monotonic() >= grace_until
             if check_startup:
                 grace_until = None
                 self._check_owner(startup=True)
-                if payload is None:
-                    continue
+            if not popped:
+                continue
             try:
                 if payload is None:
                     self._check_owner()
