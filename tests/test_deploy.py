@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shlex
 import signal
 import subprocess
@@ -40,6 +41,11 @@ def variables() -> list[str]:
 @pytest.mark.parametrize("variable", variables())
 def test_the_environment_example_lists_every_setting(variable: str) -> None:
     assert f"#{variable}=" in ENV_EXAMPLE.read_text(encoding="utf-8")
+
+
+def test_the_environment_example_lists_no_setting_that_is_gone() -> None:
+    listed = re.findall(r"^#(LESSMAP_\w+)=", ENV_EXAMPLE.read_text(encoding="utf-8"), re.M)
+    assert set(listed) - {"LESSMAP_CONFIG"} <= set(variables())
 
 
 # -- several instances: the router mesh, the template units, the local cluster script ----------
