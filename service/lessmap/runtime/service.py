@@ -57,6 +57,7 @@ log = logging.getLogger(__name__)
 _QUEUE_BYTES_PER_SHARD = 256 * 1024 * 1024
 _QUIET_S = 0.3  # no sample for this long: the inbound path has settled
 _HEARTBEAT_S = 0.1  # freeze detection (fence_after_s is far above it)
+_LEAVE_CONFIRM_S = 0.25  # a token that went is checked again this much later
 _CHECKPOINT_ENCODING = zenoh.Encoding("application/octet-stream")
 
 partition_cached = functools.lru_cache(maxsize=1 << 16)(partition_of)
@@ -196,6 +197,12 @@ class Service:
         # on a gap, for one robot, and the table puts what comes back in seq order itself.
         self.store.on_written = self._ship
         self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
+        # Ask for the live tokens before declaring the liveliness subscriber: with a history
+        # subscriber declared first, zenoh 1.x answered the get with the local token only
+        # (and a new instance then took every partition for a moment). The subscriber's
+        # history repeats what the get saw; joins are idempotent.
+        live = self._live_instances()
+        log.info("live instances: %s", ", ".join(sorted(set(live))))
         self._liveliness_sub = session.liveliness().declare_subscriber(
             keys.instances(), self._on_liveliness, history=True
         )
@@ -203,7 +210,7 @@ class Service:
         # the ownership thread.
         self.ownership.start_clock()
         self._heartbeat_thread.start()
-        self._apply(self.ownership.set_live(self._live_instances()))
+        self._apply(self.ownership.set_live(live))
         self._control_thread.start()
         if s.metrics_port is not None:
             server, _thread = start_http_server(
@@ -512,7 +519,8 @@ class Service:
                 if kind == "join":
                     self._apply(self.ownership.join(str(value)))
                 elif kind == "leave":
-                    self._apply(self.ownership.leave(str(value)))
+                    if self._confirm_leave(str(value)):
+                        self._apply(self.ownership.leave(str(value)))
                 elif kind == "checkpoint":
                     self._take_replica(*value)  # type: ignore[misc]
                 elif kind == "frozen":
@@ -520,6 +528,26 @@ class Service:
             except Exception:
                 # A bug must not stop ownership changes: log it, keep going.
                 log.exception("ownership change %s %s failed", kind, value)
+
+    def _confirm_leave(self, name: str) -> bool:
+        """True when an instance whose token went is still gone a moment later.
+
+        Taking partitions over is the risky direction (two owners for a moment), so a leave
+        is checked: a client that loses its router sees every other token go and come back
+        when it reconnects (after a freeze, a network blip). A client without a router sees
+        nothing reliable and takes nothing.
+        """
+        time.sleep(_LEAVE_CONFIRM_S)
+        session = self._session
+        if session is None:
+            return False
+        if self.settings.mode == "client" and not list(session.info.routers_zid()):
+            log.info("token of %s went while this instance has no router; waiting", name)
+            return False
+        if name in self._live_instances():
+            log.info("token of %s went and came back; nothing moves", name)
+            return False
+        return True
 
     def _after_freeze(self) -> None:
         """The process stalled past the fence: drop everything, then take back what is ours."""
