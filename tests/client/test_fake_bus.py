@@ -340,3 +340,29 @@ def test_async_coverage_and_robot_service() -> None:
             return before, after, owners.pop() if len(owners) == 1 else None, sub.dropped_stale
 
     assert asyncio.run(scenario()) == (False, True, "only", 1)
+
+
+def test_a_robot_waits_until_its_owner_lists_its_partition() -> None:
+    from lessmap_schemas.messages import Health
+
+    def health(partitions: list[int]) -> Health:
+        return Health(
+            instance="a",
+            version="0.3.0",
+            sessions=0,
+            uptime_s=1.0,
+            frames_applied=0,
+            partitions=partitions,
+            standby=[],
+            queue_depth=0,
+            lag_s=0.0,
+        )
+
+    bus = FakeBus(instances=["a"])
+    with bus.connect() as conn, conn.robot("f", "r") as robot:
+        assert robot.status.owner == "a"
+        assert robot.wait_for_service(0.0)  # an owner that answers no Health: its token counts
+        bus.set_health(health([p for p in range(64) if p != robot.partition]))
+        assert not robot.wait_for_service(0.3)  # owner, but it has not taken the partition
+        bus.set_health(health(list(range(64))))
+        assert robot.wait_for_service(0.3)

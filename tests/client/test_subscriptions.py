@@ -26,6 +26,7 @@ WALK = two_room_walk(rooms=6)  # five doors: five transitions
 
 def publish_walk(conn: Connection, fleet: str, robot: str = "walker") -> str:
     with conn.robot(fleet, robot) as publisher:
+        assert publisher.wait_for_service(20.0)  # the owner has taken the robot's partition
         for features in WALK:
             publisher.publish(features, stamp_s=0.0)
         return publisher.session_id

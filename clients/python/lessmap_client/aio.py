@@ -205,7 +205,7 @@ class AsyncRobotPublisher:
         return await asyncio.to_thread(self.sync.state, timeout_s)
 
     async def wait_for_service(self, timeout_s: float = 10.0) -> bool:
-        """Wait until the robot's partition has an owner; see ``RobotPublisher``."""
+        """Wait until the robot's partition has an owner serving it; see ``RobotPublisher``."""
         return await asyncio.to_thread(self.sync.wait_for_service, timeout_s)
 
     async def new_session(self, session_id: str | None = None) -> str:

@@ -37,7 +37,7 @@ from lessmap_schemas import keys, partition
 from lessmap_schemas.codec import decode, encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
-from lessmap_schemas.messages import Error, Frame, SessionEnd, SessionState
+from lessmap_schemas.messages import Error, Frame, Health, SessionEnd, SessionState
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -265,20 +265,45 @@ class RobotPublisher:
         return partition.owner_and_standby(self.partition, self._live)[0]
 
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
-        """Wait until the robot's partition has an owner among the live service instances.
+        """Wait until the robot's partition has an owner that serves it; False after ``timeout_s``.
 
-        Returns True at once when it has one (``status.owner``), False after ``timeout_s``
-        without one. Any live instance owns some partitions, and with one alive every
-        partition has an owner.
+        The owner is the first of the live instances by rendezvous ranking (``status.owner``);
+        any live instance owns some partitions, and with one alive every partition has an
+        owner. A new owner takes its partitions a moment after its token appears, so this
+        also asks the owner's ``Health`` and waits until it lists the partition (an owner
+        that does not answer Health queries is taken at its token). Frames published before
+        that are not lost: the publisher's cache keeps them for the owner to fetch.
         """
         deadline = time.monotonic() + timeout_s
-        with self._live_changed:
-            while self._owner() is None:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                self._live_changed.wait(remaining)
-            return True
+        while True:
+            with self._live_changed:
+                while (owner := self._owner()) is None:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        return False
+                    self._live_changed.wait(remaining)
+            if self._owner_serves(owner, min(1.0, max(0.1, deadline - time.monotonic()))):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.05)
+
+    def _owner_serves(self, owner: str, timeout_s: float) -> bool:
+        """Whether ``owner`` lists the robot's partition in its Health (True if it is silent)."""
+        try:
+            replies = self._transport.get(keys.health(owner), timeout_s)
+        except Exception:  # a closed transport: nobody to ask
+            return False
+        answered = False
+        for _, payload in replies:
+            try:
+                health = decode(payload, Health)
+            except WireError:
+                continue
+            answered = True
+            if health.instance == owner and self.partition in health.partitions:
+                return True
+        return not answered
 
     def state(self, timeout_s: float = 2.0) -> SessionState | None:
         """Ask the service for the state of the current session (blocks up to ``timeout_s``).
