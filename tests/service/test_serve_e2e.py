@@ -21,10 +21,12 @@ from lessmap_schemas import keys
 from lessmap_schemas.codec import decode, encode
 from lessmap_schemas.errors import InvalidNameError
 from lessmap_schemas.messages import Error, Frame, SessionState, Transition
+from lessmap_schemas.partition import PARTITIONS, owner_and_standby, partition_of
 from tests.conftest import ServeProcess, dataset, metric_value, wait_until
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
+    from pathlib import Path
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -306,19 +308,38 @@ def test_a_taken_port_is_a_one_line_error(serve: Callable[..., ServeProcess]) ->
     assert first.terminate() == 0
 
 
-def test_two_instances_split_a_fleet_by_key_hash(
+def test_two_instances_split_a_fleet_by_partition(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
+    tmp_path: Path,
 ) -> None:
-    fleet = "sharded"  # fixed, so the hash split below is known: r1, r4, r5 -> 0; r2, r3 -> 1
+    fleet = "split"
     frames = list(read_frames(dataset("mrclam6.frames.jsonl")))[:2500]
     robots = sorted({f.robot for f in frames})
     expected = offline_transitions(frames)
-    first = start_service(serve, "--shard", "0/2")
-    second = start_service(serve, "--shard", "1/2", "-e", first.endpoint)
+    first = start_service(serve, "--state-dir", str(tmp_path / "a"), metrics=True)
+    second = start_service(
+        serve, "-e", first.endpoint, "--state-dir", str(tmp_path / "b"), metrics=True
+    )
+    names = [first.instance, second.instance]
+    owner_of = {f"r{r}": owner_and_standby(partition_of(fleet, f"r{r}"), names)[0] for r in robots}
     session = client_session(first.endpoint)
     with FleetClient(fleet, session=session) as client:
         wait_until(lambda: len(client.instances()) == 2, 30.0, "both instances to be alive")
+
+        def owned(proc: ServeProcess) -> float:
+            try:
+                return metric_value(proc.metrics(), "lessmap_partitions_owned")
+            except OSError:
+                return 0.0  # the metrics server is not up yet
+
+        wait_until(
+            lambda: (
+                min(owned(first), owned(second)) > 0 and owned(first) + owned(second) == PARTITIONS
+            ),
+            30.0,
+            "the partitions to be shared out",
+        )
         publishers = {r: RobotPublisher(fleet, f"r{r}", session=session) for r in robots}
         for frame in frames:
             publishers[frame.robot].publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
@@ -328,12 +349,21 @@ def test_two_instances_split_a_fleet_by_key_hash(
         got = drain(client)
         states = client.states()
     assert sorted(s.robot for s in states) == [f"r{r}" for r in robots]  # one answer each
-    owner = {s.robot: s.instance for s in states}
-    assert {owner["r1"], owner["r4"], owner["r5"]} == {first.instance}
-    assert {owner["r2"], owner["r3"]} == {second.instance}
+    assert {s.robot: s.instance for s in states} == owner_of
+    assert set(owner_of.values()) == set(names), "both instances should serve someone"
     for robot in robots:
         mine = [t for t in got if t.robot == f"r{robot}"]
         assert [as_record(t) for t in mine] == expected.get(robot, []), robot
-        assert {t.instance for t in mine} <= {owner[f"r{robot}"]}
+        assert {t.instance for t in mine} <= {owner_of[f"r{robot}"]}
+    # Zenoh routed each instance its own robots' frames only (frames and session ends).
+    for proc in (first, second):
+        text = proc.metrics()
+        own = sum(
+            1 + sum(f.robot == r for f in frames)
+            for r in robots
+            if owner_of[f"r{r}"] == proc.instance
+        )
+        assert metric_value(text, "lessmap_frames_received_total") == own, proc.instance
+        assert metric_value(text, "lessmap_frames_foreign_total") == 0
     assert second.terminate() == 0
     assert first.terminate() == 0

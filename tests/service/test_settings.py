@@ -328,13 +328,11 @@ def test_every_wire_limit_is_a_setting_and_format_bounds_only_tighten(
 def serve_settings(*argv: str) -> Any:
     """Parse ``lessmap serve ARGV`` as the CLI does and build its settings (no service)."""
     from lessmap.cli import command_parser
-    from lessmap.runtime.daemon import shard_values
     from lessmap.settings import settings_from_args
 
     parser, _run = command_parser("serve")
     args = parser.parse_args(argv)
-    shard = shard_values(args.shard)
-    return settings_from_args(args, args.settings_flags, shard, dict.fromkeys(shard, "--shard"))
+    return settings_from_args(args, args.settings_flags)
 
 
 def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
@@ -348,8 +346,6 @@ def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
         return str(path), path
     if spec.dest in {"connect", "listen"}:
         return "tcp/127.0.0.1:7500", ("tcp/127.0.0.1:7500",)
-    if spec.dest == "shard_index":
-        return "0", 0  # any other index needs a shard_count; tested with --shard
     if spec.dest == "seed_mode":
         return "fresh", SeedMode.FRESH
     if spec.dest == "mode":
@@ -395,7 +391,7 @@ def test_every_field_has_a_flag_and_an_environment_variable(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     text, expected = other_value(spec, tmp_path)
-    assert value_at(load_settings(), spec) != expected or spec.dest == "shard_index"
+    assert value_at(load_settings(), spec) != expected
 
     if isinstance(expected, bool):  # --name / --no-name
         from_flag = serve_settings(spec.flag if expected else f"--no-{spec.flag[2:]}")
@@ -422,7 +418,7 @@ def test_every_field_has_a_flag_and_an_environment_variable(
         "--workers 2",
         "--metrics-port 9464",
         "--instance edge-1",
-        "--shard 1/2",
+        "--fence-after-s 5",
         "--idle-timeout 30",
         "--max-batch-frames 8",
         "--batch-linger-ms 2",
@@ -444,9 +440,8 @@ def test_flags_beat_environment_beat_file(tmp_path: Path, monkeypatch: pytest.Mo
     config = write_config(tmp_path, {"workers": 3, "queue_depth": 7, "error_burst": 9})
     monkeypatch.setenv("LESSMAP_QUEUE_DEPTH", "70")
     monkeypatch.setenv("LESSMAP_ERROR_BURST", "90")
-    settings = serve_settings("--config", str(config), "--error-burst", "900", "--shard", "1/2")
+    settings = serve_settings("--config", str(config), "--error-burst", "900")
     assert (settings.workers, settings.queue_depth, settings.error_burst) == (3, 70, 900)
-    assert (settings.shard_index, settings.shard_count) == (1, 2)
     assert settings.config == config
 
 
@@ -473,7 +468,6 @@ def test_a_toml_config_file(tmp_path: Path) -> None:
         ("file", "invalid setting workers = 0 from config file "),
         ("nested flag", "invalid setting limits.max_seq = '0' from flag --limits-max-seq: "),
         ("nested environment", "from environment LESSMAP_LIMITS__MAX_SEQ: "),
-        ("shard", "invalid setting shard_count = 2 from flag --shard: "),
     ],
 )
 def test_an_invalid_value_is_one_line_naming_setting_and_source(
@@ -488,10 +482,8 @@ def test_an_invalid_value_is_one_line_naming_setting_and_source(
         argv = ["--config", str(write_config(tmp_path, {"workers": 0}))]
     elif source == "nested flag":
         argv = ["--limits-max-seq", "0"]
-    elif source == "nested environment":
-        monkeypatch.setenv("LESSMAP_LIMITS__MAX_SEQ", "0")
     else:
-        argv = ["--shard", "2/2"]
+        monkeypatch.setenv("LESSMAP_LIMITS__MAX_SEQ", "0")
     with pytest.raises(ConfigError) as caught:
         serve_settings(*argv)
     message = str(caught.value)
