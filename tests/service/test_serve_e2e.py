@@ -200,12 +200,18 @@ def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
             raw_put(session, evil, msgpack.packb({**good_frame, "seq": "seven"}))
             raw_put(session, evil, msgpack.packb({**good_frame, "features": list(range(5000))}))
             raw_put(session, evil, b"\x00" * (2 * 1024 * 1024))
-            bad_name = f"{keys.KEY_PREFIX}/{fleet_name}/bad robot/frames"
-            raw_put(
-                session,
-                bad_name,
-                encode(Frame(session="s1", seq=round_, stamp_s=0.0, features=[1])),
-            )
+            # A name that breaks the rule (on the partition its name hashes to), and a good
+            # name on another robot's partition: both BAD_NAME.
+            part = partition_of(fleet_name, "bad robot")
+            bad_name = f"{keys.KEY_PREFIX}/{fleet_name}/bad robot/frames/{part}"
+            wrong = (partition_of(fleet_name, "evil") + 1) % PARTITIONS
+            wrong_partition = f"{keys.KEY_PREFIX}/{fleet_name}/evil/frames/{wrong}"
+            for key in (bad_name, wrong_partition):
+                raw_put(
+                    session,
+                    key,
+                    encode(Frame(session="s1", seq=round_, stamp_s=0.0, features=[1])),
+                )
             # A replaying robot: every frame twice, then one from the past.
             for seq in (3 * round_, 3 * round_ + 2, 3 * round_ + 2, 3 * round_ + 1):
                 replayed = Frame(session="s1", seq=seq, stamp_s=0.0, features=[seq, 1])
@@ -295,7 +301,18 @@ def test_a_taken_port_is_a_one_line_error(serve: Callable[..., ServeProcess]) ->
     wait_until(lambda: "serving as" in first.log(), 30.0, "the first service to start")
     port = first.endpoint.rsplit(":", 1)[1]
     second = subprocess.run(
-        [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", first.endpoint],
+        # memory-only: the state directory is the first one's (one instance per directory)
+        [
+            sys.executable,
+            "-m",
+            "lessmap",
+            "serve",
+            "-m",
+            "router",
+            "-l",
+            first.endpoint,
+            "--memory-only",
+        ],
         capture_output=True,
         text=True,
         timeout=60,

@@ -99,3 +99,17 @@ def test_a_pause_longer_than_the_idle_timeout_changes_nothing(
     assert state.frames_missing == state.frames_rejected == 0
     assert [as_record(t) for t in got] == expected
     assert service.terminate() == 0
+
+
+def test_a_second_instance_on_the_same_state_directory_is_a_one_line_error(
+    serve: Callable[..., ServeProcess],
+) -> None:
+    first = serve()
+    wait_until(lambda: "serving as" in first.log(), 30.0, "the first service")
+    second = serve("-m", "client", "-e", first.endpoint)  # same (test) state directory
+    assert second.process.wait(60) == 1
+    lines = second.log().strip().splitlines()
+    assert lines[-1].startswith("lessmap serve: state directory ")
+    assert lines[-1].endswith("give each instance its own --state-dir")
+    assert "Traceback" not in second.log()
+    assert first.terminate() == 0

@@ -116,7 +116,7 @@ class Service:
         try:
             self.store.open()
         except StoreError as exc:
-            msg = f"{exc} (give --state-dir a writable folder, or --memory-only)"
+            msg = str(exc)
             raise ConfigError(msg) from exc
         conf = service_config(s, self._zenoh_cfg)
         try:

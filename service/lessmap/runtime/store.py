@@ -178,7 +178,10 @@ class CheckpointStore:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._lock_file = (self.path.parent / LOCK_FILE).open("a+b")
         except OSError as exc:
-            msg = f"state directory {self.path.parent}: {exc.strerror or exc}"
+            msg = (
+                f"state directory {self.path.parent}: {exc.strerror or exc} "
+                "(give --state-dir a writable folder, or --memory-only)"
+            )
             raise StoreError(msg) from exc
         try:
             # One instance per state directory: two would overwrite each other's rows.
@@ -205,7 +208,7 @@ class CheckpointStore:
             try:
                 self._db = self._connect()
             except sqlite3.DatabaseError as again:
-                msg = f"state store {self.path}: {again}"
+                msg = f"state store {self.path}: {again} (give --state-dir another folder)"
                 raise StoreError(msg) from again
         self._thread = threading.Thread(target=self._run, name="lessmap-store", daemon=True)
         self._thread.start()
