@@ -158,7 +158,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(top.arguments)
     args.command, args.verbose, args.log_format = top.command, top.verbose, top.log_format
     # A daemon reports its lifecycle (INFO) by default; one-shot tools only warnings.
-    base = logging.INFO if args.command == "serve" else logging.WARNING
+    base = logging.INFO if args.command in ("serve", "router") else logging.WARNING
     configure_logging(max(logging.DEBUG, base - 10 * args.verbose), args.log_format)
     try:
         code = run(args)
