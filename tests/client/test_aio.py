@@ -35,6 +35,7 @@ async def fleet_app(endpoint: str, fleet: str) -> dict[str, object]:
         first = await conn.subscribe_transitions(fleet, history=False)
         second = await conn.subscribe_transitions(fleet, "walker", history=False)
         async with await conn.robot(fleet, "walker") as robot:
+            assert await robot.wait_for_service(20.0)  # the owner took the robot's partition
             for features in walk:
                 await robot.publish(features, stamp_s=0.0)
         seqs = await asyncio.wait_for(asyncio.gather(take(first, 3), take(second, 3)), 30.0)

@@ -191,6 +191,7 @@ def test_a_session_closed_by_the_service_is_noticed(
     with connect(service.endpoint, timeout_s=20.0) as conn:
         assert conn.wait_for_service(20.0), service.log()
         robot = conn.robot(fleet_name, "r1", on_error=reports.append, auto_new_session=auto)
+        assert robot.wait_for_service(20.0), service.log()
         first = robot.session_id
         for seq in range(5):
             robot.publish([seq, seq + 1, 100])
@@ -253,6 +254,7 @@ def test_a_gap_reaches_on_error_as_seq_gap(
     with connect(service.endpoint, timeout_s=20.0) as conn:
         assert conn.wait_for_service(20.0), service.log()
         with conn.robot(fleet_name, "gappy", on_error=reports.append) as robot:
+            assert robot.wait_for_service(20.0), service.log()
             for _ in range(10):
                 robot.publish([1, 2, 3])
             assert robot.publish([3, 4], seq=20) == 20

@@ -91,7 +91,7 @@ def test_round_trip_late_join_and_queries(
         assert fleet.submap("walker", 99) is None
         assert fleet.state("nobody") is None
         assert [h.instance for h in fleet.health()] == [service.instance]
-        assert service.instance in fleet.instances()
+        assert service.instance in fleet.instances(timeout_s=5.0)
     assert service.terminate() == 0
 
 
