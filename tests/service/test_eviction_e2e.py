@@ -4,11 +4,13 @@
 evicted and the service gives most of the wave's memory back. An evicted robot that speaks
 again resumes its session (no SESSION_CLOSED, no gap).
 
-Measured on the development machine (``-s`` prints it): RSS 96 MiB before, 195 MiB at the
-peak, 132-159 MiB after the eviction, i.e. not yet the 20 % the durable-sessions issue asks.
-In-process without Zenoh, tracemalloc shows < 1 MiB of Python objects retained: the rest is
-allocator fragmentation (and, in the service, Zenoh's per-key state); a second and third
-wave of new robots grew the in-process remainder by 5 and 28 MiB.
+Measured (``-s`` prints it; details in docs/BENCHMARKS.md "Session flood and memory"): RSS
+95-97 MiB before, 190-226 MiB at the peak. ``lessmap serve`` runs on glibc's malloc with two
+arenas (``lessmap.runtime.memory``); what stays after the eviction is then mostly the
+service's per-robot cache of partitions (``partition_cached`` in service.py, up to 65,536
+robots): 150-160 MiB after with it, 111-115 MiB (1.14-1.20 x before) without it. A new robot
+is served (its state answers with its frame applied) 5-30 ms after its first put; printed,
+not asserted: wall-clock bounds are flaky on a shared machine.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import pytest
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.messages import Frame
+from tests.benchmarks.session_flood import new_robot_wait_s
 from tests.conftest import ServeProcess, metric_value, wait_until
 
 if TYPE_CHECKING:
@@ -81,13 +84,17 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
         return peak, service.rss_kib()
 
     first_peak, first_after = wave("r", 200 + ROBOTS)
+    # Right after the flood a new robot is served: its first frame is applied.
+    wait_s = new_robot_wait_s(session, fleet_name, "newcomer", frame_of(1, 0), 10.0)
     print(  # noqa: T201 - the figures in the module docstring come from here
-        f"RSS KiB: before {before_kib}, peak {first_peak}, after eviction {first_after}"
+        f"RSS KiB: before {before_kib}, peak {first_peak}, after eviction {first_after} "
+        f"({first_after / before_kib:.2f} x before); a new robot served after {wait_s:.3f} s"
     )
-    # Most of the wave's memory comes back (malloc_trim after evictions; small initial
-    # CovGraph matrices keep the peak down).
-    # Measured 0.34-0.74 of the peak's growth left; 0.94 without the trim after eviction.
-    assert first_after - before_kib <= 0.85 * (first_peak - before_kib)
+    assert wait_s == wait_s, "the new robot's frame was not applied within 10 s"  # not NaN
+    # Most of the wave's memory comes back (malloc_trim after evictions on glibc's malloc).
+    # Measured 0.42-0.57 of the peak's growth left with the partition cache in service.py,
+    # 0.13-0.20 without it; 0.94 before the trim after eviction.
+    assert first_after - before_kib <= 0.75 * (first_peak - before_kib)
 
     # An evicted robot speaks again: its session resumes where it stopped.
     session.put(keys.frames(fleet_name, "r7"), frame_of(7, 1))
@@ -98,5 +105,5 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     )
     text = service.metrics()
     assert metric_value(text, "lessmap_frames_missing_total") == 0
-    assert metric_value(text, "lessmap_frames_applied_total") == 200 + ROBOTS + 1
+    assert metric_value(text, "lessmap_frames_applied_total") == 200 + ROBOTS + 2
     assert service.terminate() == 0

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import zenoh
 from threadpoolctl import threadpool_limits
 
+from lessmap.runtime.memory import tune_allocator, use_system_malloc
 from lessmap.runtime.service import Service
 from lessmap.settings import add_settings_flags, settings_from_args
 
@@ -43,6 +44,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap serve`` with the settings its flags, environment and file give."""
+    # First, before any thread or socket: CPython's objects on glibc's malloc (a restart of
+    # this process, same PID), so evicted sessions' memory can go back to the system.
+    use_system_malloc()
     specs: list[FlagSpec] = args.settings_flags
     settings = settings_from_args(args, specs)
     return serve(settings, args.cfg or ())
@@ -64,6 +68,8 @@ def serve(settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> int:
 
 
 def _serve(settings: ServiceSettings, zenoh_cfg: Sequence[str]) -> int:
+    # Before Zenoh starts its runtime threads (each would take a malloc arena of its own).
+    log.debug("malloc options set: %s", tune_allocator() or "none")
     zenoh.init_log_from_env_or("error")
     stop = threading.Event()
 

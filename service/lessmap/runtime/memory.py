@@ -4,6 +4,15 @@ CPython's small-object allocator and glibc's malloc keep freed memory for reuse,
 thousands of sessions are evicted the process stays at its peak size. ``malloc_trim(0)``
 (glibc) returns the free pages at the top and in the middle of the heap; elsewhere (musl,
 macOS) it is a no-op.
+
+Trimming alone is not enough (``python -m tests.benchmarks.session_flood``, docs/BENCHMARKS.md
+"Session flood and memory"): after 10,000 one-frame sessions are evicted, most of what stays
+is pymalloc arenas (1 MiB each, given back only when every block in them is free: a few
+hundred surviving small objects keep dozens alive) and glibc's per-thread arenas (Zenoh's
+runtime threads and the shard workers each may get one). So ``lessmap serve`` starts with
+``use_system_malloc`` (CPython's objects on glibc's malloc, where ``malloc_trim`` reaches
+free pages between live blocks) and ``tune_allocator`` (two arenas, large blocks in their
+own mappings, a low trim threshold), before Zenoh starts its threads.
 """
 
 from __future__ import annotations
@@ -12,6 +21,8 @@ import ctypes
 import ctypes.util
 import gc
 import logging
+import os
+import sys
 from typing import TYPE_CHECKING, cast
 
 if TYPE_CHECKING:
@@ -20,20 +31,84 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def _load_trim() -> Callable[[int], int] | None:
-    name = ctypes.util.find_library("c")
-    if name is None:
+# mallopt parameters (glibc's malloc.h), the environment variable that sets each one at
+# glibc's start (the operator's value wins: tune_allocator leaves that one alone), our value.
+M_TRIM_THRESHOLD = -1
+M_MMAP_THRESHOLD = -3
+M_ARENA_MAX = -8
+ALLOCATOR_SETTINGS: tuple[tuple[str, int, str, int], ...] = (
+    # Two arenas, not 8 per core: Zenoh's many runtime threads otherwise each keep their own
+    # arena and its free memory.
+    ("arena_max", M_ARENA_MAX, "MALLOC_ARENA_MAX", 2),
+    # Blocks from 128 KiB (CovGraph matrices, big payloads) get their own mapping, unmapped
+    # when freed; glibc's default raises this threshold up to 32 MiB as such blocks are freed,
+    # and then keeps them in the heap.
+    ("mmap_threshold", M_MMAP_THRESHOLD, "MALLOC_MMAP_THRESHOLD_", 128 * 1024),
+    # Give the top of a heap back from 128 KiB free (the dynamic default rises with the above).
+    ("trim_threshold", M_TRIM_THRESHOLD, "MALLOC_TRIM_THRESHOLD_", 128 * 1024),
+)
+
+
+def _libc_function(name: str) -> Callable[..., int] | None:
+    path = ctypes.util.find_library("c")
+    if path is None:
         return None
     try:
-        trim = ctypes.CDLL(name).malloc_trim
+        function = getattr(ctypes.CDLL(path), name)
     except (OSError, AttributeError):
         return None
-    trim.argtypes = [ctypes.c_size_t]
-    trim.restype = ctypes.c_int
-    return cast("Callable[[int], int]", trim)
+    return cast("Callable[..., int]", function)
+
+
+def _load_trim() -> Callable[[int], int] | None:
+    trim = _libc_function("malloc_trim")
+    if trim is None:
+        return None
+    trim.argtypes = [ctypes.c_size_t]  # type: ignore[attr-defined]
+    trim.restype = ctypes.c_int  # type: ignore[attr-defined]
+    return trim
 
 
 _TRIM = _load_trim()
+
+
+def tune_allocator(environ: dict[str, str] | None = None) -> dict[str, int]:
+    """Set glibc's malloc options for a long-running service; return what was set.
+
+    Call it before other threads start (before Zenoh opens): a thread that already has its
+    own arena keeps it. Nothing is set where the environment already sets that option, or
+    when ``GLIBC_TUNABLES`` is set (the operator tuned malloc), or without glibc.
+    """
+    env = os.environ if environ is None else environ
+    mallopt = _libc_function("mallopt") if _TRIM is not None else None
+    if mallopt is None or "GLIBC_TUNABLES" in env:
+        return {}
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]  # type: ignore[attr-defined]
+    mallopt.restype = ctypes.c_int  # type: ignore[attr-defined]
+    applied = {}
+    for name, param, variable, value in ALLOCATOR_SETTINGS:
+        if variable not in env and mallopt(param, value) == 1:
+            applied[name] = value
+    return applied
+
+
+def use_system_malloc(argv: list[str] | None = None) -> None:
+    """Restart this process (same PID) with ``PYTHONMALLOC=malloc``, unless already set.
+
+    Only where glibc's ``malloc_trim`` exists: it is what gives the free pages back. The
+    process image is replaced by the same command line (``sys.orig_argv``): call it before
+    anything else started (threads, sockets, files). ``PYTHONMALLOC=pymalloc`` in the
+    environment keeps CPython's small-object allocator.
+    """
+    if _TRIM is None or "PYTHONMALLOC" in os.environ:
+        return
+    command = list(sys.orig_argv) if argv is None else argv
+    if not command:
+        return
+    os.environ["PYTHONMALLOC"] = "malloc"
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    os.execv(sys.executable, [sys.executable, *command[1:]])
 
 
 def release_free_memory() -> bool:
