@@ -1,9 +1,10 @@
 """The fleet load benchmark, small: every frame applied, every crossing robot gets its decisions.
 
 Five robots × 10 Hz × 10 features for 5 s through a real ``lessmap serve`` and two generator
-processes. Nothing here is timed: the bar is correctness under the benchmark's own plumbing
-(seq accounting on the service side, transitions that match the core run offline), so it
-holds on a loaded two-core machine.
+processes: once one instance as is, once with batch lingering and two instances on a
+``lessmap router`` (each receives exactly its own partitions' frames). Nothing here is timed:
+the bar is correctness under the benchmark's own plumbing (seq accounting on the service
+side, transitions that match the core run offline), so it holds on a loaded two-core machine.
 """
 
 from __future__ import annotations
@@ -52,13 +53,16 @@ def offline_transitions(spec: LoadSpec, spacing: float) -> dict[str, list[int]]:
     return found
 
 
-@pytest.mark.parametrize("linger_ms", [None, 5.0], ids=["no-linger", "linger-5ms"])
+@pytest.mark.parametrize(
+    ("linger_ms", "instances"), [(None, 1), (5.0, 2)], ids=["no-linger", "linger-5ms-2-instances"]
+)
 def test_small_fleet_loses_nothing_and_every_crossing_robot_gets_its_transitions(
-    linger_ms: float | None,
+    linger_ms: float | None, instances: int
 ) -> None:
     # With lingering, the shard waits for more frames after each wake-up: a different
     # batching path that must lose nothing and, deciding per frame, find the same transitions.
-    spec = dataclasses.replace(SPEC, batch_linger_ms=linger_ms)
+    # The same run splits the fleet over two instances (no extra run: the test stays short).
+    spec = dataclasses.replace(SPEC, batch_linger_ms=linger_ms, instances=instances)
     report = run_load(spec)
     summary = format_report(report)
 
@@ -76,3 +80,14 @@ def test_small_fleet_loses_nothing_and_every_crossing_robot_gets_its_transitions
     assert len(report.e2e_s) == report.transitions_received
     assert all(latency >= 0 for latency in report.e2e_s)
     assert not math.isnan(report.baseline_observe_us)
+
+    if instances > 1:
+        # Each instance received exactly its robots' frames and SessionEnds, nothing else.
+        figures = report.instance_figures
+        assert len(figures) == instances, summary
+        assert sum(f.partitions_at_start for f in figures) == 64, summary
+        for f in figures:
+            assert f.received == f.frames_offered + f.robots, summary
+            assert f.applied == f.frames_offered, summary
+            assert f.foreign == 0, summary
+        assert sum(f.frames_offered for f in figures) == report.offered, summary

@@ -42,7 +42,10 @@ class LoadSpec:
     workers: int | None = None  # service shards (None: the service default)
     max_batch_frames: int | None = None  # None: the service default (coalescing on)
     batch_linger_ms: float | None = None  # None: the service default
-    instances: int = 1  # service processes splitting the fleet (`lessmap serve --shard I/N`)
+    # Service processes sharing the fleet by partition ownership: 1 = one instance that is
+    # its own router; N > 1 = a `lessmap router` and N instances joined to it as clients.
+    instances: int = 1
+    kill_after_s: float | None = None  # kill -9 one instance this long into the load
     memory_only: bool = False  # True: `serve --memory-only` (no session checkpoints)
     baseline_robots: int = _BASELINE_ROBOTS
     speed_mps: float = 0.5  # the simulator's walking speed (its default)

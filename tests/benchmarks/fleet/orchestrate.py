@@ -2,7 +2,12 @@
 
 Processes, all on 127.0.0.1 and each stopped by its PID (SIGTERM, then kill):
 
-- the service: ``python -m lessmap serve -m router -l tcp/127.0.0.1:PORT`` with metrics;
+- one instance: ``python -m lessmap serve -m router -l tcp/127.0.0.1:PORT`` with metrics;
+  N > 1 instances: ``python -m lessmap router -l tcp/127.0.0.1:PORT`` and N times
+  ``python -m lessmap serve -m client -e tcp/127.0.0.1:PORT --instance bench-<pid>-<i>
+  --state-dir <run>/state-<i>``, sharing the fleet's 64 partitions (contract section 2a);
+  the load starts once each owns its rendezvous share. ``kill_after_s``: one instance is
+  killed with SIGKILL mid-run and its robots' take-over is timed (``takeover.py``);
 - 1-2 load generators, ``python -m tests.benchmarks.fleet.orchestrate SPEC.json``: one
   client Zenoh session each and one ``RobotPublisher`` per robot, paced in real time (robot i
   of N publishes frame k at ``t0 + k/R + i/(N R)``: phases spread evenly over the period);
@@ -39,9 +44,11 @@ from tests.benchmarks.fleet.loadgen import (
     LoadSpec,
     calibrate_spacing,
     generator_main,
+    robot_name,
     simulated_streams,
 )
 from tests.benchmarks.fleet.process import (
+    RouterProcess,
     Sampler,
     ServiceProcess,
     TransitionLog,
@@ -51,11 +58,13 @@ from tests.benchmarks.fleet.process import (
     offline_baseline,
     proc_cpu_s,
     proc_status_kib,
+    stop_all,
     stop_process,
     thread_cpu_s,
 )
 from tests.benchmarks.fleet.report import (
     KNEE_HEADER,
+    InstanceFigures,
     LoadReport,
     _json,
     format_report,
@@ -63,9 +72,12 @@ from tests.benchmarks.fleet.report import (
     knee_row,
     parse_metrics,
 )
+from tests.benchmarks.fleet.takeover import TakeoverWatch
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Callable, Iterable, Sequence
+
+    import zenoh
 
     from lessmap_client import FleetClient
 
@@ -114,6 +126,11 @@ def run_load(
     if spec.robots < 1 or spec.generators < 1 or spec.rate_hz <= 0 or spec.duration_s <= 0:
         msg = f"need robots, generators, rate and duration > 0, got {spec}"
         raise ValueError(msg)
+    if spec.kill_after_s is not None and not (
+        spec.instances >= 2 and 0 < spec.kill_after_s < spec.duration_s - 2.0
+    ):
+        msg = "a kill needs --instances >= 2 and 0 < --kill-one-after < --duration - 2"
+        raise ValueError(msg)
     spec = replace(spec, generators=min(spec.generators, spec.robots))
     spacing = calibrate_spacing(
         spec.features, seed=spec.seed, rooms=spec.rooms, rate_hz=spec.rate_hz
@@ -122,22 +139,38 @@ def run_load(
     load_before = load_average()
     with tempfile.TemporaryDirectory(prefix="lessmap-bench-") as tmp:
         work = Path(tmp)
-        service = ServiceProcess(spec, work / "serve.log")
-        # More instances split the fleet by key hash (--shard I/N); they join the first
-        # instance's router, which the generators and the fleet client use.
-        others = [
-            ServiceProcess(spec, work / f"serve-{i}.log", shard=i, connect=service.endpoint)
-            for i in range(1, spec.instances)
-        ]
-        services = [service, *others]
+        # One instance is its own router, as before. Several share the fleet by partition
+        # ownership: a plain `lessmap router`, the instances joined to it as clients (each its
+        # own name and state directory), and the generators and the fleet app on the router.
+        router = RouterProcess(work / "router.log") if spec.instances > 1 else None
+        services: list[ServiceProcess] = []
         generators: list[subprocess.Popen[bytes]] = []
         pyspy: subprocess.Popen[bytes] | None = None
+        watch: TakeoverWatch | None = None
+        figures: dict[str, InstanceFigures] = {}
         try:
+            if router is not None:
+                router.wait_ready()
+                say(f"router pid {router.pid} on {router.endpoint}")
+            connect = router.endpoint if router is not None else None
+            services = [
+                ServiceProcess(spec, work / f"serve-{i}.log", index=i, connect=connect)
+                for i in range(spec.instances)
+            ]
+            service = services[0]
             for instance in services:
                 instance.wait_ready()
-            say(f"service pid {service.pid} on {service.endpoint}")
+            owners = _wait_partitions(services, 60.0)
+            say(
+                "service pid(s) "
+                + ", ".join(
+                    f"{i.pid} ({i.instance}, {owners[i.instance]} partitions)" for i in services
+                )
+                + f" on {service.endpoint}"
+            )
             session = open_session([service.endpoint], timeout_s=30.0)
             try:
+                wire = _CheckpointTap(session) if spec.instances > 1 else None
                 with FleetClient(spec.fleet, session=session, history=0) as client:
                     transitions = TransitionLog(client)
                     transitions.start()
@@ -156,26 +189,45 @@ def run_load(
                         assert process.stdin is not None
                         process.stdin.write(f"{t0!r}\n".encode())
                         process.stdin.flush()
-                    sampler = Sampler(service.pid, [o.pid for o in others])
+                    sampler = Sampler(service.pid, [o.pid for o in services[1:]])
                     sampler.start(t0)
                     time.sleep(max(0.0, t0 - time.time()))
-                    cpu_start = _cpu(services)
+                    cpu_start = {i.pid: proc_cpu_s(i.pid) for i in services}
                     if profile is not None:
                         time.sleep(min(10.0, spec.duration_s / 4))
                         pyspy = _start_pyspy(service.pid, profile, profile_duration_s)
+                    if spec.kill_after_s is not None:
+                        watch = _kill_one(spec, services, t0, cpu_start, figures, session, say)
                     results = _wait_generators(generators, spec, work)
                     load_end = time.time()
-                    cpu_load = _cpu(services) - cpu_start
+                    alive = [i for i in services if i.process.poll() is None]
+                    cpu_load = {i.pid: proc_cpu_s(i.pid) - cpu_start[i.pid] for i in alive}
+                    cpu_load_total = sum(cpu_load.values())
+                    cpu_load_total += sum(f.cpu_load_s for f in figures.values())  # killed
                     say("load done; waiting for every session to close")
                     states, drained = _wait_closed(client, spec, 30.0 + 2 * spec.duration_s)
                     drain_s = time.time() - load_end
-                    service_cpu = _cpu(services) - cpu_start
-                    metrics = _summed(parse_metrics(i.metrics_text()) for i in services)
-                    hwm = sum(proc_status_kib(i.pid, "VmHWM") for i in services)
-                    threads_cpu = _summed(thread_cpu_s(i.pid) for i in services)
+                    service_cpu = sum(proc_cpu_s(i.pid) - cpu_start[i.pid] for i in alive)
+                    service_cpu += sum(f.cpu_load_s for f in figures.values())  # killed
+                    per_instance = {i.instance: parse_metrics(i.metrics_text()) for i in alive}
+                    metrics = _summed(per_instance.values())
+                    hwm = sum(proc_status_kib(i.pid, "VmHWM") for i in alive)
+                    threads_cpu = _summed(thread_cpu_s(i.pid) for i in alive)
                     transitions.wait_for(sum(s.transitions for s in states), 10.0)
                     transitions.stop()
                     sampler.stop()
+                    takeover = watch.finish() if watch is not None else None
+                    for i in alive:
+                        figures[i.instance] = InstanceFigures.from_metrics(
+                            per_instance[i.instance],
+                            name=i.instance,
+                            pid=i.pid,
+                            robots=0,
+                            partitions_at_start=owners[i.instance],
+                            frames_offered=0,
+                            cpu_load_s=cpu_load[i.pid],
+                        )
+                    wire_puts, wire_bytes = wire.close() if wire is not None else (0, 0)
             finally:
                 session.close()
             if pyspy is not None:
@@ -186,10 +238,12 @@ def run_load(
                 stop_process(pyspy)
             for process in generators:
                 stop_process(process)
-            for instance in reversed(services):  # the router-holding first instance last
-                code = stop_process(instance.process, 30.0)
-                if code not in (0, None):
-                    say(f"service exited with {code}: {instance.log_tail()}")
+            codes = stop_all([i.process for i in services])
+            for instance, code in zip(services, codes, strict=True):
+                if code not in (0, None, -9):
+                    say(f"service {instance.instance} exited with {code}: {instance.log_tail()}")
+            if router is not None:
+                stop_process(router.process)
     report = _build_report(
         spec,
         spacing,
@@ -201,11 +255,14 @@ def run_load(
         metrics,
         transitions.received,
         service_cpu,
-        cpu_load,
+        cpu_load_total,
         sampler.samples,
         hwm,
         threads_cpu,
     )
+    _fill_instances(report, [figures[i.instance] for i in services], results)
+    report.checkpoint_puts, report.checkpoint_bytes = wire_puts, wire_bytes
+    report.takeover = takeover.as_dict() if takeover is not None else None
     baseline_streams = simulated_streams(
         spec, 0, spacing, robots=min(spec.baseline_robots, len(spec.robots_of(0)))
     )
@@ -220,8 +277,124 @@ def run_load(
     return report
 
 
-def _cpu(services: list[ServiceProcess]) -> float:
-    return sum(proc_cpu_s(instance.pid) for instance in services)
+def _wait_partitions(services: list[ServiceProcess], timeout_s: float) -> dict[str, int]:
+    """Wait until each instance owns its rendezvous share of the 64 partitions; return it.
+
+    Generators start only then, so no robot's first frames go to a partition nobody has
+    subscribed to yet.
+    """
+    from lessmap_schemas.partition import assignment
+
+    names = [i.instance for i in services]
+    expected = {name: 0 for name in names}
+    for owner, _standby in assignment(names).values():
+        if owner is not None:
+            expected[owner] += 1
+    deadline = time.monotonic() + timeout_s
+    while True:
+        owned = {
+            i.instance: parse_metrics(i.metrics_text()).get("lessmap_partitions_owned", 0.0)
+            for i in services
+        }
+        if all(owned[name] == expected[name] for name in names):
+            return expected
+        if time.monotonic() > deadline:
+            msg = f"partitions owned {owned}, expected {expected}"
+            raise RuntimeError(msg)
+        time.sleep(0.2)
+
+
+class _CheckpointTap:
+    """Counts the checkpoints the owners put for their standbys, and their bytes."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        from lessmap_schemas import keys
+
+        self.puts = 0
+        self.bytes = 0
+        self._sub = session.declare_subscriber(keys.checkpoints(), self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self.puts += 1
+        self.bytes += len(sample.payload)
+
+    def close(self) -> tuple[int, int]:
+        self._sub.undeclare()
+        return self.puts, self.bytes
+
+
+def _kill_one(
+    spec: LoadSpec,
+    services: list[ServiceProcess],
+    t0: float,
+    cpu_start: dict[int, float],
+    figures: dict[str, InstanceFigures],
+    session: zenoh.Session,
+    say: Callable[[str], None],
+) -> TakeoverWatch:
+    """At ``t0 + kill_after_s``, kill -9 the first instance; watch its robots move."""
+    from lessmap_schemas.partition import assignment, partition_of
+
+    assert spec.kill_after_s is not None
+    victim, survivors = services[0], services[1:]
+    owners = assignment([i.instance for i in services])
+    lost = {p for p, (owner, _) in owners.items() if owner == victim.instance}
+    period = 1.0 / spec.rate_hz
+    time.sleep(max(0.0, t0 + spec.kill_after_s - time.time()))
+    metrics = parse_metrics(victim.metrics_text())
+    cpu = proc_cpu_s(victim.pid) - cpu_start[victim.pid]
+    killed_at = victim.kill9()
+    figures[victim.instance] = InstanceFigures.from_metrics(
+        metrics,
+        name=victim.instance,
+        pid=victim.pid,
+        robots=0,
+        partitions_at_start=len(lost),
+        frames_offered=0,
+        cpu_load_s=cpu,
+        killed=True,
+    )
+    # The last frame each moved robot had published at the kill, from the schedule
+    # (robot i publishes frame k at t0 + k/R + i/(N R)).
+    moved: dict[str, int] = {}
+    for index in range(spec.robots):
+        name = robot_name(index)
+        if partition_of(spec.fleet, name) in lost:
+            due = (killed_at - t0 - index * period / spec.robots) / period
+            moved[name] = min(spec.frames_per_robot - 1, math.floor(due))
+    say(
+        f"killed {victim.instance} (pid {victim.pid}) with SIGKILL: {len(moved)} robots on "
+        f"{len(lost)} partitions move"
+    )
+    watch = TakeoverWatch(
+        session,
+        spec.fleet,
+        moved,
+        victim,
+        survivors,
+        killed_at,
+        len(lost),
+        timeout_s=max(10.0, spec.duration_s - spec.kill_after_s + 10.0),
+    )
+    watch.start()
+    return watch
+
+
+def _fill_instances(
+    report: LoadReport, figures: list[InstanceFigures], results: list[dict[str, Any]]
+) -> None:
+    """Give each instance the robots it owned at the start and the frames they offered."""
+    from lessmap_schemas.partition import assignment, partition_of
+
+    owners = assignment([f.name for f in figures])
+    by_name = {f.name: f for f in figures}
+    for result in results:
+        for robot, times in zip(result["robots"], result["published_s"], strict=True):
+            owner = owners[partition_of(report.spec.fleet, robot)][0]
+            if owner in by_name:
+                by_name[owner].robots += 1
+                by_name[owner].frames_offered += len(times)
+    report.instance_figures = figures
 
 
 def _summed(parts: Iterable[dict[str, float]]) -> dict[str, float]:
@@ -368,7 +541,9 @@ def _build_report(
         transitions_by_robot=by_robot,
     )
     counted = metrics.get("lessmap_frames_applied_total", 0.0)
-    if counted != report.applied:
+    # After a kill the new owner applies again what the victim applied after its last
+    # checkpoint, and the victim's counter is gone: the two sums differ by design.
+    if counted != report.applied and spec.kill_after_s is None:
         report.notes.append(
             f"lessmap_frames_applied_total {counted:.0f} != states {report.applied}"
         )
@@ -424,7 +599,16 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         "--instances",
         type=int,
         default=1,
-        help="service processes splitting the fleet with --shard I/N (default 1)",
+        help="service instances (default 1: one instance, its own router); N > 1: a "
+        "`lessmap router` and N instances joined to it as clients, sharing the fleet's 64 "
+        "partitions; the report gives each instance's frames received next to its robots'",
+    )
+    parser.add_argument(
+        "--kill-one-after",
+        type=float,
+        metavar="S",
+        help="with --instances >= 2: kill -9 one instance S seconds into the load and report "
+        "how long until each of its robots is served by a survivor, and the frames lost",
     )
     parser.add_argument(
         "--max-batch-frames",
@@ -486,6 +670,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         rooms=args.rooms,
         workers=args.workers,
         instances=args.instances,
+        kill_after_s=args.kill_one_after,
         max_batch_frames=args.max_batch_frames,
         batch_linger_ms=args.batch_linger_ms,
         memory_only=args.memory_only,

@@ -98,24 +98,66 @@ def load_average() -> tuple[float, float, float]:
     return float(one), float(five), float(fifteen)
 
 
+class RouterProcess:
+    """``python -m lessmap router`` on a fresh loopback port (no service in it)."""
+
+    def __init__(self, log_path: Path) -> None:
+        self.port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.log_path = log_path
+        args = [sys.executable, "-m", "lessmap", "router", "-l", self.endpoint]
+        with log_path.open("wb") as log:
+            self.process = subprocess.Popen(args, stdout=log, stderr=log)
+
+    @property
+    def pid(self) -> int:
+        """The router's PID."""
+        return self.process.pid
+
+    def wait_ready(self, timeout_s: float = 30.0) -> None:
+        """Wait until the router accepts TCP connections on its port."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.process.poll() is not None:
+                msg = f"lessmap router exited with {self.process.returncode}: {self.log_tail()}"
+                raise RuntimeError(msg)
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=1.0):
+                    return
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+
+    def log_tail(self, lines: int = 20) -> str:
+        """The last lines the router logged."""
+        text = self.log_path.read_text(encoding="utf-8", errors="replace")
+        return "\n".join(text.splitlines()[-lines:])
+
+
 class ServiceProcess:
-    """``python -m lessmap serve`` as a router on a fresh loopback port, with metrics."""
+    """``python -m lessmap serve`` with metrics, on loopback.
+
+    Alone (``connect`` None) it is its own router on a fresh port, as in a one-instance
+    deployment. Joined (``connect`` a router's endpoint) it is a Zenoh client of that
+    router, as the instances of a multi-instance site are. Either way it has its own
+    instance name (``bench-<our pid>-<index>``) and its own state directory.
+    """
 
     def __init__(
-        self, spec: LoadSpec, log_path: Path, shard: int = 0, connect: str | None = None
+        self, spec: LoadSpec, log_path: Path, index: int = 0, connect: str | None = None
     ) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.index = index
         self.metrics_port = free_port()
-        self.instance = f"bench-{os.getpid()}-{shard}"
-        args = [
-            sys.executable,
-            "-m",
-            "lessmap",
-            "serve",
-            "-m",
-            "router",
-            "-l",
-            self.endpoint,
+        self.instance = f"bench-{os.getpid()}-{index}"
+        args = [sys.executable, "-m", "lessmap", "serve"]
+        if connect is None:
+            self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+            args += ["-m", "router", "-l", self.endpoint]
+        else:
+            self.endpoint = connect  # where robots and apps reach this instance
+            args += ["-m", "client", "-e", connect]
+        args += [
             "--cfg",
             "scouting/multicast/enabled:false",
             "--metrics-port",
@@ -129,16 +171,12 @@ class ServiceProcess:
             args += ["--max-batch-frames", str(spec.max_batch_frames)]
         if spec.batch_linger_ms is not None:
             args += ["--batch-linger-ms", str(spec.batch_linger_ms)]
-        if spec.instances > 1:
-            args += ["--shard", f"{shard}/{spec.instances}"]
-        # Checkpoints go to the run's own folder, never to the user's state directory.
+        # Checkpoints go to the run's own folder (one per instance), never to the user's.
         args += (
             ["--memory-only"]
             if spec.memory_only
-            else ["--state-dir", str(log_path.parent / f"state-{shard}")]
+            else ["--state-dir", str(log_path.parent / f"state-{index}")]
         )
-        if connect is not None:
-            args += ["-e", connect]  # a router joining the first instance's router
         self.log_path = log_path
         with log_path.open("wb") as log:
             self.process = subprocess.Popen(args, stdout=log, stderr=log)
@@ -170,10 +208,38 @@ class ServiceProcess:
                     raise
                 time.sleep(0.1)
 
+    def kill9(self) -> float:
+        """SIGKILL the service by its PID (no hand-over, no final checkpoint); return when."""
+        self.process.send_signal(signal.SIGKILL)
+        at = time.time()
+        self.process.wait(10)
+        return at
+
     def log_tail(self, lines: int = 20) -> str:
         """The last lines the service logged."""
         text = self.log_path.read_text(encoding="utf-8", errors="replace")
         return "\n".join(text.splitlines()[-lines:])
+
+
+def stop_all(processes: list[subprocess.Popen[bytes]], timeout_s: float = 30.0) -> list[int | None]:
+    """SIGTERM every process still running at once, then wait for each (kill after the timeout).
+
+    Instances stopped one by one would hand their partitions to each other in turn. Each
+    gets one SIGTERM only: a second one during its shutdown would end it with -15.
+    """
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
+    codes: list[int | None] = []
+    for process in processes:
+        try:
+            process.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(10)
+        codes.append(stop_process(process))  # closes the pipes; the process has exited
+    return codes
 
 
 @dataclass(slots=True)
@@ -194,16 +260,14 @@ class Sampler:
         self._thread.start()
 
     def _run(self) -> None:
+        last_cpu: dict[int, float] = {}  # a process killed mid-run keeps its last CPU reading
         while not self._stop.wait(_SAMPLE_PERIOD_S):
-            with contextlib.suppress(OSError, ValueError):
-                pids = [self.pid, *self.extra_pids]
-                self.samples.append(
-                    (
-                        time.time() - self.t0,
-                        sum(proc_status_kib(pid, "VmRSS") for pid in pids),
-                        sum(proc_cpu_s(pid) for pid in pids),
-                    )
-                )
+            rss = 0
+            for pid in [self.pid, *self.extra_pids]:
+                with contextlib.suppress(OSError, ValueError):
+                    rss += proc_status_kib(pid, "VmRSS")
+                    last_cpu[pid] = proc_cpu_s(pid)
+            self.samples.append((time.time() - self.t0, rss, sum(last_cpu.values())))
 
     def stop(self) -> None:
         """Stop sampling."""
