@@ -25,7 +25,7 @@ from lessmap.frames_file import read_frames
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode
-from lessmap_schemas.messages import Health, Transition
+from lessmap_schemas.messages import Health, SessionState, Transition
 from lessmap_schemas.partition import PARTITIONS, owner_and_standby, partition_of
 from tests.conftest import dataset, free_port, wait_until
 from tests.service.test_serve_e2e import as_record, offline_transitions
@@ -146,9 +146,7 @@ def covered(session: zenoh.Session, instances: set[str]) -> bool:
     for h in answers.values():
         for p in h.partitions:
             owners.setdefault(p, []).append(h.instance)
-    return all(
-        owners.get(p) == [owner_and_standby(p, instances)[0]] for p in range(PARTITIONS)
-    )
+    return all(owners.get(p) == [owner_and_standby(p, instances)[0]] for p in range(PARTITIONS))
 
 
 def compare(expected: dict[str, list[dict[str, Any]]], got: list[Transition]) -> list[str]:
@@ -219,6 +217,22 @@ def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> 
         killed_at = time.monotonic()
         instances[victim].process.wait(10)
         survivors = set(names) - {victim}
+        served_again: dict[str, float] = {}
+
+        def all_served_again() -> bool:
+            # A robot is served again when a survivor answers for it with frames applied.
+            for robot in robots_moved:
+                if robot in served_again:
+                    continue
+                for reply in session.get(keys.state(FLEET, robot), timeout=1.0):
+                    if reply.ok is None:
+                        continue
+                    state = decode(reply.ok.payload.to_bytes(), SessionState)
+                    if state.instance in survivors and state.frames_applied > 0:
+                        served_again[robot] = time.monotonic() - killed_at
+            return len(served_again) == len(robots_moved)
+
+        wait_until(all_served_again, 30.0, "every robot of the killed instance served again")
         wait_until(lambda: covered(session, survivors), 30.0, "the survivors to take over")
         takeover_s = time.monotonic() - killed_at
         # A fourth instance joins while the replay goes on: partitions rebalance.
@@ -230,8 +244,9 @@ def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> 
         code = replay.process.wait(300)
         time.sleep(1.0)  # the last transitions on their way
         print(  # noqa: T201 - the figure for docs/BENCHMARKS.md
-            f"killed {victim} (robots {robots_moved}); all 64 partitions owned again "
-            f"after {takeover_s:.2f} s (Health polled)"
+            f"killed {victim} (robots {robots_moved}); served again after "
+            + ", ".join(f"{r}: {served_again[r]:.2f} s" for r in robots_moved)
+            + f"; all 64 partitions owned again after {takeover_s:.2f} s (Health polled)"
         )
         summary = replay_summary(replay)
         assert code == 0, (summary, [p.log()[-2000:] for p in site.procs])
@@ -279,5 +294,35 @@ def test_an_owner_frozen_past_its_lease_publishes_nothing_stale(site: Site) -> N
         assert code == 0, (summary, [p.log()[-2000:] for p in site.procs])
         assert compare(expected, [t for _, t in bus.got]) == []
         assert "session resumed from the state store" in instances[other].log()
+    finally:
+        session.close()
+
+
+def test_frames_sent_while_no_instance_runs_are_applied_when_one_starts(site: Site) -> None:
+    from lessmap_client import RobotPublisher
+
+    frames = list(read_frames(dataset("dlr.frames.jsonl")))[:30]
+    session = open_session([site.endpoint], timeout_s=20.0)
+    try:
+        robot = RobotPublisher(FLEET, "early", session=session)
+        assert not robot.wait_for_service(0.5)  # nobody serves its partition yet
+        for frame in frames:
+            robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+        # The robot falls silent; then an instance starts and takes every partition.
+        instance = site.instance("inst-late")
+        wait_until(lambda: covered(session, {"inst-late"}), 60.0, "the instance to start")
+
+        def applied() -> int:
+            for reply in session.get(keys.state(FLEET, "early"), timeout=1.0):
+                if reply.ok is not None:
+                    return decode(reply.ok.payload.to_bytes(), SessionState).frames_applied
+            return -1
+
+        wait_until(lambda: applied() == len(frames), 30.0, "the early frames to be applied")
+        state = robot.state()
+        assert state is not None
+        assert (state.frames_missing, state.frames_duplicate, state.frames_rejected) == (0, 0, 0)
+        assert "recovered from the robot's cache" in instance.log()
+        robot.close()
     finally:
         session.close()

@@ -17,7 +17,6 @@ unsubscribe, checkpoint and drop its sessions.
 
 from __future__ import annotations
 
-import functools
 import logging
 import queue
 import threading
@@ -35,7 +34,7 @@ from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.ownership import Change, Ownership
 from lessmap.runtime.sessions import SessionTable
-from lessmap.runtime.shard import CATCHUP_DONE, RECOVERED, Inbound, Shard
+from lessmap.runtime.shard import CATCHUP_DONE, PROBE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
 from lessmap.runtime.zenoh_config import service_config
 from lessmap.settings import EMBEDDED_ENDPOINT
@@ -59,9 +58,6 @@ _QUIET_S = 0.3  # no sample for this long: the inbound path has settled
 _HEARTBEAT_S = 0.1  # freeze detection (fence_after_s is far above it)
 _LEAVE_CONFIRM_S = 0.25  # a token that went is checked again this much later
 _CHECKPOINT_ENCODING = zenoh.Encoding("application/octet-stream")
-
-partition_cached = functools.lru_cache(maxsize=1 << 16)(partition_of)
-"""``partition_of`` with a memory: the checkpoint queries filter every stored robot by it."""
 
 
 class Service:
@@ -475,13 +471,13 @@ class Service:
         wanted = int(chunks[4]) if len(chunks) > 4 and chunks[4].isdigit() else None
 
         def asked(fleet: str, robot: str) -> bool:
-            p = partition_cached(fleet, robot)
+            p = partition_of(fleet, robot)
             if wanted is not None and p != wanted:
                 return False
             return selector.intersects(zenoh.KeyExpr(keys.checkpoints(p, fleet, robot)))
 
         for record in self.store.records_where(asked):
-            key = keys.checkpoints(partition_cached(record.fleet, record.robot), *record.key)
+            key = keys.checkpoints(partition_of(record.fleet, record.robot), *record.key)
             query.reply(key, record.to_bytes(), encoding=_CHECKPOINT_ENCODING)
 
     # -- ownership ---------------------------------------------------------------------------
@@ -599,7 +595,7 @@ class Service:
         for shard in self._shards:
             with shard.lock:
                 out = shard.table.hand_over(
-                    lambda fleet, robot: partition_cached(fleet, robot) in leaving, now
+                    lambda fleet, robot: partition_of(fleet, robot) in leaving, now
                 )
             dropped += out.evicted
             if self._outbox is not None:
@@ -624,6 +620,8 @@ class Service:
                 self._frame_subs[p] = session.declare_subscriber(
                     keys.frames_of_partition(p), self._on_sample
                 )
+        for p in partitions:
+            self._probe_caches(p)
         self.metrics.partition_moves.labels(direction="in").inc(len(partitions))
         log.info(
             "took %d partition(s) in %.0f ms (%d checkpoint(s) from other instances): %s",
@@ -632,6 +630,44 @@ class Service:
             fetched,
             _ranges(partitions),
         )
+
+    def _probe_caches(self, partition: int) -> None:
+        """Ask the robots' caches of a partition just taken for their newest frame each.
+
+        A robot that sent frames while no instance was subscribed to its partition (before
+        the first owner subscribed, or between an owner's death and the take-over) and then
+        fell silent would otherwise wait for its next frame. Each cache answers with its
+        newest frame (``_max=1``), which the shard applies like a live one only if the table
+        does not know it (``SessionTable.is_news``): a session ahead of its checkpoint, or
+        unknown, then resumes and catches up as after a gap; a frame already seen is dropped
+        uncounted (it was counted when it arrived). Callbacks only enqueue.
+        """
+        session = self._session
+        if session is None or self.store.path is None:
+            return  # memory-only: no catch-up (gaps are reported at once)
+        suffix = f"/frames/{partition}"
+        max_payload = self.settings.limits.max_payload_bytes
+
+        def on_reply(reply: zenoh.Reply) -> None:  # Zenoh's thread: enqueue only
+            sample = reply.ok
+            if sample is None or len(sample.payload) > max_payload:
+                return
+            key = str(sample.key_expr)
+            if key.endswith(suffix) and "@" not in key:
+                item = Inbound(time.monotonic(), key, sample.payload.to_bytes(), PROBE)
+                self._shard_of(key).offer(item)
+
+        try:
+            session.get(
+                f"{keys.frames_of_partition(partition)}/@adv/**?_max=1",
+                zenoh.handlers.Callback(on_reply, lambda: None),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                accept_replies=zenoh.ReplyKeyExpr.ANY,
+                timeout=self.settings.catchup_wait_s,
+            )
+        except zenoh.ZError as exc:
+            log.warning("probe of the robots' caches of partition %d failed: %s", partition, exc)
 
     def _fetch_checkpoints(self, partitions: Sequence[int]) -> int:
         """Ask every instance for the partitions' checkpoints; keep the newest per robot."""
@@ -706,7 +742,7 @@ class Service:
         if session is None or len(self.ownership.live) < 2:
             return  # alone: nobody to ship to
         for record in records:
-            p = partition_cached(record.fleet, record.robot)
+            p = partition_of(record.fleet, record.robot)
             if self.ownership.epoch_of(p) is None:
                 continue  # not ours (a replica, or handed over)
             try:

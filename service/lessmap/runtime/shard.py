@@ -62,6 +62,7 @@ _IDLE_SWEEP_S = 1.0
 LIVE = 0  # a sample of the frames subscriber
 RECOVERED = 1  # a reply of a robot's publication cache to a catch-up query
 CATCHUP_DONE = 2  # the end of a catch-up query; the payload is the session id (UTF-8)
+PROBE = 3  # a robot cache's newest frame, asked when a partition is taken: applied if news
 
 
 @dataclass(frozen=True, slots=True)
@@ -412,6 +413,11 @@ class Shard:
         items = [item for item, _message, _cost in plan]
         try:
             for item, message, _cost in plan:
+                if item.kind == PROBE:
+                    news = self._news(fleet, robot, item)
+                    if news is not None:
+                        live.append((fleet, robot, news))
+                    continue
                 if item.kind != LIVE:
                     if live:
                         self._apply(live, now, decide_every)
@@ -448,6 +454,15 @@ class Shard:
         for item in items:
             if item.kind == LIVE:
                 frame_latency.observe(done - item.received_s)
+
+    def _news(self, fleet: str, robot: str, item: Inbound) -> Frame | SessionEnd | None:
+        """A probed message, if it decodes and the table does not know it yet."""
+        try:
+            message = decode_inbound(item.payload, self._limits)
+        except WireError:
+            return None  # refused when it first arrived, if it did
+        with self.lock:
+            return message if self.table.is_news(fleet, robot, message) else None
 
     def _apply(
         self, live: list[tuple[str, str, Frame | SessionEnd]], now: float, decide_every: int | None
