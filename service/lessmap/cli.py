@@ -157,6 +157,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser, run = command_parser(top.command)
     args = parser.parse_args(top.arguments)
     args.command, args.verbose, args.log_format = top.command, top.verbose, top.log_format
+    # The command line of this process (not a call from Python code, e.g. a test): a daemon
+    # may then restart itself with other allocator settings (``serve``).
+    args.own_process = argv is None
     # A daemon reports its lifecycle (INFO) by default; one-shot tools only warnings.
     base = logging.INFO if args.command in ("serve", "router") else logging.WARNING
     configure_logging(max(logging.DEBUG, base - 10 * args.verbose), args.log_format)

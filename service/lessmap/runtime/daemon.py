@@ -44,11 +44,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap serve`` with the settings its flags, environment and file give."""
-    # First, before any thread or socket: CPython's objects on glibc's malloc (a restart of
-    # this process, same PID), so evicted sessions' memory can go back to the system.
-    use_system_malloc()
     specs: list[FlagSpec] = args.settings_flags
     settings = settings_from_args(args, specs)
+    if getattr(args, "own_process", False):
+        # Before any thread or socket: CPython's objects on glibc's malloc (a restart of this
+        # process, same PID), so evicted sessions' memory can go back to the system. Only
+        # when this process is the command (never replace a Python program that called us).
+        use_system_malloc()
     return serve(settings, args.cfg or ())
 
 
