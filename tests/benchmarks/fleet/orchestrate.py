@@ -193,6 +193,7 @@ def run_load(
                     sampler.start(t0)
                     time.sleep(max(0.0, t0 - time.time()))
                     cpu_start = {i.pid: proc_cpu_s(i.pid) for i in services}
+                    router_start = proc_cpu_s(router.pid) if router is not None else math.nan
                     if profile is not None:
                         time.sleep(min(10.0, spec.duration_s / 4))
                         pyspy = _start_pyspy(service.pid, profile, profile_duration_s)
@@ -204,6 +205,7 @@ def run_load(
                     cpu_load = {i.pid: proc_cpu_s(i.pid) - cpu_start[i.pid] for i in alive}
                     cpu_load_total = sum(cpu_load.values())
                     cpu_load_total += sum(f.cpu_load_s for f in figures.values())  # killed
+                    router_cpu = proc_cpu_s(router.pid) - router_start if router else math.nan
                     say("load done; waiting for every session to close")
                     states, drained = _wait_closed(client, spec, 30.0 + 2 * spec.duration_s)
                     drain_s = time.time() - load_end
@@ -263,6 +265,7 @@ def run_load(
     _fill_instances(report, [figures[i.instance] for i in services], results)
     report.checkpoint_puts, report.checkpoint_bytes = wire_puts, wire_bytes
     report.takeover = takeover.as_dict() if takeover is not None else None
+    report.router_cpu_load_s = router_cpu
     baseline_streams = simulated_streams(
         spec, 0, spacing, robots=min(spec.baseline_robots, len(spec.robots_of(0)))
     )

@@ -175,6 +175,7 @@ class LoadReport:
     checkpoint_puts: int = 0  # checkpoints seen on lessmap/v2/@/checkpoints/** (N > 1)
     checkpoint_bytes: int = 0  # their payload bytes
     takeover: dict[str, Any] | None = None  # TakeoverResult.as_dict() of a kill run
+    router_cpu_load_s: float = math.nan  # the `lessmap router` (N > 1) while generators ran
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -309,13 +310,19 @@ class LoadReport:
                 else math.nan,
             },
             "takeover": self.takeover,
+            "router_cpu_during_load_s": self.router_cpu_load_s,
             "passes": self.passes(),
             "notes": self.notes,
         }
 
 
 def _histogram_dict(h: Histogram) -> dict[str, float]:
-    return {"p50_le": h.quantile(0.5), "p99_le": h.quantile(0.99), "mean": h.mean, "count": h.count}
+    return {
+        "p50_le": h.quantile(0.5),
+        "p99_le": h.quantile(0.99),
+        "mean": h.mean,
+        "count": h.count,
+    }
 
 
 def _ms(seconds: float, *, bound: bool = False) -> str:
@@ -439,6 +446,11 @@ def _instance_lines(r: LoadReport) -> list[str]:
         f"({received / expected:.4f}×), foreign {foreign:.0f}"
         + ("" if r.takeover is None else " (a kill run: catch-up replies are not 'received')")
     )
+    lines.append(
+        f"  router: CPU {r.router_cpu_load_s:.1f} s during the load "
+        f"({100 * r.router_cpu_load_s / r.spec.duration_s:.0f} % of one core), "
+        f"{1e6 * r.router_cpu_load_s / max(1, r.offered):.0f} µs per frame offered"
+    )
     if r.checkpoint_puts:
         lines.append(
             f"  checkpoints on the wire (lessmap/v2/@/checkpoints/**, seen by the benchmark): "
@@ -510,7 +522,11 @@ def summarize_profile(raw: str, top: int = 25) -> str:
             inclusive[frame] = inclusive.get(frame, 0.0) + count
     if not total:
         return "no samples\n"
-    lines = [f"{total:.0f} samples of the service thread holding the GIL", "", "by thread:"]
+    lines = [
+        f"{total:.0f} samples of the service thread holding the GIL",
+        "",
+        "by thread:",
+    ]
     lines += [f"  {100 * n / total:5.1f} %  {name}" for name, n in _top(threads, top)]
     lines += ["", "self time (the function itself):"]
     lines += [f"  {100 * n / total:5.1f} %  {name}" for name, n in _top(own, top)]
