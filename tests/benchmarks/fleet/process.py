@@ -92,6 +92,27 @@ def proc_status_kib(pid: int, key: str) -> int:
     return 0
 
 
+def socket_bytes(port: int) -> tuple[int, int]:
+    """Bytes received and sent on the TCP connections whose local port is ``port`` (``ss``).
+
+    For a router: everything its clients sent it, and everything it forwarded. Connections
+    closed since (a killed instance) drop out of the sum. (0, 0) without ``ss``.
+    """
+    exe = shutil.which("ss")
+    if exe is None:
+        return 0, 0
+    out = subprocess.run(
+        [exe, "-tinH", "state", "established", f"( sport = :{port} )"],
+        capture_output=True,
+        text=True,
+        timeout=10,
+        check=False,
+    ).stdout
+    received = sum(int(v) for v in re.findall(r"\bbytes_received:(\d+)", out))
+    sent = sum(int(v) for v in re.findall(r"\bbytes_sent:(\d+)", out))
+    return received, sent
+
+
 def load_average() -> tuple[float, float, float]:
     """The 1, 5 and 15 minute load averages."""
     one, five, fifteen = Path("/proc/loadavg").read_text().split()[:3]

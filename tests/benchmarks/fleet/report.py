@@ -176,6 +176,8 @@ class LoadReport:
     checkpoint_bytes: int = 0  # their payload bytes
     takeover: dict[str, Any] | None = None  # TakeoverResult.as_dict() of a kill run
     router_cpu_load_s: float = math.nan  # the `lessmap router` (N > 1) while generators ran
+    router_bytes_in: int = 0  # bytes the router received during the load (ss), N > 1
+    router_bytes_out: int = 0  # bytes it sent
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -311,6 +313,7 @@ class LoadReport:
             },
             "takeover": self.takeover,
             "router_cpu_during_load_s": self.router_cpu_load_s,
+            "router_bytes_during_load": {"in": self.router_bytes_in, "out": self.router_bytes_out},
             "passes": self.passes(),
             "notes": self.notes,
         }
@@ -449,7 +452,11 @@ def _instance_lines(r: LoadReport) -> list[str]:
     lines.append(
         f"  router: CPU {r.router_cpu_load_s:.1f} s during the load "
         f"({100 * r.router_cpu_load_s / r.spec.duration_s:.0f} % of one core), "
-        f"{1e6 * r.router_cpu_load_s / max(1, r.offered):.0f} µs per frame offered"
+        f"{1e6 * r.router_cpu_load_s / max(1, r.offered):.0f} µs per frame offered; "
+        f"TCP bytes in {r.router_bytes_in / 1e6:.1f} MB / out {r.router_bytes_out / 1e6:.1f} MB "
+        f"({r.router_bytes_in / max(1, r.offered):.0f} / "
+        f"{r.router_bytes_out / max(1, r.offered):.0f} bytes per frame offered: frames, "
+        "checkpoints, transitions, queries)"
     )
     if r.checkpoint_puts:
         lines.append(
