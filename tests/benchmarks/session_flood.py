@@ -55,6 +55,8 @@ VARIANTS: dict[str, dict[str, str]] = {
 WARM_ROBOTS = 200
 _ARENA_KIB = 65536  # a glibc per-thread arena reserves HEAP_MAX_SIZE (64 MiB) of addresses
 
+BLOCK = zenoh.CongestionControl.BLOCK  # a burst of puts must not be dropped at the sender
+
 
 def memory_map(pid: int) -> dict[str, int]:
     """Resident KiB of a process by kind of mapping (/proc/PID/smaps).
@@ -125,7 +127,7 @@ def new_robot_wait_s(
     """
     key = keys.state(fleet, robot)
     start = time.monotonic()
-    session.put(keys.frames(fleet, robot), frame)
+    session.put(keys.frames(fleet, robot), frame, congestion_control=BLOCK)
     while time.monotonic() - start < timeout_s:
         for reply in session.get(key, timeout=2.0):
             if reply.ok is not None:
@@ -174,7 +176,7 @@ def run(variant: str, robots: int, settle_s: float, workdir: Path) -> dict[str, 
             raise RuntimeError(msg)
         time.sleep(0.5)  # the frames subscription reaches the client's routing
         for robot in range(WARM_ROBOTS):
-            session.put(keys.frames(fleet, f"warm{robot}"), _frame(robot))
+            session.put(keys.frames(fleet, f"warm{robot}"), _frame(robot), congestion_control=BLOCK)
         evicted = "lessmap_sessions_evicted_total"
         _wait(lambda: metric(evicted) >= WARM_ROBOTS, 60.0, "the warm-up evicted")
         time.sleep(settle_s)
@@ -188,7 +190,7 @@ def run(variant: str, robots: int, settle_s: float, workdir: Path) -> dict[str, 
 
         flood_start = time.monotonic()
         for robot in range(robots):
-            session.put(keys.frames(fleet, f"r{robot}"), _frame(robot))
+            session.put(keys.frames(fleet, f"r{robot}"), _frame(robot), congestion_control=BLOCK)
             if robot % 500 == 0:
                 sample()
         total = WARM_ROBOTS + robots

@@ -18,6 +18,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import pytest
+import zenoh
 
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
@@ -28,11 +29,11 @@ from tests.conftest import ServeProcess, metric_value, wait_until
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    import zenoh
-
 pytestmark = pytest.mark.timeout(300)
 
 ROBOTS = 10_000
+
+BLOCK = zenoh.CongestionControl.BLOCK  # a burst of puts must not be dropped at the sender
 
 
 def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
@@ -58,7 +59,9 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
 
     # Warm the interpreter with a first wave (allocator arenas, codec caches), then measure.
     for robot in range(200):
-        session.put(keys.frames(fleet_name, f"warm{robot}"), frame_of(robot, 0))
+        session.put(
+            keys.frames(fleet_name, f"warm{robot}"), frame_of(robot, 0), congestion_control=BLOCK
+        )
     wait_until(
         lambda: metric_value(service.metrics(), "lessmap_sessions_evicted_total") >= 200,
         60.0,
@@ -68,7 +71,11 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
 
     def wave(prefix: str, opened: int) -> tuple[int, int]:
         for robot in range(ROBOTS):
-            session.put(keys.frames(fleet_name, f"{prefix}{robot}"), frame_of(robot, 0))
+            session.put(
+                keys.frames(fleet_name, f"{prefix}{robot}"),
+                frame_of(robot, 0),
+                congestion_control=BLOCK,
+            )
         wait_until(
             lambda: metric_value(service.metrics(), "lessmap_sessions_opened_total") >= opened,
             120.0,
@@ -97,7 +104,7 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     assert first_after - before_kib <= 0.75 * (first_peak - before_kib)
 
     # An evicted robot speaks again: its session resumes where it stopped.
-    session.put(keys.frames(fleet_name, "r7"), frame_of(7, 1))
+    session.put(keys.frames(fleet_name, "r7"), frame_of(7, 1), congestion_control=BLOCK)
     wait_until(
         lambda: metric_value(service.metrics(), "lessmap_sessions_resumed_total") >= 1,
         30.0,

@@ -111,6 +111,11 @@ def use_system_malloc(argv: list[str] | None = None) -> None:
     os.execv(sys.executable, [sys.executable, *command[1:]])
 
 
+def trim_heap() -> bool:
+    """Return free heap pages to the OS (glibc ``malloc_trim``), without a collection."""
+    return _TRIM is not None and bool(_TRIM(0))
+
+
 def release_free_memory() -> bool:
     """Collect garbage, then return freed heap pages to the OS; True when trimmed.
 

@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 
 import msgpack
 
+from lessmap.runtime.memory import trim_heap
+
 if TYPE_CHECKING:
     from collections.abc import Callable
     from pathlib import Path
@@ -42,6 +44,7 @@ LOCK_FILE = "instance.lock"
 _SCHEMA_VERSION = 2  # 2: records carry the partition epoch (wire contract v2)
 _PRUNE_EVERY_S = 30.0
 _WIRE_VERSION = 1  # of a record shipped between instances (SessionRecord.to_bytes)
+_TRIM_AFTER_RECORDS = 64  # a batch this large (an eviction wave) is followed by a heap trim
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -379,7 +382,12 @@ class CheckpointStore:
                         log.exception("state store: shipping checkpoints failed")
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
+            large = len(batch) >= _TRIM_AFTER_RECORDS
             del batch
+            if large:
+                # The shards trim after an eviction sweep, but the evicted snapshots are
+                # freed here, later: without this trim their pages stayed with the process.
+                trim_heap()
             with self._cond:
                 self._in_flight = False
                 self._cond.notify_all()  # flush() waiters
