@@ -279,6 +279,30 @@ def test_client_service_config_follows_the_settings() -> None:
     assert EMBEDDED_ENDPOINT not in str(conf)
 
 
+@pytest.mark.parametrize(
+    ("mode", "listen"),
+    [("peer", ["tcp/127.0.0.1:0"]), ("router", ["tcp/127.0.0.1:7447"])],
+)
+def test_peers_and_routers_stay_on_this_machine_unless_told(mode: str, listen: list[str]) -> None:
+    conf = service_config(load_settings(mode=mode, connect=("tcp/127.0.0.1:7448",)))
+    assert json_at(conf, "scouting/multicast/enabled") is False
+    assert json_at(conf, "listen/endpoints") == listen  # not Zenoh's "every interface"
+
+
+def test_a_config_that_asks_for_scouting_and_interfaces_gets_them(tmp_path: Path) -> None:
+    path = tmp_path / "zenoh.json5"
+    path.write_text(
+        '{ mode: "peer", scouting: { multicast: { enabled: true } },'
+        ' listen: { endpoints: ["tcp/0.0.0.0:7451"] } }',
+        encoding="utf-8",
+    )
+    conf = service_config(load_settings(zenoh_config=path))
+    assert json_at(conf, "scouting/multicast/enabled") is True
+    assert json_at(conf, "listen/endpoints") == ["tcp/0.0.0.0:7451"]
+    override = service_config(load_settings(mode="peer"), ["scouting/multicast/enabled:true"])
+    assert json_at(override, "scouting/multicast/enabled") is True
+
+
 def test_service_config_from_a_zenoh_file(tmp_path: Path) -> None:
     path = tmp_path / "zenoh.json5"
     path.write_text(

@@ -56,7 +56,29 @@ def service_config(settings: ServiceSettings, extra: Sequence[str] = ()) -> zeno
                 msg = f"--cfg expects KEY:VALUE, got {item!r}"
                 raise ConfigError(msg)
             conf.insert_json5(key, value)
+        _safe_defaults(conf)
     except zenoh.ZError as exc:
         msg = f"invalid Zenoh configuration: {exc}"
         raise ConfigError(msg) from exc
     return conf
+
+
+# Zenoh's own defaults where neither a flag, the file nor --cfg chose: the values a config
+# leaves at null (mode-dependent) or at Zenoh's built-in listen endpoints.
+_ZENOH_DEFAULT_LISTEN = zenoh.Config().get_json("listen/endpoints")
+_LOOPBACK_LISTEN = {"router": "tcp/127.0.0.1:7447", "peer": "tcp/127.0.0.1:0"}
+
+
+def _safe_defaults(conf: zenoh.Config) -> None:
+    """No multicast scouting and loopback listening unless the configuration asks otherwise.
+
+    Zenoh's defaults suit a LAN of trusted peers: multicast scouting on, and peers and routers
+    listening on every interface. A service that joins a site names its endpoints instead
+    (``-e``/``-l`` or its config file); what it did not name stays on this machine.
+    """
+    if json.loads(conf.get_json("scouting/multicast/enabled")) is None:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if conf.get_json("listen/endpoints") == _ZENOH_DEFAULT_LISTEN:
+        mode = json.loads(conf.get_json("mode")) or "peer"
+        if mode in _LOOPBACK_LISTEN:
+            conf.insert_json5("listen/endpoints", json.dumps([_LOOPBACK_LISTEN[mode]]))
