@@ -33,6 +33,7 @@ from lessmap_schemas.partition import PARTITIONS
 
 __all__ = [
     "MESSAGE_TYPES",
+    "Epoch",
     "Error",
     "ErrorCode",
     "FeatureId",
@@ -40,7 +41,6 @@ __all__ = [
     "Health",
     "InvalidNameError",
     "Message",
-    "Epoch",
     "Name",
     "PartitionId",
     "Seq",
