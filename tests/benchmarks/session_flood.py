@@ -72,8 +72,8 @@ def memory_map(pid: int) -> dict[str, int]:
     for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
         first = line.split(maxsplit=1)[0]
         if "-" in first and not first.endswith(":"):
-            lo, hi = first.split("-")
-            start, end = int(lo, 16), int(hi, 16)
+            lo_hex, hi_hex = first.split("-")
+            start, end = int(lo_hex, 16), int(hi_hex, 16)
             parts = line.split(maxsplit=5)
             name = parts[5] if len(parts) > 5 else ""
         elif first == "Rss:":
