@@ -1,8 +1,9 @@
 """``lessmap certs``: a test site's CA, certificates and Zenoh configs (mTLS + access control).
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
-session presents: ``robot.<fleet>``, ``app.<fleet>`` and the service names (``service`` by
-default). ``lessmap.siteconfig.access_rules`` is the one place that maps those roles to Zenoh
+session presents: ``robot.<fleet>``, ``app.<fleet>``, the service names (``service`` by
+default) and, for a mesh of routers (``--mesh NAME=ENDPOINT``), ``router.<name>``.
+``lessmap.siteconfig.access_rules`` is the one place that maps those roles to Zenoh
 ``access_control`` rules; the router configs this command writes and the templates in ``deploy/``
 (``--templates``) are both rendered from it, so they cannot drift apart.
 
@@ -17,7 +18,7 @@ import ipaddress
 import json
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,9 +29,11 @@ from lessmap.siteconfig import (
     TEMPLATE_FLEET,
     app_name,
     client_config,
+    mesh_router_config,
     render,
     robot_name,
     router_config,
+    router_name,
     usrpwd_client_config,
     usrpwd_router_config,
 )
@@ -38,7 +41,7 @@ from lessmap_schemas import keys
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Iterable, Mapping, Sequence
 
     from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -49,16 +52,23 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Site:
-    """What ``make_site`` wrote: the folder and every config file, by role."""
+    """What ``make_site`` wrote: the folder and every config file, by role.
+
+    ``router`` is the single router's config; for a mesh, the first mesh router's, and
+    ``routers`` holds every mesh router's config by name.
+    """
 
     folder: Path
     router: Path
     services: dict[str, Path]
     robots: dict[str, Path]
     apps: dict[str, Path]
+    routers: dict[str, Path] = field(default_factory=dict)
 
 
-def _check_names(fleets: Sequence[str], service_names: Sequence[str]) -> None:
+def _check_names(
+    fleets: Sequence[str], service_names: Sequence[str], mesh: Mapping[str, str] | None = None
+) -> None:
     if not fleets:
         msg = "give at least one --fleet"
         raise ConfigError(msg)
@@ -68,12 +78,55 @@ def _check_names(fleets: Sequence[str], service_names: Sequence[str]) -> None:
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
     for name in service_names:
-        if name == "router" or name.startswith(("robot.", "app.", "ca")):
+        if name == "router" or name.startswith(("router.", "robot.", "app.", "ca")):
             msg = f"service name {name!r} would clash with another identity"
             raise ConfigError(msg)
     if len(set(fleets)) != len(fleets) or len(set(service_names)) != len(service_names):
         msg = "fleet and service names must be distinct"
         raise ConfigError(msg)
+    mesh = mesh or {}
+    if mesh and len(mesh) < 2:
+        msg = "a mesh needs at least two --mesh routers"
+        raise ConfigError(msg)
+    for name, endpoint in mesh.items():
+        try:
+            keys.validate_name(name, "router name")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+        _endpoint_host(endpoint)
+    if len(set(mesh.values())) != len(mesh):
+        msg = "each --mesh router needs an endpoint of its own"
+        raise ConfigError(msg)
+
+
+def _endpoint_host(endpoint: str) -> str:
+    """Return the host of a ``tls/HOST:PORT`` endpoint (what the certificate must name)."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if proto != "tls" or not host or not port.isdigit():
+        msg = f"{endpoint!r} is not a tls/HOST:PORT endpoint"
+        raise ConfigError(msg)
+    return host
+
+
+def parse_mesh(values: Sequence[str]) -> dict[str, str]:
+    """Return ``--mesh NAME=ENDPOINT`` values as a name to endpoint mapping, in order.
+
+    Raises:
+        ConfigError: a value without ``=``, or a name given twice.
+    """
+    mesh: dict[str, str] = {}
+    for value in values:
+        name, sep, endpoint = value.partition("=")
+        if not sep or not name or not endpoint:
+            msg = f"--mesh {value!r}: give NAME=ENDPOINT, e.g. a=tls/10.0.0.5:7447"
+            raise ConfigError(msg)
+        if name in mesh:
+            msg = f"--mesh: router {name!r} given twice"
+            raise ConfigError(msg)
+        mesh[name] = endpoint
+    return mesh
 
 
 def make_site(
@@ -83,6 +136,7 @@ def make_site(
     *,
     endpoint: str = DEFAULT_ENDPOINT,
     router_hosts: Iterable[str] = (),
+    mesh: Mapping[str, str] | None = None,
     days: int = 365,
     force: bool = False,
     reuse_ca: bool = False,
@@ -93,9 +147,13 @@ def make_site(
         out: the folder (created); configs name its absolute path.
         fleets: a robot and an app identity per fleet.
         service_names: one identity per name (certificate CN).
-        endpoint: where the router listens and the clients connect.
-        router_hosts: more DNS names or IP addresses for the router certificate
-            (127.0.0.1 and localhost are always in it).
+        endpoint: where the router listens and the clients connect (single router).
+        router_hosts: more DNS names or IP addresses for the router certificate, or for
+            every mesh router's (127.0.0.1 and localhost are always in it).
+        mesh: routers of a mesh, name to TLS endpoint (at least two). Each gets a
+            certificate ``router.<name>`` naming its endpoint's host and a config that
+            listens there and connects to the others; the clients' configs list every
+            router's endpoint, and ``endpoint`` is not used.
         days: validity of every certificate.
         force: replace an existing CA (every older certificate stops working).
         reuse_ca: keep the CA in ``out`` and issue new certificates and keys from it.
@@ -105,7 +163,8 @@ def make_site(
     """
     from cryptography.hazmat.primitives.asymmetric import ec
 
-    _check_names(fleets, service_names)
+    mesh = dict(mesh or {})
+    _check_names(fleets, service_names, mesh)
     out.mkdir(parents=True, exist_ok=True)
     folder = out.resolve()
     now = datetime.datetime.now(datetime.UTC)
@@ -123,7 +182,12 @@ def make_site(
         _write_key(folder / "ca.key", ca_key)
         (folder / "ca.pem").write_bytes(_pem(ca_cert))
     hosts = ["127.0.0.1", "localhost", *router_hosts]
-    _issue(folder, "router", ca_key, ca_cert, now, days, hosts)
+    if mesh:
+        for name, listen in mesh.items():
+            own = [*hosts, _endpoint_host(listen)]
+            _issue(folder, router_name(name), ca_key, ca_cert, now, days, list(dict.fromkeys(own)))
+    else:
+        _issue(folder, "router", ca_key, ca_cert, now, days, hosts)
     identities = [*service_names]
     for fleet in fleets:
         identities += [robot_name(fleet), app_name(fleet)]
@@ -135,19 +199,29 @@ def make_site(
         "See docs/SECURITY.md; every path below is in this folder."
     )
     d = str(folder)
-    router = folder / "zenoh-router-mtls.json5"
-    router.write_text(render(router_config(d, fleets, service_names, endpoint), header))
+    routers = {}
+    if mesh:
+        for name in mesh:
+            routers[name] = folder / f"zenoh-router-{name}-mtls.json5"
+            conf = mesh_router_config(d, name, mesh, fleets, service_names)
+            routers[name].write_text(render(conf, header))
+        router = next(iter(routers.values()))
+        connect: str | list[str] = list(mesh.values())
+    else:
+        router = folder / "zenoh-router-mtls.json5"
+        router.write_text(render(router_config(d, fleets, service_names, endpoint), header))
+        connect = endpoint
     services = {}
     for name in service_names:
         services[name] = folder / f"zenoh-{name}-mtls.json5"
-        services[name].write_text(render(client_config(d, name, endpoint), header))
+        services[name].write_text(render(client_config(d, name, connect), header))
     robots, apps = {}, {}
     for fleet in fleets:
         robots[fleet] = folder / f"zenoh-robot-{fleet}-mtls.json5"
-        robots[fleet].write_text(render(client_config(d, robot_name(fleet), endpoint), header))
+        robots[fleet].write_text(render(client_config(d, robot_name(fleet), connect), header))
         apps[fleet] = folder / f"zenoh-app-{fleet}-mtls.json5"
-        apps[fleet].write_text(render(client_config(d, app_name(fleet), endpoint), header))
-    return Site(folder, router, services, robots, apps)
+        apps[fleet].write_text(render(client_config(d, app_name(fleet), connect), header))
+    return Site(folder, router, services, robots, apps, routers)
 
 
 def _load_ca(folder: Path) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
@@ -289,6 +363,21 @@ filled in. See docs/SECURITY.md.
 """
 
 
+MESH_NOTE = """\
+Template: router {name} of a two-router mesh (zenoh-router-{other}-mtls.json5 is the other).
+Replace FLEET as in zenoh-router-mtls.json5, and {own} (this machine) and {peer} (router
+{other}'s) by your addresses, each named in its router's certificate (CN router.{name} and
+router.{other}), or let `lessmap certs --out DIR --fleet F --mesh a=tls/HOST_A:7447
+--mesh b=tls/HOST_B:7447` write both filled in. Put the files it names in {folder}.
+Each router presents its certificate when it accepts and when it dials the other; the
+other router's CN has the `routers` rules (every lessmap message, both ways), each robot,
+app and service its own rules at the router it connects to. See docs/SECURITY.md.
+"""
+
+#: The mesh of the templates: the addresses of deploy/zenoh-router-{a,b}.json5.
+TEMPLATE_MESH = {"a": "tls/10.0.0.5:7447", "b": "tls/10.0.0.6:7447"}
+
+
 def templates() -> dict[str, str]:
     """Return the deploy/ config templates, by file name (placeholder fleet and paths)."""
     d, fleet, service = TEMPLATE_DIR, TEMPLATE_FLEET, "service"
@@ -299,7 +388,25 @@ def templates() -> dict[str, str]:
     def client(what: str) -> str:
         return what + "\n" + CLIENT_NOTE.format(folder=d)
 
+    def mesh_router(name: str) -> str:
+        other = next(n for n in TEMPLATE_MESH if n != name)
+        return render(
+            mesh_router_config(d, name, TEMPLATE_MESH, [fleet], [service]),
+            f"Zenoh router {name} of a lessmap mesh: TLS, certificates required on every link\n"
+            "(clients and the other router), deny-by-default access control by certificate CN.\n"
+            f"Run: lessmap router --config zenoh-router-{name}-mtls.json5 (or zenohd -c ...).\n"
+            + MESH_NOTE.format(
+                name=name,
+                other=other,
+                own=TEMPLATE_MESH[name].split("/")[1].split(":")[0],
+                peer=TEMPLATE_MESH[other].split("/")[1].split(":")[0],
+                folder=d,
+            ),
+        )
+
     return {
+        "zenoh-router-a-mtls.json5": mesh_router("a"),
+        "zenoh-router-b-mtls.json5": mesh_router("b"),
         "zenoh-router-mtls.json5": render(
             router_config(d, [fleet], [service]),
             router(
@@ -351,9 +458,10 @@ def templates() -> dict[str, str]:
 def configure(parser: argparse.ArgumentParser) -> None:
     """Define ``lessmap certs``."""
     parser.description = (
-        "Write a test site's CA, a router certificate (SAN 127.0.0.1, localhost), one "
-        "certificate and key per role and fleet (CN robot.F, app.F, and the service names), "
-        "and the Zenoh configs of each role with mTLS and deny-by-default access control. "
+        "Write a test site's CA, a router certificate (SAN 127.0.0.1, localhost) or one per "
+        "mesh router (CN router.NAME, --mesh), one certificate and key per role and fleet "
+        "(CN robot.F, app.F, and the service names), and the Zenoh configs of each role with "
+        "mTLS and deny-by-default access control. "
         "Keys are written mode 0600. See docs/SECURITY.md."
     )
     parser.add_argument("--out", type=Path, required=True, help="folder to write to")
@@ -378,6 +486,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="HOST",
         help="another DNS name or IP address of the router (its certificate's SAN)",
+    )
+    parser.add_argument(
+        "--mesh",
+        action="append",
+        default=[],
+        metavar="NAME=ENDPOINT",
+        help=(
+            "a router of a mesh and where it listens, e.g. a=tls/10.0.0.5:7447 (repeat, at "
+            "least two): a certificate router.NAME per router and a config each that connects "
+            "to the others; clients' configs list every router (--endpoint is then unused)"
+        ),
     )
     parser.add_argument("--days", type=int, default=365, help="validity (default: 365)")
     ca = parser.add_mutually_exclusive_group()
@@ -410,15 +529,18 @@ def run(args: argparse.Namespace) -> int:
         args.service_names,
         endpoint=args.endpoint,
         router_hosts=args.router_host,
+        mesh=parse_mesh(args.mesh),
         days=args.days,
         force=args.force,
         reuse_ca=args.reuse_ca,
     )
-    files = {
+    files: dict[str, object] = {
         "router": str(site.router),
         "services": {k: str(v) for k, v in site.services.items()},
         "robots": {k: str(v) for k, v in site.robots.items()},
         "apps": {k: str(v) for k, v in site.apps.items()},
     }
+    if site.routers:
+        files["routers"] = {k: str(v) for k, v in site.routers.items()}
     sys.stdout.write(json.dumps(files) + "\n")
     return 0

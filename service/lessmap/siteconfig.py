@@ -1,10 +1,11 @@
 """Who may do what on a lessmap site, as Zenoh configs: access rules, router and client files.
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
-session presents (``robot.<fleet>``, ``app.<fleet>``, the service names) or from the user
-name (usrpwd). ``access_rules`` is the one place that maps those roles to Zenoh
-``access_control`` rules; ``lessmap certs`` writes a site's configs from it and renders the
-templates in ``deploy/`` from it, so they cannot drift apart. Pure data: no cryptography.
+session presents (``robot.<fleet>``, ``app.<fleet>``, the service names, and in a mesh the
+other routers' ``router.<name>``) or from the user name (usrpwd). ``access_rules`` is the one
+place that maps those roles to Zenoh ``access_control`` rules; ``lessmap certs`` writes a
+site's configs from it and renders the templates in ``deploy/`` from it, so they cannot drift
+apart. Pure data: no cryptography.
 """
 
 from __future__ import annotations
@@ -47,6 +48,11 @@ def app_name(fleet: str) -> str:
     return f"app.{fleet}"
 
 
+def router_name(name: str) -> str:
+    """Return the certificate CN of the mesh router ``name`` (``router.a``, ``router.b``)."""
+    return f"router.{name}"
+
+
 def _rule(rule_id: str, flow: str, messages: Sequence[str], key_exprs: Sequence[str]) -> Any:
     return {
         "id": rule_id,
@@ -58,7 +64,10 @@ def _rule(rule_id: str, flow: str, messages: Sequence[str], key_exprs: Sequence[
 
 
 def access_rules(
-    fleets: Sequence[str], service_names: Sequence[str], subject_kind: str = "cert_common_names"
+    fleets: Sequence[str],
+    service_names: Sequence[str],
+    subject_kind: str = "cert_common_names",
+    routers: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Return the ``access_control`` section: deny by default, allow each role its keys.
 
@@ -70,6 +79,9 @@ def access_rules(
         fleets: fleet names; each gets a robot and an app subject.
         service_names: identities of the service instances.
         subject_kind: ``cert_common_names`` (mTLS) or ``usernames`` (usrpwd).
+        routers: identities of the other routers of a mesh (``router.<name>``): they may
+            relay every lessmap message both ways. Robots and apps are still held to their
+            own rules by the router they connect to, so this widens nothing for them.
     """
     any_robot = f"{P}/*/*"
     # Frames keys end with the robot's partition chunk (schemas/README.md §2a). The rules
@@ -159,6 +171,31 @@ def access_rules(
                    "service-out"],
          "subjects": ["service"]}
     ]  # fmt: skip
+    if routers:
+        # Another router of the mesh relays what the roles connected to it may send and
+        # what their subscribers, queryables and tokens declare: every message on every
+        # lessmap key, both ways (each `@` key named: `**` never matches an `@` chunk).
+        # Each role's own rules are enforced by the router it is connected to, on the way
+        # in (what it may send or declare) and on the way out (what it receives).
+        relayed = [
+            any_frames,
+            f"{any_frames}/@adv/**",
+            f"{any_robot}/transitions",
+            f"{any_robot}/transitions/@adv/**",
+            f"{any_robot}/errors",
+            f"{any_robot}/state",
+            f"{any_robot}/submaps/*",
+            f"{P}/@/health/*",
+            f"{P}/@/instances/*",
+            f"{P}/@/errors/*",
+            checkpoints,
+        ]
+        rules += [
+            _rule("router-in", "ingress", ALL_MESSAGES, relayed),
+            _rule("router-out", "egress", ALL_MESSAGES, relayed),
+        ]
+        subjects.append({"id": "routers", subject_kind: list(routers)})
+        policies.append({"rules": ["router-in", "router-out"], "subjects": ["routers"]})
     for fleet in fleets:
         robots = f"{P}/{fleet}/*"
         frames = f"{robots}/frames/*"  # any partition chunk, this fleet only
@@ -288,11 +325,65 @@ def router_config(
     }
 
 
-def client_config(folder: str, identity: str, endpoint: str = DEFAULT_ENDPOINT) -> dict[str, Any]:
-    """Return a client's config: connect over TLS, prove ``identity`` with its certificate."""
+def mesh_router_config(
+    folder: str,
+    name: str,
+    mesh: dict[str, str],
+    fleets: Sequence[str],
+    service_names: Sequence[str],
+) -> dict[str, Any]:
+    """Return the config of router ``name`` of a mesh: mTLS both ways, access control.
+
+    It listens on its own endpoint and connects to every other router's, presenting its
+    certificate (CN ``router.<name>``) both when it accepts and when it dials, and checking
+    that the router dialled is named in its certificate. The access control is the single
+    router's plus a subject for the mesh's routers (``access_rules(routers=...)``).
+
+    Args:
+        folder: where the site's files are.
+        name: this router's name, a key of ``mesh``.
+        mesh: every router of the mesh, name to TLS endpoint.
+        fleets: fleet names.
+        service_names: identities of the service instances.
+    """
+    cert = f"{folder}/{router_name(name)}"
+    return {
+        "mode": "router",
+        "listen": {"endpoints": [mesh[name]]},
+        "connect": {"endpoints": [e for n, e in mesh.items() if n != name]},
+        "scouting": {"multicast": {"enabled": False}},
+        "timestamping": {"enabled": True},
+        "transport": {
+            "link": {
+                "tls": {
+                    "root_ca_certificate": f"{folder}/ca.pem",
+                    "listen_private_key": f"{cert}.key",
+                    "listen_certificate": f"{cert}.pem",
+                    "connect_private_key": f"{cert}.key",
+                    "connect_certificate": f"{cert}.pem",
+                    "enable_mtls": True,
+                    "verify_name_on_connect": True,
+                }
+            }
+        },
+        "access_control": access_rules(
+            fleets, service_names, routers=[router_name(n) for n in mesh]
+        ),
+    }
+
+
+def client_config(
+    folder: str, identity: str, endpoint: str | Sequence[str] = DEFAULT_ENDPOINT
+) -> dict[str, Any]:
+    """Return a client's config: connect over TLS, prove ``identity`` with its certificate.
+
+    ``endpoint`` may list several routers (a mesh): the client connects to the first that
+    answers.
+    """
+    endpoints = [endpoint] if isinstance(endpoint, str) else list(endpoint)
     return {
         "mode": "client",
-        "connect": {"endpoints": [endpoint]},
+        "connect": {"endpoints": endpoints},
         "scouting": {"multicast": {"enabled": False}},
         "timestamping": {"enabled": True},
         "transport": {
