@@ -51,6 +51,7 @@ from tests.benchmarks.fleet.process import (
     RouterProcess,
     Sampler,
     ServiceProcess,
+    SocketMeter,
     TransitionLog,
     _finish_pyspy,
     _start_pyspy,
@@ -58,7 +59,6 @@ from tests.benchmarks.fleet.process import (
     offline_baseline,
     proc_cpu_s,
     proc_status_kib,
-    socket_bytes,
     stop_all,
     stop_process,
     thread_cpu_s,
@@ -195,7 +195,9 @@ def run_load(
                     time.sleep(max(0.0, t0 - time.time()))
                     cpu_start = {i.pid: proc_cpu_s(i.pid) for i in services}
                     router_start = proc_cpu_s(router.pid) if router is not None else math.nan
-                    bytes_start = socket_bytes(router.port) if router is not None else (0, 0)
+                    meter = SocketMeter(router.port) if router is not None else None
+                    if meter is not None:
+                        meter.start()
                     if profile is not None:
                         time.sleep(min(10.0, spec.duration_s / 4))
                         pyspy = _start_pyspy(service.pid, profile, profile_duration_s)
@@ -208,7 +210,7 @@ def run_load(
                     cpu_load_total = sum(cpu_load.values())
                     cpu_load_total += sum(f.cpu_load_s for f in figures.values())  # killed
                     router_cpu = proc_cpu_s(router.pid) - router_start if router else math.nan
-                    bytes_end = socket_bytes(router.port) if router is not None else (0, 0)
+                    router_bytes = meter.stop() if meter is not None else (0, 0)
                     say("load done; waiting for every session to close")
                     states, drained = _wait_closed(client, spec, 30.0 + 2 * spec.duration_s)
                     drain_s = time.time() - load_end
@@ -269,8 +271,7 @@ def run_load(
     report.checkpoint_puts, report.checkpoint_bytes = wire_puts, wire_bytes
     report.takeover = takeover.as_dict() if takeover is not None else None
     report.router_cpu_load_s = router_cpu
-    report.router_bytes_in = bytes_end[0] - bytes_start[0]
-    report.router_bytes_out = bytes_end[1] - bytes_start[1]
+    report.router_bytes_in, report.router_bytes_out = router_bytes
     baseline_streams = simulated_streams(
         spec, 0, spacing, robots=min(spec.baseline_robots, len(spec.robots_of(0)))
     )

@@ -455,8 +455,8 @@ def _instance_lines(r: LoadReport) -> list[str]:
         f"{1e6 * r.router_cpu_load_s / max(1, r.offered):.0f} µs per frame offered; "
         f"TCP bytes in {r.router_bytes_in / 1e6:.1f} MB / out {r.router_bytes_out / 1e6:.1f} MB "
         f"({r.router_bytes_in / max(1, r.offered):.0f} / "
-        f"{r.router_bytes_out / max(1, r.offered):.0f} bytes per frame offered: frames, "
-        "checkpoints, transitions, queries)"
+        f"{r.router_bytes_out / max(1, r.offered):.0f} bytes per frame offered; on one host "
+        "payloads over 3 KiB, the checkpoints, go through shared memory instead)"
     )
     if r.checkpoint_puts:
         lines.append(
