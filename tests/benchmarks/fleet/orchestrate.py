@@ -31,11 +31,14 @@ import argparse
 import json
 import math
 import os
+import queue
 import select
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import zlib
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -234,7 +237,9 @@ def run_load(
                             frames_offered=0,
                             cpu_load_s=cpu_load[i.pid],
                         )
-                    wire_puts, wire_bytes = wire.close() if wire is not None else (0, 0)
+                    wire_puts, wire_bytes, wire_zlib = (
+                        wire.close() if wire is not None else (0, 0, math.nan)
+                    )
             finally:
                 session.close()
             if pyspy is not None:
@@ -269,6 +274,7 @@ def run_load(
     )
     _fill_instances(report, [figures[i.instance] for i in services], results)
     report.checkpoint_puts, report.checkpoint_bytes = wire_puts, wire_bytes
+    report.checkpoint_zlib_ratio = wire_zlib
     report.takeover = takeover.as_dict() if takeover is not None else None
     report.router_cpu_load_s = router_cpu
     report.router_bytes_in, report.router_bytes_out = router_bytes
@@ -314,22 +320,41 @@ def _wait_partitions(services: list[ServiceProcess], timeout_s: float) -> dict[s
 
 
 class _CheckpointTap:
-    """Counts the checkpoints the owners put for their standbys, and their bytes."""
+    """Counts the checkpoints the owners put for their standbys, and their bytes.
+
+    Every tenth one is also compressed (zlib level 1, on this process's own thread) to show
+    what compressing shipped checkpoints would save.
+    """
 
     def __init__(self, session: zenoh.Session) -> None:
         from lessmap_schemas import keys
 
         self.puts = 0
         self.bytes = 0
+        self.sampled = 0
+        self.sampled_zlib = 0
+        self._samples: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._compress, name="bench-zlib", daemon=True)
+        self._thread.start()
         self._sub = session.declare_subscriber(keys.checkpoints(), self._on_sample)
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
+    def _on_sample(self, sample: zenoh.Sample) -> None:  # Zenoh's thread: count only
         self.puts += 1
         self.bytes += len(sample.payload)
+        if self.puts % 10 == 1:
+            self._samples.put(sample.payload.to_bytes())
 
-    def close(self) -> tuple[int, int]:
+    def _compress(self) -> None:
+        while (payload := self._samples.get()) is not None:
+            self.sampled += len(payload)
+            self.sampled_zlib += len(zlib.compress(payload, 1))
+
+    def close(self) -> tuple[int, int, float]:
+        """Stop; return (puts, bytes, zlib-1 size / raw size of the sampled ones)."""
         self._sub.undeclare()
-        return self.puts, self.bytes
+        self._samples.put(None)
+        self._thread.join(30.0)
+        return self.puts, self.bytes, self.sampled_zlib / self.sampled if self.sampled else math.nan
 
 
 def _kill_one(

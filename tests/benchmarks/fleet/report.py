@@ -174,6 +174,7 @@ class LoadReport:
     instance_figures: list[InstanceFigures] = field(default_factory=list)
     checkpoint_puts: int = 0  # checkpoints seen on lessmap/v2/@/checkpoints/** (N > 1)
     checkpoint_bytes: int = 0  # their payload bytes
+    checkpoint_zlib_ratio: float = math.nan  # zlib level 1 size / raw, every tenth one
     takeover: dict[str, Any] | None = None  # TakeoverResult.as_dict() of a kill run
     router_cpu_load_s: float = math.nan  # the `lessmap router` (N > 1) while generators ran
     router_bytes_in: int = 0  # bytes the router received during the load (ss), N > 1
@@ -310,6 +311,7 @@ class LoadReport:
                 "bytes_per_applied_frame": self.checkpoint_bytes / self.applied
                 if self.applied
                 else math.nan,
+                "zlib1_ratio_sampled": self.checkpoint_zlib_ratio,
             },
             "takeover": self.takeover,
             "router_cpu_during_load_s": self.router_cpu_load_s,
@@ -463,7 +465,8 @@ def _instance_lines(r: LoadReport) -> list[str]:
             f"  checkpoints on the wire (lessmap/v2/@/checkpoints/**, seen by the benchmark): "
             f"{r.checkpoint_puts} puts, {r.checkpoint_bytes / 1e6:.2f} MB, "
             f"{r.checkpoint_bytes / max(1, r.checkpoint_puts) / 1024:.1f} KiB each, "
-            f"{r.checkpoint_bytes / max(1, r.applied):.0f} bytes per applied frame"
+            f"{r.checkpoint_bytes / max(1, r.applied):.0f} bytes per applied frame; "
+            f"zlib level 1 would make them {r.checkpoint_zlib_ratio:.2f}× (every tenth sampled)"
         )
     return lines
 
