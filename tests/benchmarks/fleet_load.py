@@ -5,6 +5,8 @@ Run from the repository root (docs/BENCHMARKS.md explains every figure):
     python -m tests.benchmarks.fleet_load --robots 200 --rate 10 --features 20 --duration 60
     python -m tests.benchmarks.fleet_load --find-knee
     python -m tests.benchmarks.fleet_load --robots 150 --duration 40 --profile profile.txt
+    python -m tests.benchmarks.fleet_load --robots 200 --duration 30 --instances 4
+    python -m tests.benchmarks.fleet_load --robots 200 --instances 2 --kill-one-after 10
 
 The machinery lives in ``tests/benchmarks/fleet/``, outside every wheel. Importable:
 ``run_load(LoadSpec(...))`` returns a ``LoadReport``; ``format_report`` prints it.
@@ -45,11 +47,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse the options and run the benchmark; 0 when the bar is met, 2 when missed."""
     parser = argparse.ArgumentParser(
         prog="python -m tests.benchmarks.fleet_load",
-        description="Start `lessmap serve` on a free loopback port and 1-2 load generator "
-        "processes that publish simulated robots in real time; print frames offered, applied "
-        "and lost, latencies, service CPU and RSS, and an in-process baseline of the core on "
-        "the same streams. Exit code 2 when the bar is missed: 0 lost, p99 service latency "
-        "≤ 250 ms, flat RSS.",
+        description="Start `lessmap serve` on a free loopback port (or, with --instances N > 1, "
+        "a `lessmap router` and N instances joined to it) and 1-4 load generator processes "
+        "that publish simulated robots in real time; print frames offered, applied and lost, "
+        "latencies, service CPU and RSS, each instance's frames received next to its robots' "
+        "frames, and an in-process baseline of the core on the same streams. Exit code 2 when "
+        "the bar is missed: 0 lost, p99 service latency ≤ 250 ms, flat RSS.",
     )
     add_fleet_options(parser)
     return run_fleet(parser.parse_args(argv))
