@@ -397,6 +397,26 @@ def test_late_live_frames_fill_a_hold_without_errors(tmp_path: Path) -> None:
     store.close()
 
 
+def test_a_frame_both_in_the_cache_reply_and_live_counts_once(tmp_path: Path) -> None:
+    # A take-over or a restart while the robot streams: its own put of a frame races the
+    # copy of the same frame in its cache's reply. Whichever comes second is dropped
+    # uncounted (the robot offered the frame once), while a real repeat is still a duplicate.
+    store = open_store(tmp_path)
+    table = catchup_table(store)
+    out = feed(table, FRAMES[:10])
+    out.append(table.handle_batch([(FLEET, ROBOT, FRAMES[14])], 1.0))  # 10..13 in the cache
+    out.append(table.recover((FLEET, ROBOT), SESSION, FRAMES[10:15], 1.1))  # 14 too
+    out += feed(table, FRAMES[12:14], now_s=1.2)  # the robot's own puts of 12, 13, late
+    out.append(table.catchup_done((FLEET, ROBOT), SESSION, 1.3))
+    out += feed(table, FRAMES[15:17], now_s=1.4)
+    out += feed(table, FRAMES[16:17], now_s=1.5)  # a real repeat
+    assert errors(out) == [ErrorCode.DUPLICATE_SEQ]
+    state = table.state(FLEET, ROBOT)
+    assert state is not None
+    assert (state.frames_applied, state.frames_missing, state.frames_duplicate) == (17, 0, 1)
+    store.close()
+
+
 def test_a_hold_is_bounded_in_time_and_in_frames(tmp_path: Path) -> None:
     store = open_store(tmp_path)
     table = catchup_table(store)

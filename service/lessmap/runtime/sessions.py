@@ -82,6 +82,7 @@ RobotKey = tuple[str, str]  # (fleet, robot)
 _CLOSED_IDS_KEPT = 16  # per robot: enough to reject stragglers of recent sessions
 _GAPS_KEPT = 64  # per session: gap ranges remembered to tell OUT_OF_ORDER from DUPLICATE
 _EVICT_MIN_IDLE_S = 1.0  # a full shard evicts sessions idle this long to admit a new one
+_CACHE_MARKS_KEPT = 4096  # per robot: frames taken from its cache not yet matched by its put
 _EVICT_BATCH = 16  # sessions evicted at once when the shard is full (amortizes the scan)
 # Cost units of the fair scheduler (shard.py): roughly one pair update each. A frame costs
 # its pairs plus a fixed overhead; a decision costs in proportion to the CovGraph's edges
@@ -263,6 +264,10 @@ class SessionTable:
         self._catchup_max_frames = catchup_max_frames  # 0: no catch-up, gaps reported at once
         self._catchup_wait_s = catchup_wait_s
         self._holding: set[RobotKey] = set()  # sessions with a hold under way
+        # (session, seq) of frames taken from a robot's cache (a catch-up reply, a take-over
+        # probe): the robot's own put of the same frame, arriving before or after the copy,
+        # is the one offer of that frame, so the second of the two is dropped uncounted.
+        self._from_cache: dict[RobotKey, set[tuple[str, int]]] = {}
         self._store = store if store is not None and store.path is not None else None
         self._checkpoint_every_frames = checkpoint_every_frames
         self._checkpoint_interval_s = checkpoint_interval_s
@@ -287,6 +292,24 @@ class SessionTable:
     def robots(self) -> list[RobotKey]:
         """Every robot with an open or remembered closed session."""
         return list(dict.fromkeys([*self._open, *self._final_states]))
+
+    def note_from_cache(self, key: RobotKey, session_id: str, seq: int) -> None:
+        """Remember that frame ``seq`` of a session came (or comes) from the robot's cache."""
+        marks = self._from_cache.setdefault(key, set())
+        if len(marks) >= _CACHE_MARKS_KEPT:
+            marks.clear()  # bounded; a forgotten mark only makes a late duplicate counted
+        marks.add((session_id, seq))
+
+    def _cache_copy(self, session: RobotSession, seq: int) -> bool:
+        """True (and the mark is used up) when one of two copies of a frame came from a cache."""
+        key = (session.fleet, session.robot)
+        marks = self._from_cache.get(key)
+        if not marks or (session.session, seq) not in marks:
+            return False
+        marks.discard((session.session, seq))
+        if not marks:
+            del self._from_cache[key]
+        return True
 
     def is_news(self, fleet: str, robot: str, message: Frame | SessionEnd) -> bool:
         """True when a message found in a robot's cache is not known here yet.
@@ -554,6 +577,8 @@ class SessionTable:
                 )
             )
         if frame.seq in session.held:
+            if self._cache_copy(session, frame.seq):
+                return True
             session.frames_duplicate += 1
             out.frames_duplicate += 1
             out.reject(
@@ -628,6 +653,7 @@ class SessionTable:
             ):
                 continue  # not needed: silently dropped, never an error
             session.held[frame.seq] = frame
+            self.note_from_cache(key, session_id, frame.seq)
             session.recovered += 1
             out.frames_recovered += 1
         self._drain_hold(session, now_s, out)
@@ -753,6 +779,8 @@ class SessionTable:
         p = session.partitioner
         seen = session.last_seen_seq
         if seen is not None and frame.seq <= seen:
+            if self._cache_copy(session, frame.seq):
+                return False
             if session.restored_seq is not None and frame.seq <= session.restored_seq:
                 # A redelivery from the robot's cache after a restore.
                 session.frames_duplicate += 1
@@ -997,6 +1025,8 @@ class SessionTable:
             out.evicted += 1
         for key in [k for k in self._closed_ids if leaving(*k)]:
             del self._closed_ids[key]
+        for key in [k for k in self._from_cache if leaving(*k)]:
+            del self._from_cache[key]
         return out
 
 

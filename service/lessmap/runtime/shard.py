@@ -462,7 +462,11 @@ class Shard:
         except WireError:
             return None  # refused when it first arrived, if it did
         with self.lock:
-            return message if self.table.is_news(fleet, robot, message) else None
+            if not self.table.is_news(fleet, robot, message):
+                return None
+            if isinstance(message, Frame):
+                self.table.note_from_cache((fleet, robot), message.session, message.seq)
+            return message
 
     def _apply(
         self, live: list[tuple[str, str, Frame | SessionEnd]], now: float, decide_every: int | None
