@@ -157,7 +157,7 @@ def test_a_record_travels_as_bytes_and_comes_back_equal() -> None:
 
 
 @pytest.mark.parametrize(
-    "payload", [b"", b"\xc1", b"\x93\x01\x02\x03", b"\x81\xa4ckpt\x02", b"\x81\xa4ckpt\x01"]
+    "payload", [b"", b"\xc1", b"\x93\x01\x02\x03", b"\x81\xa4ckpt\x01", b"\x81\xa4ckpt\x02"]
 )
 def test_a_damaged_record_is_a_value_error(payload: bytes) -> None:
     with pytest.raises(ValueError, match="unreadable checkpoint record"):
