@@ -24,7 +24,7 @@ from cryptography import x509
 from lessmap.certs import TEMPLATE_MESH, Site, make_site
 from lessmap.cli import main
 from lessmap.errors import ConfigError
-from lessmap.siteconfig import access_rules
+from lessmap.siteconfig import access_rules, mesh_router_config, render
 from lessmap_client import connect
 from lessmap_client.session import open_session
 from lessmap_schemas import encode, encoding, keys
@@ -167,11 +167,11 @@ def test_a_robot_and_an_app_on_router_b_work_with_the_service_on_router_a(
     wait_until(lambda: robot.status.owner == service.instance, 10.0, "the robot's owner")
     walk_two_rooms(robot)  # frames B -> A, transitions A -> B
 
-    wait_until(
-        lambda: (s := app.state(mesh.fleet, "amr-1")) is not None and s.frames_applied == 40,
-        20.0,
-        "the state query (B -> A -> B) to see all 40 frames",
-    )
+    deadline = time.monotonic() + 20.0
+    while (s := app.state(mesh.fleet, "amr-1")) is None or s.frames_applied < 40:
+        assert time.monotonic() < deadline, (s, robot.status, service.log())
+        time.sleep(0.1)
+    assert s.frames_applied == 40, s  # the state query crossed B -> A -> B
     transition = events.recv(timeout_s=20.0)
     assert transition is not None, (app.state(mesh.fleet, "amr-1"), service.log())
     assert (transition.fleet, transition.robot) == (mesh.fleet, "amr-1")
@@ -275,11 +275,45 @@ def test_checkpoints_cross_the_mesh_between_service_identities_only(
         entity.undeclare()
 
 
+def test_without_a_subject_for_the_routers_the_mesh_relays_nothing(tmp_path: Path) -> None:
+    # The gap the routers' identities close: with the single-router rules on both routers
+    # (no `routers` subject), the routers connect over mTLS and forward each other nothing.
+    a, b = f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
+    made = make_site(tmp_path / "site", ["f"], mesh={"a": a, "b": b})
+    folder, ends = str(made.folder), {"a": a, "b": b}
+    paths = {}
+    for name in ends:
+        conf = mesh_router_config(folder, name, ends, ["f"], ["service"])
+        conf["access_control"] = access_rules(["f"], ["service"])
+        paths[name] = made.folder / f"no-router-subject-{name}.json5"
+        paths[name].write_text(render(conf, "test"))
+    with (
+        zenoh.open(zenoh.Config.from_file(str(paths["a"]))) as ra,
+        zenoh.open(zenoh.Config.from_file(str(paths["b"]))) as rb,
+    ):
+        wait_until(lambda: meshed(ra, rb), 20.0, "routers A and B to connect over mTLS")
+        service = open_session([a], config_file=str(made.services["service"]), timeout_s=20)
+        near = open_session([a], config_file=str(made.robots["f"]), timeout_s=20)
+        robot = open_session([b], config_file=str(made.robots["f"]), timeout_s=20)
+        try:
+            got = Collector(service, keys.frames("*", "*"))
+            # Positive control: the same robot identity on router A reaches the subscriber.
+            put_until(near, keys.frames("f", "r"), b"on A", lambda: b"on A" in got.payloads())
+            for _ in range(10):
+                robot.put(keys.frames("f", "r"), b"from B")
+                time.sleep(0.1)
+            time.sleep(QUIET_S)
+            assert got.payloads() == {b"on A"}
+        finally:
+            for session in (robot, near, service):
+                session.close()
+
+
 # -- what `lessmap certs --mesh` writes --------------------------------------------------------
 
 
-def test_without_a_subject_for_the_routers_the_mesh_relays_nothing() -> None:
-    # Why the routers need an identity: the single-router rules have no subject for them.
+def test_the_routers_subject_relays_every_lessmap_key_and_changes_no_role() -> None:
+    # The single-router rules have no subject for the routers; the mesh's add one.
     single = access_rules(["f"], ["service"])
     meshed_rules = access_rules(["f"], ["service"], routers=["router.a", "router.b"])
     assert not any("router" in json.dumps(s) for s in single["subjects"])
