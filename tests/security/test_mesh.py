@@ -15,7 +15,7 @@ import json
 import time
 import uuid
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import zenoh
@@ -141,6 +141,26 @@ def session_at(mesh: Mesh) -> Iterator[Callable[..., zenoh.Session]]:
         session.close()
 
 
+def crossed(session: zenoh.Session, key: str, what: str) -> None:
+    """Wait until a publisher on ``key`` in ``session`` matches a subscriber (across the mesh).
+
+    A writer sends only where a subscriber was declared to it; a declaration crosses two
+    routers before a client on the other side learns of it.
+    """
+    publisher = session.declare_publisher(key)
+    try:
+
+        def matching() -> bool:
+            # A fresh snapshot each time (eclipse-zenoh 1.10's stubs say bool; it is a
+            # MatchingStatus).
+            status: Any = publisher.matching_status
+            return bool(status.matching)
+
+        wait_until(matching, 20.0, what)
+    finally:
+        publisher.undeclare()
+
+
 def put_until_true(put: Callable[[], None], seen: Callable[[], bool], what: str) -> None:
     """Call ``put`` until ``seen()`` (declarations take a moment to cross the mesh)."""
 
@@ -157,7 +177,10 @@ def put_until_true(put: Callable[[], None], seen: Callable[[], bool], what: str)
 
 
 def test_a_robot_and_an_app_on_router_b_work_with_the_service_on_router_a(
-    mesh: Mesh, service: ServeProcess, connect_b: Callable[..., Connection]
+    mesh: Mesh,
+    service: ServeProcess,
+    connect_b: Callable[..., Connection],
+    session_at: Callable[..., zenoh.Session],
 ) -> None:
     app = connect_b("app")
     assert app.wait_for_service(20.0), service.log()  # the instance's token crossed A -> B
@@ -165,6 +188,9 @@ def test_a_robot_and_an_app_on_router_b_work_with_the_service_on_router_a(
     robot = connect_b("robot").robot(mesh.fleet, "amr-1")
     assert robot.wait_for_service(10.0)
     wait_until(lambda: robot.status.owner == service.instance, 10.0, "the robot's owner")
+    # The service's frames subscriber is known on B, the app's transitions subscriber on A.
+    crossed(session_at("b", "robot"), keys.frames(mesh.fleet, "amr-1"), "frames sub at B")
+    crossed(session_at("a", "service"), keys.transitions(mesh.fleet, "amr-1"), "app sub at A")
     walk_two_rooms(robot)  # frames B -> A, transitions A -> B
 
     deadline = time.monotonic() + 20.0
@@ -232,6 +258,8 @@ def test_an_app_of_another_fleet_on_router_b_receives_nothing_of_this_fleet(
 
     robot = connect_b("robot").robot(mesh.fleet, "amr-1")
     assert robot.wait_for_service(10.0)
+    crossed(session_at("b", "robot"), keys.frames(mesh.fleet, "amr-1"), "frames sub at B")
+    crossed(session_at("a", "service"), keys.transitions(mesh.fleet, "amr-1"), "app sub at A")
     walk_two_rooms(robot)
     assert events.recv(timeout_s=20.0) is not None, service.log()  # positive control
     time.sleep(QUIET_S)
