@@ -45,7 +45,8 @@ LOCK_FILE = "instance.lock"
 _SCHEMA_VERSION = 2  # 2: records carry the partition epoch (wire contract v2)
 _PRUNE_EVERY_S = 30.0
 _WIRE_VERSION = 2  # of a record shipped between instances (SessionRecord.to_bytes); 2: zlib
-_TRIM_AFTER_RECORDS = 64  # a batch this large (an eviction wave) is followed by a heap trim
+_TRIM_AFTER_RECORDS = 64  # evicted sessions written since the last heap trim that call for one
+_TRIM_EVERY_S = 1.0  # fewer of them: a trim at most this often
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -151,6 +152,8 @@ class CheckpointStore:
         self._pending: dict[RobotKey, SessionRecord | None] = {}  # None: delete
         self._in_flight = False  # the writer holds a batch taken from _pending
         self._lock_file: BinaryIO | None = None
+        self._evicted_since_trim = 0
+        self._last_trim_s = 0.0
         self._cond = threading.Condition()
         self._db_lock = threading.Lock()  # one connection, shared by the writer and readers
         self._db: sqlite3.Connection | None = None
@@ -387,12 +390,19 @@ class CheckpointStore:
                         log.exception("state store: shipping checkpoints failed")
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
-            large = len(batch) >= _TRIM_AFTER_RECORDS
+            evicted = sum(1 for r in batch.values() if r is not None and r.status == "evicted")
             del batch
-            if large:
+            self._evicted_since_trim += evicted
+            now_mono = time.monotonic()
+            if self._evicted_since_trim and (
+                self._evicted_since_trim >= _TRIM_AFTER_RECORDS
+                or now_mono - self._last_trim_s >= _TRIM_EVERY_S
+            ):
                 # The shards trim after an eviction sweep, but the evicted snapshots are
                 # freed here, later: without this trim their pages stayed with the process.
                 trim_heap()
+                self._evicted_since_trim = 0
+                self._last_trim_s = now_mono
             with self._cond:
                 self._in_flight = False
                 self._cond.notify_all()  # flush() waiters
