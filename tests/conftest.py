@@ -192,3 +192,23 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float, what: str) -> No
     while not predicate():
         assert time.monotonic() < deadline, f"timed out after {timeout_s} s waiting for {what}"
         time.sleep(0.05)
+
+
+@pytest.fixture
+def router() -> Iterator[str]:
+    """A plain Zenoh router in the test process, on a free loopback port; its endpoint.
+
+    Service processes join it, so they can die and restart while robots and fleet apps stay
+    connected; client tests play the service's part on it with sessions of their own.
+    """
+    import json
+
+    import zenoh
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("router"))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    with zenoh.open(conf):
+        yield endpoint
