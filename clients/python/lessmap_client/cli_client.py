@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -268,14 +269,17 @@ def follow(
 
 def configure_status(status: argparse.ArgumentParser) -> None:
     """Define ``lessmap status`` (run by ``run_status``)."""
+    from lessmap_schemas.partition import PARTITIONS
+
     status.description = (
         "Show the running lessmap service: its live instances (liveliness tokens) with their "
         "Health (version, uptime, sessions, queue depth, lag, partitions owned and shadowed), "
-        "then, for each of the 64 partitions, its owner and standby as every participant "
-        "computes them (rendezvous hashing over the live instances) and whether the owner "
-        "says it serves the partition. A disagreement (an owner that has not taken its "
-        "partition yet, an instance still serving a partition it no longer owns) is flagged; "
-        "it is normal for a moment after an instance joins or leaves. Exit code 1 when no "
+        f"then which of the {PARTITIONS} partitions each instance owns and stands by for "
+        "(as ranges) as every participant computes them (rendezvous hashing over the live "
+        "instances), and the partitions whose owner does not say it serves them. A "
+        "disagreement (an owner that has not taken its partition yet, an instance still "
+        "serving a partition it no longer owns) is flagged; it is normal for a moment after "
+        "an instance joins or leaves. --json lists every partition. Exit code 1 when no "
         "instance answers."
     )
     status.add_argument("--json", action="store_true", help="print one JSON object")
@@ -420,17 +424,29 @@ def render_status(report: dict[str, Any]) -> str:
     for entry in report["instances"]:
         if "note" in entry:
             lines.append(f"  ! {entry['instance']}: {entry['note']}")
+    # Partitions as ranges per instance and per problem, not one line per partition: the
+    # count is fixed by the contract (hundreds); ``--json`` has every partition.
+    owned: dict[str | None, list[int]] = {}
+    shadowed: dict[str | None, list[int]] = {}
+    problems: dict[str, list[int]] = {}
+    for entry in report["partitions"]:
+        owned.setdefault(entry["owner"], []).append(entry["partition"])
+        shadowed.setdefault(entry["standby"], []).append(entry["partition"])
+        if entry["flags"]:
+            problems.setdefault("; ".join(entry["flags"]), []).append(entry["partition"])
     lines.append("")
-    prow = [
-        [
-            str(entry["partition"]),
-            cell(entry["owner"]),
-            cell(entry["standby"]),
-            "; ".join(entry["flags"]) or "ok",
-        ]
-        for entry in report["partitions"]
-    ]
-    lines += _table(["partition", "owner", "standby", "agrees"], prow)
+    lines.append("partitions by instance (rendezvous ranking over the live instances):")
+    for name in sorted(n for n in {*owned, *shadowed} if n is not None):
+        mine, backup = owned.get(name, []), shadowed.get(name, [])
+        lines += _wrapped(f"  {name} owns {len(mine)}", mine)
+        lines += _wrapped(f"  {name} stands by for {len(backup)}", backup)
+    if None in owned:
+        lines += _wrapped(f"  without an owner {len(owned[None])}", owned[None])
+    if problems:
+        lines.append("")
+        lines.append("disagreements:")
+        for problem, partitions in problems.items():
+            lines += _wrapped(f"  {problem} ({len(partitions)})", partitions)
     total = len(report["partitions"])
     bad = report["disagreements"]
     lines.append("")
@@ -439,6 +455,30 @@ def render_status(report: dict[str, Any]) -> str:
         + (f"; {bad} disagree (normal for a moment after a join or a leave)" if bad else "")
     )
     return "\n".join(lines) + "\n"
+
+
+def _ranges(partitions: list[int], sep: str = ",") -> str:
+    """'0-3,7,9-10' for [0, 1, 2, 3, 7, 9, 10]; '-' for none."""
+    runs: list[list[int]] = []
+    for p in sorted(partitions):
+        if runs and p == runs[-1][1] + 1:
+            runs[-1][1] = p
+        else:
+            runs.append([p, p])
+    return sep.join(str(a) if a == b else f"{a}-{b}" for a, b in runs) or "-"
+
+
+def _wrapped(label: str, partitions: list[int], width: int = 100) -> list[str]:
+    """``label: ranges``, wrapped under the ranges at ``width`` columns."""
+    head = f"{label}: "
+    return textwrap.wrap(
+        _ranges(partitions, ", "),
+        width=max(width, len(head) + 20),
+        initial_indent=head,
+        subsequent_indent=" " * len(head),
+        break_on_hyphens=False,
+        break_long_words=False,
+    )
 
 
 def _table(head: list[str], rows: list[list[str]]) -> list[str]:
