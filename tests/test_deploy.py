@@ -146,7 +146,7 @@ def test_the_local_cluster_starts_two_routers_and_three_instances_and_stops_them
             wait_until(
                 partial(owned_by, sessions[0], {"local-1", "local-3"}),
                 60.0,
-                "local-1 and local-3 to own all 64 partitions",
+                f"local-1 and local-3 to own all {PARTITIONS} partitions",
             )
         finally:
             for session in sessions:
@@ -170,7 +170,7 @@ def sees(session: zenoh.Session, expected: set[str]) -> bool:
 
 
 def owned_by(session: zenoh.Session, instances: set[str]) -> bool:
-    """Return whether exactly ``instances`` answer health and own the 64 partitions."""
+    """Return whether exactly ``instances`` answer health and own the partitions."""
     owners: dict[int, list[str]] = {}
     answered = set()
     for reply in session.get(keys.health(), timeout=2.0):

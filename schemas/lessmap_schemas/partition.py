@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-PARTITIONS = 64
+PARTITIONS = 256
 """Number of partitions; fixed by the contract version (a change is a breaking change)."""
 
 

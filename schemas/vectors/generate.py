@@ -308,11 +308,11 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("fleet with '*'", "BAD_NAME", fleet="*")
         bad("robot with '#'", "BAD_NAME", robot="amr#7")
         bad("instance with '?'", "BAD_NAME", instance="a?")
-        ok("largest epoch, last partition", epoch=2**53 - 1, partition=63)
+        ok("largest epoch, last partition", epoch=2**53 - 1, partition=PARTITIONS - 1)
         bad("epoch 0", "INVALID", epoch=0)
         bad("epoch null", "INVALID", epoch=None)
         bad("epoch 2**53", "INVALID", epoch=2**53)
-        bad("partition 64", "INVALID", partition=64)
+        bad(f"partition {PARTITIONS}", "INVALID", partition=PARTITIONS)
         bad("partition missing", "INVALID", partition=DROP)
     elif kind == "Error":
         ok(
@@ -350,7 +350,7 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("version empty", "INVALID", version="")
         bad("sessions as string", "INVALID", sessions="12")
         ok("no partitions yet", partitions=[], standby=[], queue_depth=0, lag_s=0.0)
-        bad("partition 64", "INVALID", partitions=[64])
+        bad(f"partition {PARTITIONS}", "INVALID", partitions=[PARTITIONS])
         bad("lag negative", "INVALID", lag_s=-0.5)
     return valid, invalid
 
@@ -415,11 +415,11 @@ def partition_vectors() -> dict[str, object]:
         "scores": [
             {"instance": name, "partition": p, "score_hex": f"{score(name, p):016x}"}
             for name in instances[:2]
-            for p in (0, 1, 63)
+            for p in (0, 1, PARTITIONS - 1)
         ],
         "rankings": [
             {"partition": p, "instances": live, "ranking": ranking(p, live)}
-            for p in (0, 1, 2, 29, 63)
+            for p in (0, 1, 2, 29, PARTITIONS - 1)
             for live in (instances, instances[:2], instances[:1], [])
         ],
     }

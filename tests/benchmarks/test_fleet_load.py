@@ -15,6 +15,7 @@ import math
 import pytest
 
 from lessmap.core import Partitioner, PartitionParams
+from lessmap_schemas.partition import PARTITIONS
 from tests.benchmarks.fleet_load import LoadSpec, format_report, run_load, simulated_streams
 
 pytestmark = pytest.mark.timeout(120)
@@ -85,7 +86,7 @@ def test_small_fleet_loses_nothing_and_every_crossing_robot_gets_its_transitions
         # Each instance received exactly its robots' frames and SessionEnds, nothing else.
         figures = report.instance_figures
         assert len(figures) == instances, summary
-        assert sum(f.partitions_at_start for f in figures) == 64, summary
+        assert sum(f.partitions_at_start for f in figures) == PARTITIONS, summary
         for f in figures:
             assert f.received == f.frames_offered + f.robots, summary
             assert f.applied == f.frames_offered, summary

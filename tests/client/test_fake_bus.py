@@ -11,6 +11,7 @@ from lessmap_client import Connection, aio
 from lessmap_client.testing import FakeBus, key_matches, make_error, make_state, make_transition
 from lessmap_schemas import Transition, keys
 from lessmap_schemas.errors import ErrorCode, InvalidNameError, WireError
+from lessmap_schemas.partition import PARTITIONS
 from tests.conftest import wait_until
 
 
@@ -234,7 +235,8 @@ def test_the_fake_routes_v2_frames_keys_and_counts_misrouted_ones() -> None:
     p = partition_of("warehouse", "amr-7")
     payload = encode(Frame(session="s", seq=0, stamp_s=0.0, features=[1]))
     bus.put(f"lessmap/v2/warehouse/amr-7/frames/{p}", payload)
-    bus.put(f"lessmap/v2/warehouse/amr-7/frames/{(p + 1) % 64}", payload)  # another partition
+    other = (p + 1) % PARTITIONS
+    bus.put(f"lessmap/v2/warehouse/amr-7/frames/{other}", payload)  # another partition
     bus.put("lessmap/v2/warehouse/amr-7/frames", payload)  # v1 shape: no partition chunk
     assert [f.seq for f in bus.frames("warehouse", "amr-7")] == [0]
     assert bus.misrouted_sent == 2
@@ -254,7 +256,7 @@ def test_the_fake_emits_v2_events_and_the_sdk_fences_them() -> None:
     assert make_error("f", "r").epoch == 1
     assert make_error(None, None, ErrorCode.MALFORMED).epoch is None
     with pytest.raises(ValueError, match="partition"):
-        bus.publish_transition(t.model_copy(update={"partition": (t.partition + 1) % 64}))
+        bus.publish_transition(t.model_copy(update={"partition": (t.partition + 1) % PARTITIONS}))
     with bus.connect() as conn:
         events = conn.subscribe_events("f")
         bus.publish_transition(make_transition("f", "r", closed_id=0, epoch=7))
@@ -293,7 +295,7 @@ def test_states_keep_the_highest_epoch_per_robot() -> None:
 
 
 def test_instances_are_tokens_the_robots_follow() -> None:
-    from lessmap_schemas.partition import PARTITIONS, assignment, owner_and_standby
+    from lessmap_schemas.partition import assignment, owner_and_standby
 
     bus = FakeBus(instances=[])
     with bus.connect() as conn, conn.robot("f", "r") as robot:
@@ -362,7 +364,7 @@ def test_a_robot_waits_until_its_owner_lists_its_partition() -> None:
     with bus.connect() as conn, conn.robot("f", "r") as robot:
         assert robot.status.owner == "a"
         assert robot.wait_for_service(0.0)  # an owner that answers no Health: its token counts
-        bus.set_health(health([p for p in range(64) if p != robot.partition]))
+        bus.set_health(health([p for p in range(PARTITIONS) if p != robot.partition]))
         assert not robot.wait_for_service(0.3)  # owner, but it has not taken the partition
-        bus.set_health(health(list(range(64))))
+        bus.set_health(health(list(range(PARTITIONS))))
         assert robot.wait_for_service(0.3)

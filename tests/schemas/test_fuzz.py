@@ -25,7 +25,7 @@ from lessmap_schemas import (
     encode,
     keys as lessmap_keys,
 )
-from lessmap_schemas.partition import partition_of
+from lessmap_schemas.partition import PARTITIONS, partition_of
 from tests.schemas.samples import samples
 
 FUZZ = settings(
@@ -224,11 +224,12 @@ def test_v2_fields_take_only_their_range(field: tuple[type[Message], str], data:
         assert model is Error  # only an Error may name no epoch
     elif name in ("partition", "epoch", "queue_depth"):
         assert type(value) is int
-        low, high = {"partition": (0, 63), "epoch": (1, 2**53 - 1)}.get(name, (0, 2**53 - 1))
+        bounds = {"partition": (0, PARTITIONS - 1), "epoch": (1, 2**53 - 1)}
+        low, high = bounds.get(name, (0, 2**53 - 1))
         assert low <= value <= high
     elif name in ("partitions", "standby"):
         assert all(type(p) is int for p in accepted)
-        assert all(0 <= p <= 63 for p in accepted)
+        assert all(0 <= p < PARTITIONS for p in accepted)
     else:
         assert math.isfinite(accepted)
         assert accepted >= 0

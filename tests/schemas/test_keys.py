@@ -102,11 +102,14 @@ def test_subscription_helpers_default_to_every_robot() -> None:
     assert keys.frames("*", "*") == "lessmap/v2/*/*/frames/*"
     assert keys.frames("warehouse", "*") == "lessmap/v2/warehouse/*/frames/*"
     assert keys.frames_of_partition(0) == "lessmap/v2/*/*/frames/0"
-    assert keys.frames_of_partition(63) == "lessmap/v2/*/*/frames/63"
+    last = partition.PARTITIONS - 1
+    assert keys.frames_of_partition(last) == f"lessmap/v2/*/*/frames/{last}"
     assert keys.health() == "lessmap/v2/@/health/*"
 
 
-@pytest.mark.parametrize("value", [-1, 64, 2**64, True, False, 1.0, "3", "*", None])
+@pytest.mark.parametrize(
+    "value", [-1, partition.PARTITIONS, 2**64, True, False, 1.0, "3", "*", None]
+)
 def test_partition_chunks_are_ints_in_range(value: object) -> None:
     with pytest.raises(InvalidNameError) as info:
         keys.frames_of_partition(value)  # type: ignore[arg-type]
@@ -224,7 +227,7 @@ BAD_PARTITION_CHUNKS = [
     " 23",
     "23 ",
     "\u0662\u0663",
-    "64",
+    str(partition.PARTITIONS),
     "99",
     "-1",
     "9" * 5000,

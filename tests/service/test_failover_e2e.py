@@ -246,7 +246,7 @@ def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> 
         print(  # noqa: T201 - the figure for docs/BENCHMARKS.md
             f"killed {victim} (robots {robots_moved}); served again after "
             + ", ".join(f"{r}: {served_again[r]:.2f} s" for r in robots_moved)
-            + f"; all 64 partitions owned again after {takeover_s:.2f} s (Health polled)"
+            + f"; all {PARTITIONS} partitions owned again after {takeover_s:.2f} s (Health polled)"
         )
         summary = replay_summary(replay)
         assert code == 0, (summary, [p.log()[-2000:] for p in site.procs])

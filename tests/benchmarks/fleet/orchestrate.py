@@ -5,7 +5,7 @@ Processes, all on 127.0.0.1 and each stopped by its PID (SIGTERM, then kill):
 - one instance: ``python -m lessmap serve -m router -l tcp/127.0.0.1:PORT`` with metrics;
   N > 1 instances: ``python -m lessmap router -l tcp/127.0.0.1:PORT`` and N times
   ``python -m lessmap serve -m client -e tcp/127.0.0.1:PORT --instance bench-<pid>-<i>
-  --state-dir <run>/state-<i>``, sharing the fleet's 64 partitions (contract section 2a);
+  --state-dir <run>/state-<i>``, sharing the fleet's partitions (contract section 2a);
   the load starts once each owns its rendezvous share. ``kill_after_s``: one instance is
   killed with SIGKILL mid-run and its robots' take-over is timed (``takeover.py``);
 - 1-2 load generators, ``python -m tests.benchmarks.fleet.orchestrate SPEC.json``: one
@@ -293,7 +293,7 @@ def run_load(
 
 
 def _wait_partitions(services: list[ServiceProcess], timeout_s: float) -> dict[str, int]:
-    """Wait until each instance owns its rendezvous share of the 64 partitions; return it.
+    """Wait until each instance owns its rendezvous share of the partitions; return it.
 
     Generators start only then, so no robot's first frames go to a partition nobody has
     subscribed to yet.
@@ -634,7 +634,7 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=1,
         help="service instances (default 1: one instance, its own router); N > 1: a "
-        "`lessmap router` and N instances joined to it as clients, sharing the fleet's 64 "
+        "`lessmap router` and N instances joined to it as clients, sharing the fleet's "
         "partitions; the report gives each instance's frames received next to its robots'",
     )
     parser.add_argument(

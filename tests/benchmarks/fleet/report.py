@@ -484,7 +484,7 @@ def _takeover_lines(r: LoadReport) -> list[str]:
         f"p50 {served['p50']:.2f}, p90 {served['p90']:.2f}, max {served['max']:.2f}, "
         f"min {served['min']:.2f} (n={served['n']}, poll every {t['poll_s']:g} s, "
         f"{t['polls']} polls); never: {len(t['unresolved'])}",
-        f"  survivors own 64 partitions again after {t['partitions_back_s']:.2f} s; "
+        f"  survivors own every partition again after {t['partitions_back_s']:.2f} s; "
         f"take-overs logged (partitions, ms, checkpoints fetched): {t['took_ms']}",
     ]
 

@@ -8,7 +8,7 @@ and records the first moment a survivor answers for it with ``last_seq`` past th
 the robot had published when the kill happened (from the generators' schedule): the new
 owner has resumed the session from the shipped checkpoint, caught up from the robot's cache
 and applied (and decided on) a frame sent after the kill. Beside it, the moment the
-survivors' ``lessmap_partitions_owned`` sum is back to 64 and the take-over times the
+survivors' ``lessmap_partitions_owned`` sum is back to ``PARTITIONS`` and the take-over times the
 survivors log ("took N partition(s) in X ms").
 
 Resolution: the poll period (``poll_s``) plus one query round trip. The polling itself costs
@@ -45,7 +45,7 @@ class TakeoverResult:
     poll_s: float
     served_after_s: dict[str, float] = field(default_factory=dict)  # robot -> s after the kill
     unresolved: list[str] = field(default_factory=list)
-    partitions_back_s: float = math.nan  # survivors own 64 partitions again
+    partitions_back_s: float = math.nan  # survivors own every partition again
     took_ms: list[tuple[int, int, int]] = field(default_factory=list)  # (partitions, ms, ckpts)
     polls: int = 0
 
@@ -121,6 +121,7 @@ class TakeoverWatch:
         from lessmap_schemas.codec import decode
         from lessmap_schemas.errors import WireError
         from lessmap_schemas.messages import SessionState
+        from lessmap_schemas.partition import PARTITIONS
 
         r = self.result
         deadline = time.time() + self._timeout_s
@@ -129,7 +130,7 @@ class TakeoverWatch:
             if self._stop.is_set():
                 break
             started = time.time()
-            if math.isnan(r.partitions_back_s) and self._owned_by_survivors() >= 64:
+            if math.isnan(r.partitions_back_s) and self._owned_by_survivors() >= PARTITIONS:
                 r.partitions_back_s = time.time() - r.killed_at
             if self._pending:
                 r.polls += 1
