@@ -81,36 +81,44 @@ class Ownership:
         """Replace the live set (this instance is always in it); return what changes."""
         with self._lock:
             self._live = {*instances, self.instance}
-            return self._diff()
+            live = frozenset(self._live)
+        return self._diff(live)
 
     def join(self, instance: str) -> Change:
         """An instance's token appeared."""
         with self._lock:
             self._live.add(instance)
-            return self._diff()
+            live = frozenset(self._live)
+        return self._diff(live)
 
     def leave(self, instance: str) -> Change:
         """An instance's token went away (never this one: its own token is its own)."""
         with self._lock:
             if instance != self.instance:
                 self._live.discard(instance)
-            return self._diff()
+            live = frozenset(self._live)
+        return self._diff(live)
 
-    def _diff(self) -> Change:
+    def _diff(self, live: frozenset[str]) -> Change:
+        # The ranking (a hash per instance and partition) runs outside the lock: the fence
+        # takes it for every incoming frame. One thread applies changes, so nothing else
+        # moves the owned set meanwhile.
         should_own: set[int] = set()
         should_stand: set[int] = set()
         for p in range(PARTITIONS):
-            owner, standby = owner_and_standby(p, self._live)
+            owner, standby = owner_and_standby(p, live)
             if owner == self.instance:
                 should_own.add(p)
             elif standby == self.instance:
                 should_stand.add(p)
-        owned = set(self._owned)
+        with self._lock:
+            owned = set(self._owned)
+            standing = set(self._standby)
         return Change(
             gained=sorted(should_own - owned),
             lost=sorted(owned - should_own),
-            standby_gained=sorted(should_stand - self._standby),
-            standby_lost=sorted(self._standby - should_stand),
+            standby_gained=sorted(should_stand - standing),
+            standby_lost=sorted(standing - should_stand),
         )
 
     # -- applying a change (the service does the I/O in between) -----------------------------
