@@ -1,0 +1,47 @@
+"""Smoke test of the core benchmark: tiny sizes, the table, and decisions equal to exact LAPACK.
+
+No timing is asserted: the figures depend on the machine.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import pytest
+
+from tests.benchmarks import core_bench
+
+if TYPE_CHECKING:
+    from tests.benchmarks.core_bench import Stream
+
+
+def test_the_table_is_printed_at_tiny_sizes(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--sizes", "50,450", "--frames", "12", "--no-memory"]
+    argv += ["--visual-frames", "20", "--visual-alive", "120"]
+    assert core_bench.main(argv) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert core_bench.HEADER in lines
+    rows = [line for line in lines if line.startswith(("room chain n=", "visual "))]
+    assert [row.split()[2] for row in rows[:2]] == ["n=50", "n=450"]
+    assert len(rows) == 3
+    for row in rows:
+        assert "nan" not in row
+    assert "MRPT:" in out
+
+
+@pytest.mark.parametrize(
+    "stream",
+    [
+        core_bench.room_chain(50, frames=20),
+        core_bench.room_chain(450, frames=12),  # above 400 nodes: CSR counts and ARPACK
+        core_bench.visual(frames_per_room=25, alive=120, pool=300, warmup=5),
+    ],
+    ids=["room chain 50", "room chain 450", "small visual"],
+)
+def test_decisions_on_the_benchmark_streams_equal_the_exact_dense_solver(stream: Stream) -> None:
+    params = core_bench.params_of(stream)
+    fast = core_bench.decisions(stream, params, exact=False)
+    exact = core_bench.decisions(stream, params, exact=True)
+    assert fast == exact
+    assert any(len(decision) > 4 for decision in fast)  # at least one transition compared
