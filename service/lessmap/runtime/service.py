@@ -174,6 +174,13 @@ class Service:
         for shard in self._shards:
             shard.start()
         self._query_thread.start()
+        # Metrics before any declaration: frames can arrive as soon as a partition is taken.
+        if s.metrics_port is not None:
+            server, _thread = start_http_server(
+                s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
+            )
+            self._metrics_server = server
+            self.metrics_port = server.server_port
         any_robot = f"{keys.KEY_PREFIX}/*/*"
         self._declared.append(session.declare_queryable(f"{any_robot}/state", self._queries.put))
         self._declared.append(
@@ -208,12 +215,6 @@ class Service:
         self._heartbeat_thread.start()
         self._apply(self.ownership.set_live(live))
         self._control_thread.start()
-        if s.metrics_port is not None:
-            server, _thread = start_http_server(
-                s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
-            )
-            self._metrics_server = server
-            self.metrics_port = server.server_port
         log.info(
             "lessmap %s serving as %s (%s, %d shard(s), profile %s, %d of %d partitions)%s",
             __version__,
