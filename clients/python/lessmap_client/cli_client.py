@@ -104,7 +104,8 @@ def run_replay(args: argparse.Namespace) -> int:
     frames = list(read_recorded(args.file, robot_prefix=args.robot_prefix))
     stats = ReplayStats()
     with connect(endpoints(args), mode=args.mode) as conn:
-        if not conn.wait_for_service(args.wait_service):
+        served = conn.wait_for_service(args.wait_service)
+        if not served:
             sys.stderr.write("lessmap replay: no lessmap service answered; publishing anyway\n")
         reports = conn.subscribe_errors(args.fleet)
 
@@ -131,6 +132,8 @@ def run_replay(args: argparse.Namespace) -> int:
                 speed=None if args.fast else args.speed,
                 robot_prefix=args.robot_prefix,
                 stats=stats,
+                # Each robot's first frame waits until its partition's owner can hear it.
+                wait_service_s=args.wait_service if served else 0.0,
             )
             final = settled_states(
                 lambda: conn.states(args.fleet, timeout_s=1.0), stats, quiet_s=args.settle

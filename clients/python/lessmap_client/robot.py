@@ -272,7 +272,9 @@ class RobotPublisher:
         owner. A new owner takes its partitions a moment after its token appears, so this
         also asks the owner's ``Health`` and waits until it lists the partition (an owner
         that does not answer Health queries is taken at its token). Frames published before
-        that are not lost: the publisher's cache keeps them for the owner to fetch.
+        that are not lost while the robot keeps publishing: the publisher's cache keeps
+        them for the owner to fetch. Last, it waits until the owner's frames subscription
+        matches this robot's key, so the next frame is routed to the owner.
         """
         deadline = time.monotonic() + timeout_s
         while True:
@@ -283,6 +285,12 @@ class RobotPublisher:
                         return False
                     self._live_changed.wait(remaining)
             if self._owner_serves(owner, min(1.0, max(0.1, deadline - time.monotonic()))):
+                # Served, and the owner's frames subscription has reached this session: a
+                # frame published now is routed to it (before that, Zenoh would drop it here).
+                while not self._publisher.matched():
+                    if time.monotonic() >= deadline:
+                        return False
+                    time.sleep(0.02)
                 return True
             if time.monotonic() >= deadline:
                 return False

@@ -324,6 +324,9 @@ class _FakePublisher:
             raise RuntimeError(msg)
         self._bus.put(self._key, payload)
 
+    def matched(self) -> bool:
+        return not self._closed
+
     def close(self) -> None:
         self._closed = True
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 from zenoh import ext
@@ -40,6 +40,9 @@ class Publisher(Handle, Protocol):
 
     def put(self, payload: bytes) -> None:
         """Publish one payload; blocks rather than drop it under congestion."""
+
+    def matched(self) -> bool:
+        """Whether a subscriber (the service's, for frames) matches the key right now."""
 
 
 class Transport(Protocol):
@@ -123,9 +126,17 @@ class _ZenohHandle:
 
 
 class _ZenohPublisher:
-    def __init__(self, owner: ZenohTransport, publisher: ext.AdvancedPublisher) -> None:
+    def __init__(
+        self,
+        owner: ZenohTransport,
+        publisher: ext.AdvancedPublisher,
+        probe: zenoh.Publisher | None = None,
+    ) -> None:
         self._owner = owner
         self._publisher: ext.AdvancedPublisher | None = publisher
+        # zenoh.ext's AdvancedPublisher has no matching status in Python: a plain publisher
+        # on the same key, never used to put, tells whether a subscriber matches.
+        self._probe = probe
 
     def put(self, payload: bytes) -> None:
         if self._publisher is None:
@@ -133,8 +144,19 @@ class _ZenohPublisher:
             raise RuntimeError(msg)
         self._publisher.put(payload)
 
+    def matched(self) -> bool:
+        probe = self._probe
+        if probe is None or self._publisher is None:
+            return self._publisher is not None
+        # The stubs say bool; the binding returns a MatchingStatus with ``.matching``.
+        status: Any = probe.matching_status
+        return bool(getattr(status, "matching", status))
+
     def close(self) -> None:
         publisher, self._publisher = self._publisher, None
+        probe, self._probe = self._probe, None
+        if probe is not None:
+            probe.undeclare()
         if publisher is not None:
             publisher.undeclare()
             self._owner._forget(self)
@@ -244,6 +266,7 @@ class ZenohTransport:
                 cache=ext.CacheConfig(cache),
                 publisher_detection=True,
             ),
+            self.session.declare_publisher(key),
         )
         self._remember(handle)
         return handle

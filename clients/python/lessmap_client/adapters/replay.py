@@ -127,6 +127,7 @@ def replay(
     sleep: Callable[[float], None] = time.sleep,
     clock: Callable[[], float] = time.monotonic,
     stats: ReplayStats | None = None,
+    wait_service_s: float = 0.0,
 ) -> ReplayStats:
     """Publish frames paced by their stamps; every robot's session is ended at the end.
 
@@ -144,6 +145,9 @@ def replay(
         clock: monotonic seconds.
         stats: filled as the replay goes (another thread may read it for progress); a new
             one by default. Returned either way.
+        wait_service_s: before a robot's first frame, wait up to this long until its
+            partition's owner serves it and the owner's subscription reaches the robot
+            (``RobotPublisher.wait_for_service``); 0: publish at once.
     """
     if speed is not None and speed <= 0:
         msg = f"speed must be positive or None, got {speed}"
@@ -167,6 +171,8 @@ def replay(
                     fleet, name, session=session, auto_new_session=False
                 )
                 stats.per_robot[name] = RobotReplay(name, publisher.session_id)
+                if wait_service_s > 0:
+                    publisher.wait_for_service(wait_service_s)
             record = stats.per_robot[publisher.robot]
             try:
                 publisher.publish(
