@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import uuid
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import zenoh
@@ -18,7 +18,7 @@ import zenoh
 from lessmap.certs import Site, make_site
 from lessmap_client import connect
 from lessmap_client.session import open_session
-from tests.conftest import ServeProcess, free_port
+from tests.conftest import ServeProcess, free_port, wait_until
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -106,3 +106,23 @@ def session_as(site: SecureSite) -> Iterator[Callable[..., zenoh.Session]]:
     yield open_as
     for session in reversed(opened):
         session.close()
+
+
+def crossed(session: zenoh.Session, key: str, what: str) -> None:
+    """Wait until a publisher on ``key`` in ``session`` matches a subscriber (across the mesh).
+
+    A writer sends only where a subscriber was declared to it; a declaration crosses two
+    routers before a client on the other side learns of it.
+    """
+    publisher = session.declare_publisher(key)
+    try:
+
+        def matching() -> bool:
+            # A fresh snapshot each time (eclipse-zenoh 1.10's stubs say bool; it is a
+            # MatchingStatus).
+            status: Any = publisher.matching_status
+            return bool(status.matching)
+
+        wait_until(matching, 20.0, what)
+    finally:
+        publisher.undeclare()

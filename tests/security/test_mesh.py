@@ -15,7 +15,7 @@ import json
 import time
 import uuid
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import pytest
 import zenoh
@@ -31,6 +31,7 @@ from lessmap_schemas import encode, encoding, keys
 from lessmap_schemas.messages import Frame
 from lessmap_schemas.partition import partition_of
 from tests.conftest import ServeProcess, free_port, wait_until
+from tests.security.conftest import crossed
 from tests.security.test_certs import DEPLOY, common_name
 from tests.security.test_mtls_e2e import collect, walk_two_rooms
 from tests.security.test_v2_acl import Collector, answer_with, put_until, replies
@@ -139,26 +140,6 @@ def session_at(mesh: Mesh) -> Iterator[Callable[..., zenoh.Session]]:
     yield open_as
     for session in reversed(opened):
         session.close()
-
-
-def crossed(session: zenoh.Session, key: str, what: str) -> None:
-    """Wait until a publisher on ``key`` in ``session`` matches a subscriber (across the mesh).
-
-    A writer sends only where a subscriber was declared to it; a declaration crosses two
-    routers before a client on the other side learns of it.
-    """
-    publisher = session.declare_publisher(key)
-    try:
-
-        def matching() -> bool:
-            # A fresh snapshot each time (eclipse-zenoh 1.10's stubs say bool; it is a
-            # MatchingStatus).
-            status: Any = publisher.matching_status
-            return bool(status.matching)
-
-        wait_until(matching, 20.0, what)
-    finally:
-        publisher.undeclare()
 
 
 def put_until_true(put: Callable[[], None], seen: Callable[[], bool], what: str) -> None:

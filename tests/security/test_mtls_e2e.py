@@ -27,6 +27,7 @@ from lessmap_schemas.messages import (
 )
 from lessmap_schemas.partition import partition_of
 from tests.conftest import ServeProcess, wait_until
+from tests.security.conftest import crossed
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -43,6 +44,7 @@ QUIET_S = 1.0
 
 def walk_two_rooms(robot: RobotPublisher, frames: int = 40) -> None:
     """Publish frames that see one room, then a disjoint one: one transition."""
+    assert robot.wait_for_service(20.0), "the robot's partition is not served"
     for i in range(frames):
         base = 0 if i < frames // 2 else 1000
         robot.publish(range(base, base + 12), stamp_s=0.1 * i)
@@ -128,7 +130,9 @@ def test_a_robot_of_another_fleet_cannot_feed_this_fleet(
     for seq in range(5):
         payload = encode(frame.model_copy(update={"seq": seq}))
         intruder.put(keys.frames(site.fleet, "victim"), payload, encoding=encoding(frame))
-    # Positive control: the same session may feed its own fleet, and the service applies it.
+    # Positive control: the same session may feed its own fleet, and the service applies it
+    # (once the service's subscription has reached this fresh session).
+    crossed(intruder, keys.frames(site.other, "own"), "the service's subscription")
     for seq in range(5):
         payload = encode(frame.model_copy(update={"seq": seq}))
         intruder.put(keys.frames(site.other, "own"), payload, encoding=encoding(frame))
@@ -157,6 +161,7 @@ def test_only_the_fleets_robots_may_end_or_replace_a_robots_session(
     app = connect_as("app")
     assert app.wait_for_service(20.0), service.log()
     victim = robots.robot(site.fleet, "victim")
+    assert victim.wait_for_service(20.0), service.log()
     for seq in range(5):
         victim.publish([seq, seq + 1, 100])
     wait_until(
