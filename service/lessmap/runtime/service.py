@@ -199,21 +199,22 @@ class Service:
         # every new robot costs a history query of its whole cache. The query is asked only
         # on a gap, for one robot, and the table puts what comes back in seq order itself.
         self.store.on_written = self._ship
-        self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
-        # Ask for the live tokens before declaring the liveliness subscriber: with a history
-        # subscriber declared first, zenoh 1.x answered the get with the local token only
-        # (and a new instance then took every partition for a moment). The subscriber's
-        # history repeats what the get saw; joins are idempotent.
+        # Take this instance's partitions first (frames subscriptions, checkpoints, cache
+        # probes), then declare the token: declarations reach every client in order, so one
+        # that sees the token already routes its frames here. The live tokens are asked
+        # before the liveliness subscriber is declared: with a history subscriber declared
+        # first, zenoh 1.x answered the get with the local token only. The subscriber's
+        # history repeats what the get saw; joins are idempotent. Later changes arrive on
+        # the ownership thread.
         live = self._live_instances()
         log.info("live instances: %s", ", ".join(sorted(set(live))))
-        self._liveliness_sub = session.liveliness().declare_subscriber(
-            keys.instances(), self._on_liveliness, history=True
-        )
-        # Take this instance's partitions before saying it serves; later changes arrive on
-        # the ownership thread.
         self.ownership.start_clock()
         self._heartbeat_thread.start()
         self._apply(self.ownership.set_live(live))
+        self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
+        self._liveliness_sub = session.liveliness().declare_subscriber(
+            keys.instances(), self._on_liveliness, history=True
+        )
         self._control_thread.start()
         log.info(
             "lessmap %s serving as %s (%s, %d shard(s), profile %s, %d of %d partitions)%s",
