@@ -138,11 +138,26 @@ def new_robot_wait_s(
     return float("nan")
 
 
-def run(variant: str, robots: int, settle_s: float, workdir: Path) -> dict[str, float | str]:
-    """Flood one fresh service; return its figures."""
+def run(
+    variant: str, robots: int, settle_s: float, workdir: Path, *, behind_router: bool = False
+) -> dict[str, float | str]:
+    """Flood one fresh service; return its figures.
+
+    ``behind_router``: the service joins a separate ``lessmap router`` as a client (a site's
+    topology) instead of being the router itself, so Zenoh's routing state for the flood's
+    keys lives in the router process.
+    """
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     metrics_port = free_port()
-    args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]
+    router: subprocess.Popen[bytes] | None = None
+    if behind_router:
+        with (workdir / f"router-{variant}.log").open("wb") as log:
+            router = subprocess.Popen(
+                [sys.executable, "-m", "lessmap", "router", "-l", endpoint], stdout=log, stderr=log
+            )
+        args = [sys.executable, "-m", "lessmap", "serve", "-m", "client", "-e", endpoint]
+    else:
+        args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]
     args += ["--cfg", "scouting/multicast/enabled:false", "--metrics-port", str(metrics_port)]
     args += ["--state-dir", str(workdir / f"state-{variant}"), "--idle-timeout", "2"]
     args += ["--max-sessions", str(2 * robots), "--new-sessions-per-s-per-fleet", "100000"]
@@ -218,6 +233,8 @@ def run(variant: str, robots: int, settle_s: float, workdir: Path) -> dict[str, 
         if session is not None:
             session.close()
         stop_process(service)
+        if router is not None:
+            stop_process(router)
 
 
 def main() -> None:
@@ -227,6 +244,11 @@ def main() -> None:
     parser.add_argument("--variants", default="baseline,shipped")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each variant")
     parser.add_argument("--settle", type=float, default=3.0, help="seconds before RSS")
+    parser.add_argument(
+        "--behind-router",
+        action="store_true",
+        help="the service joins a separate lessmap router as a client (a site's topology)",
+    )
     args = parser.parse_args()
     head = f"{'variant':<12} {'before':>7} {'peak':>7} {'after':>7} {'after/b':>8} {'left':>5}"
     head += f" {'heap':>6} {'arenas':>6} {'anon':>6} {'file':>6} {'new robot s':>11} {'flood s':>7}"
@@ -235,7 +257,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="lessmap-flood-") as tmp:
         for _ in range(args.repeat):
             for variant in args.variants.split(","):
-                r = run(variant, args.robots, args.settle, Path(tmp))
+                r = run(
+                    variant, args.robots, args.settle, Path(tmp), behind_router=args.behind_router
+                )
                 print(  # noqa: T201
                     f"{variant:<12} {r['before']:>7.0f} {r['peak']:>7.0f} {r['after']:>7.0f} "
                     f"{r['ratio']:>8.2f} {r['left']:>5.2f} {r['heap']:>6.0f} {r['arenas']:>6.0f} "
