@@ -171,6 +171,10 @@ def test_a_robot_knows_whether_its_partition_has_an_owner(
         assert conn.coverage() == {q: (None, None) for q in range(PARTITIONS)}
 
         x = service.liveliness().declare_token(keys.instance_token("x"))
+        wait_until(lambda: owner() == "x", 20.0, "x to own the robot's partition")
+        # Served means the owner's frames subscription matches too: until then, no.
+        assert not robot.wait_for_service(0.5)
+        frames_sub = service.declare_subscriber(keys.frames_of_partition(p), lambda _s: None)
         assert robot.wait_for_service(20.0)
         assert owner() == "x"
         y = service.liveliness().declare_token(keys.instance_token("y"))
@@ -198,6 +202,7 @@ def test_a_robot_knows_whether_its_partition_has_an_owner(
         assert len(infos) == 1, [r.getMessage() for r in records]
         assert "served again, by z" in infos[0].getMessage()
         z.undeclare()
+        frames_sub.undeclare()
 
 
 def test_a_robot_drops_a_deposed_owners_error(

@@ -1,7 +1,7 @@
 """Several instances on one router: kill -9, a join, and a frozen owner (real processes).
 
 A ``lessmap router``, three ``lessmap serve -m client`` instances with ``--max-batch-frames
-1`` and their own state directories, ``lessmap replay`` of the five-robot mrclam6 file, and a
+1`` and their own state directories, ``lessmap replay`` of the five-robot mrclam6 file (speed 80), and a
 raw Zenoh subscriber that records every ``Transition`` that reaches the bus. The reference is
 ``lessmap segment`` of the same frames: per (robot, seq) the bus must hold exactly the
 offline transition — none missing, none extra, none conflicting (a transition computed again
@@ -204,7 +204,7 @@ def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> 
     try:
         bus = BusRecorder(session)
         wait_until(lambda: covered(session, set(names)), 60.0, "three instances to share out")
-        replay = start_replay(site, path, "40")
+        replay = start_replay(site, path, "80")
         total = sum(len(v) for v in expected.values())
         wait_until(lambda: len(bus.got) >= total // 3, 120.0, "a third of the transitions")
         victim = bus.latest_instance()
@@ -276,7 +276,7 @@ def test_an_owner_frozen_past_its_lease_publishes_nothing_stale(site: Site) -> N
     try:
         bus = BusRecorder(session)
         wait_until(lambda: covered(session, set(names)), 60.0, "two instances to share out")
-        replay = start_replay(site, path, "40")
+        replay = start_replay(site, path, "80")
         total = sum(len(v) for v in expected.values())
         wait_until(lambda: len(bus.got) >= total // 3, 120.0, "a third of the transitions")
         frozen_name = bus.latest_instance()
