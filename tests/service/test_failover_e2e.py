@@ -1,11 +1,11 @@
 """Several instances on one router: kill -9, a join, and a frozen owner (real processes).
 
 A ``lessmap router``, three ``lessmap serve -m client`` instances with ``--max-batch-frames
-1`` and their own state directories, ``lessmap replay`` of the five-robot mrclam6 file (speed 80), and a
-raw Zenoh subscriber that records every ``Transition`` that reaches the bus. The reference is
-``lessmap segment`` of the same frames: per (robot, seq) the bus must hold exactly the
-offline transition — none missing, none extra, none conflicting (a transition computed again
-by a new owner after its catch-up is identical, so it is not a conflict).
+1`` and their own state directories, ``lessmap replay`` of the five-robot mrclam6 file (speed
+80), and a raw Zenoh subscriber that records every ``Transition`` that reaches the bus. The
+reference is ``lessmap segment`` of the same frames: per (robot, seq) the bus must hold
+exactly the offline transition — none missing, none extra, none conflicting (a transition
+computed again by a new owner after its catch-up is identical, so it is not a conflict).
 """
 
 from __future__ import annotations
