@@ -92,6 +92,20 @@ def access_rules(
     # forged checkpoint would inject session state). No chunk below starts with `@`, so `**`
     # covers every partition, fleet and robot.
     checkpoints = f"{P}/@/checkpoints/**"
+    # Every key of the contract a service instance (and a router of a mesh) deals with.
+    every_key = [
+        any_frames,
+        f"{any_frames}/@adv/**",
+        f"{any_robot}/transitions",
+        f"{any_robot}/transitions/@adv/**",
+        f"{any_robot}/errors",
+        f"{any_robot}/state",
+        f"{any_robot}/submaps/*",
+        f"{P}/@/health/*",
+        f"{P}/@/instances/*",
+        f"{P}/@/errors/*",
+        checkpoints,
+    ]
     rules = [
         _rule(
             "service-in",
@@ -137,19 +151,7 @@ def access_rules(
             "service-out",
             "egress",
             ALL_MESSAGES,
-            [
-                any_frames,
-                f"{any_frames}/@adv/**",
-                f"{any_robot}/transitions",
-                f"{any_robot}/transitions/@adv/**",
-                f"{any_robot}/errors",
-                f"{any_robot}/state",
-                f"{any_robot}/submaps/*",
-                f"{P}/@/health/*",
-                f"{P}/@/instances/*",
-                f"{P}/@/errors/*",
-                checkpoints,
-            ],
+            every_key,
         ),
     ]
     # The service declares its subscriber and queryables with wildcards (every fleet at once).
@@ -177,19 +179,7 @@ def access_rules(
         # lessmap key, both ways (each `@` key named: `**` never matches an `@` chunk).
         # Each role's own rules are enforced by the router it is connected to, on the way
         # in (what it may send or declare) and on the way out (what it receives).
-        relayed = [
-            any_frames,
-            f"{any_frames}/@adv/**",
-            f"{any_robot}/transitions",
-            f"{any_robot}/transitions/@adv/**",
-            f"{any_robot}/errors",
-            f"{any_robot}/state",
-            f"{any_robot}/submaps/*",
-            f"{P}/@/health/*",
-            f"{P}/@/instances/*",
-            f"{P}/@/errors/*",
-            checkpoints,
-        ]
+        relayed = every_key
         rules += [
             _rule("router-in", "ingress", ALL_MESSAGES, relayed),
             _rule("router-out", "egress", ALL_MESSAGES, relayed),
