@@ -186,7 +186,19 @@ def test_a_session_flood_does_not_lock_out_a_new_robot(
     fleet_name: str,
 ) -> None:
     flood_fleet = f"{fleet_name}-flood"
-    service = serve("--max-sessions", "1000", metrics=True)
+    # A token bucket slow enough that even a flood slowed down by a busy machine outruns it
+    # (with the defaults, 200/s after a burst of 2000, a flood at 126 puts/s was rightly
+    # admitted whole, evicting idle sessions, and nothing was refused); its burst above
+    # --max-sessions, so the shard fills and the newcomers below need evictions.
+    service = serve(
+        "--max-sessions",
+        "1000",
+        "--new-sessions-per-s-per-fleet",
+        "20",
+        "--new-sessions-burst",
+        "1500",
+        metrics=True,
+    )
     session = client_session(service.endpoint)
     wait_until(lambda: "serving as" in service.log(), 30.0, "the service")
     errors = Errors(session, fleet_name)
