@@ -84,6 +84,10 @@ COMMANDS: dict[str, Command] = {
     "certs": Command(
         "lessmap.certs", "write a test site's CA, certificates and mTLS + access-control configs"
     ),
+    "ros": Command(
+        "lessmap.ros.cli_ros",
+        "bridge ROS 2 landmark topics (rmw_zenoh) to lessmap frames, live (lessmap[ros])",
+    ),
 }
 
 #: Failures a user can fix: one line on stderr and exit code 1, no traceback. Named by
@@ -104,7 +108,12 @@ KNOWN_EXCEPTIONS: tuple[tuple[str, str], ...] = (
 
 
 #: Top-level modules of the optional extras, and the extra that installs each.
-OPTIONAL_MODULES = {"matplotlib": "eval", "cryptography": "security"}
+OPTIONAL_MODULES = {
+    "matplotlib": "eval",
+    "cryptography": "security",
+    "rosbags": "ros",
+    "foxglove": "viz",
+}
 
 
 def is_known(exc: BaseException) -> bool:

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import zenoh
 from threadpoolctl import threadpool_limits
 
+from lessmap.coexist import join_existing_router
 from lessmap.runtime.memory import tune_allocator, use_system_malloc
 from lessmap.runtime.service import Service
 from lessmap.settings import add_settings_flags, settings_from_args
@@ -51,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
         # process, same PID), so evicted sessions' memory can go back to the system. Only
         # when this process is the command (never replace a Python program that called us).
         use_system_malloc()
-    return serve(settings, args.cfg or ())
+    # With no Zenoh option and 7447 already served (e.g. by ROS 2's rmw_zenohd): join it.
+    return serve(join_existing_router(settings), args.cfg or ())
 
 
 def serve(settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> int:

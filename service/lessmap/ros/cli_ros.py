@@ -1,0 +1,225 @@
+"""``lessmap ros``: a live bridge from ROS 2 (rmw_zenoh) landmark topics to lessmap frames.
+
+No ROS installation is needed: the bridge is a Zenoh client of the ROS 2 router
+(``rmw_zenohd``) and decodes CDR with rosbags (the ``lessmap[ros]`` extra).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import threading
+import time
+from typing import TYPE_CHECKING
+
+from lessmap.errors import ConfigError
+
+if TYPE_CHECKING:
+    import argparse
+    from types import FrameType
+
+    from lessmap.ros.convert import Converter
+
+log = logging.getLogger(__name__)
+
+#: rmw_zenohd's (and lessmap's embedded router's) endpoint on this machine.
+ROS_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def add_message_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared with ``lessmap import``: ID paths and extra message definitions."""
+    parser.add_argument(
+        "--ids",
+        action="append",
+        default=[],
+        metavar="TYPE=PATH",
+        help="where a message type's feature IDs are, e.g. "
+        "'vision_msgs/msg/Detection2DArray=detections[].results[].hypothesis.class_id' "
+        "(repeatable; built in: AprilTagDetectionArray detections[].id, ArucoMarkers "
+        "marker_ids[], MarkerArray markers[action=0].ns+id)",
+    )
+    parser.add_argument(
+        "--msg-def",
+        action="append",
+        default=[],
+        metavar="TYPE=FILE.msg",
+        help="register a message type from its .msg text (repeatable; define nested types first)",
+    )
+    parser.add_argument(
+        "--max-features-per-frame",
+        type=int,
+        default=4096,
+        metavar="N",
+        help="the service's limit: a message with more features is counted and skipped "
+        "(default 4096)",
+    )
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap ros``."""
+    parser.description = (
+        "Bridge ROS 2 landmark detections to lessmap, live: subscribe to rmw_zenoh topics "
+        "(AprilTag detections, ArUco markers, MarkerArray, or any type given --ids) and "
+        "publish one lessmap frame per message, one robot per ROS namespace. Needs "
+        "pip install 'lessmap[ros]'; no ROS installation."
+    )
+    parser.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"the ROS 2 Zenoh router, rmw_zenohd (default {ROS_ENDPOINT}); repeatable",
+    )
+    parser.add_argument(
+        "--lessmap-connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="the lessmap router, when it is not the ROS 2 one (default: the same session)",
+    )
+    parser.add_argument("--fleet", default="ros", help="fleet of the robots (default ros)")
+    parser.add_argument(
+        "--domain",
+        type=int,
+        default=None,
+        help="ROS domain id (default: $ROS_DOMAIN_ID, else 0)",
+    )
+    parser.add_argument(
+        "--topic",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a landmark topic: relative (detections: in every namespace) or absolute "
+        "(/amr7/detections); repeatable. Default: every topic of type AprilTagDetectionArray "
+        "or ArucoMarkers",
+    )
+    parser.add_argument(
+        "--pose-topic",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a topic with the robot's pose (nav_msgs/Odometry, PoseStamped, "
+        "PoseWithCovarianceStamped), e.g. odom; its latest pose goes with each frame",
+    )
+    parser.add_argument(
+        "--robot",
+        help="one robot name for every message (default: the topic's ROS namespace)",
+    )
+    parser.add_argument(
+        "--root-robot",
+        default="robot",
+        help="robot name of topics in the root namespace (default robot)",
+    )
+    add_message_options(parser)
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: run until SIGINT/SIGTERM)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="how long to retry while no router answers (default 10)",
+    )
+
+
+def converter_from_args(args: argparse.Namespace) -> Converter:
+    """Build the ``Converter`` of ``--ids``, ``--msg-def`` and the feature limit."""
+    from lessmap.ros.convert import Converter
+    from lessmap.ros.extract import parse_id_options
+    from lessmap.ros.msgtypes import read_definitions, typestore
+
+    if args.max_features_per_frame < 1:
+        msg = "--max-features-per-frame must be at least 1"
+        raise ConfigError(msg)
+    id_paths = parse_id_options(args.ids)
+    store = typestore(read_definitions(args.msg_def))
+    return Converter(store, id_paths, max_features=args.max_features_per_frame)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the bridge until a signal or ``--duration``; print its counts as JSON."""
+    import zenoh
+
+    from lessmap.ros.bridge import RosBridge, topic_specs
+    from lessmap_client.connection import Connection
+    from lessmap_client.session import open_session
+
+    converter = converter_from_args(args)
+    domain = args.domain if args.domain is not None else _env_domain()
+    try:
+        specs = topic_specs(domain, args.topic, args.pose_topic, sorted(converter.id_paths))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+    if not args.topic:
+        # MarkerArray is too common (every RViz overlay) to be taken as landmarks unasked.
+        specs = [s for s in specs if "visualization_msgs" not in s.key]
+    zenoh.init_log_from_env_or("error")
+    ros_session = open_session(args.connect or [ROS_ENDPOINT], timeout_s=args.connect_timeout)
+    lessmap_session = ros_session
+    try:
+        if args.lessmap_connect:
+            lessmap_session = open_session(args.lessmap_connect, timeout_s=args.connect_timeout)
+        with Connection.from_session(lessmap_session) as conn:
+            bridge = RosBridge(
+                ros_session,
+                conn,
+                args.fleet,
+                converter,
+                specs,
+                robot=args.robot,
+                root_robot=args.root_robot,
+            ).start()
+            try:
+                _wait(args.duration)
+            finally:
+                bridge.stop()
+            summary = {
+                "fleet": bridge.fleet,
+                "robots": bridge.robots(),
+                **dict(sorted(converter.counts.items())),
+            }
+    finally:
+        if lessmap_session is not ros_session:
+            lessmap_session.close()
+        ros_session.close()
+    print(json.dumps(summary))
+    return 0
+
+
+def _env_domain() -> int:
+    raw = os.environ.get("ROS_DOMAIN_ID", "0").strip() or "0"
+    if not raw.isdigit() or int(raw) > 232:
+        msg = f"ROS_DOMAIN_ID={raw!r} is not a ROS domain id (0-232)"
+        raise ConfigError(msg)
+    return int(raw)
+
+
+def _wait(duration_s: float | None) -> None:
+    """Park the main thread until SIGINT/SIGTERM or the duration ends."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("received %s", signal.Signals(signum).name)
+        stop.set()
+
+    main = threading.current_thread() is threading.main_thread()
+    previous = (
+        {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+        if main
+        else {}
+    )
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    try:
+        # Short waits: signals are handled between them.
+        while not stop.wait(0.2):
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -1,0 +1,48 @@
+"""A command whose optional extra is missing says which one to install, in one line."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import pytest
+
+# Each command, an argument list that gets it past argument parsing, and its extra's module.
+CASES = [
+    ("ros", ["ros", "--duration", "0"], "rosbags", "ros"),
+]
+
+
+@pytest.mark.parametrize(("command", "argv", "module", "extra"), CASES, ids=[c[0] for c in CASES])
+def test_a_missing_extra_is_named(command: str, argv: list[str], module: str, extra: str) -> None:
+    # None in sys.modules makes the import fail as if the package were not installed.
+    code = (
+        "import sys\n"
+        f"sys.modules[{module!r}] = None\n"
+        "from lessmap.cli import main\n"
+        f"sys.exit(main({argv!r}))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert result.returncode == 1, result.stderr
+    # The module named may be a submodule (the first one imported): rosbags.typesys.
+    assert re.fullmatch(
+        rf"lessmap {command}: this needs {module}(\.\w+)*, from the optional extra: "
+        rf"pip install 'lessmap\[{extra}\]'",
+        result.stderr.strip(),
+    ), result.stderr
+
+
+def test_the_extras_stay_optional_and_the_tests_install_them() -> None:
+    import tomllib
+    from pathlib import Path
+
+    project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    required = " ".join(project["dependencies"])
+    for _command, _argv, module, extra in CASES:
+        assert extras[extra], extra
+        assert module.replace("_", "-") not in required  # the service wheel does not need it
+        assert any("lessmap[" in r and extra in r for r in extras["test"]), extra
