@@ -11,6 +11,7 @@ import pytest
 # Each command, an argument list that gets it past argument parsing, and its extra's module.
 CASES = [
     ("ros", ["ros", "--duration", "0"], "rosbags", "ros"),
+    ("import", ["import", "run.bag"], "rosbags", "ros"),
 ]
 
 

@@ -88,6 +88,12 @@ COMMANDS: dict[str, Command] = {
         "lessmap.ros.cli_ros",
         "bridge ROS 2 landmark topics (rmw_zenoh) to lessmap frames, live (lessmap[ros])",
     ),
+    "import": Command(
+        "lessmap.ros.cli_ros",
+        "convert landmark topics of a rosbag2 (sqlite3, MCAP) or ROS 1 bag to a frames file",
+        "configure_import",
+        "run_import",
+    ),
 }
 
 #: Failures a user can fix: one line on stderr and exit code 1, no traceback. Named by

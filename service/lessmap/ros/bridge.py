@@ -7,7 +7,8 @@ those keys with the hash chunk wildcarded (a sender's hash differing from lessma
 once: its definition differs, and decoding may fail), decodes with rosbags, and publishes
 one frame per message through a lessmap ``RobotPublisher`` per robot. The robot is the
 topic's ROS namespace (``/amr7/detections`` is robot ``amr7``; nested namespaces are joined
-with dots) unless one robot name is given.
+with dots) unless one robot name is given. A frame carries the robot's pose (from a pose
+topic) nearest in time to the frame's stamp.
 
 Zenoh's callback only queues the sample (bounded; a full queue counts the sample lost); the
 bridge's own thread decodes and publishes, since a callback must not block or call Zenoh.
@@ -20,7 +21,7 @@ import logging
 import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -38,6 +39,10 @@ if TYPE_CHECKING:
     from lessmap_client.robot import RobotPublisher
 
 log = logging.getLogger(__name__)
+
+#: Poses kept per robot to pair with frames by stamp: Zenoh keeps the order of one key, not
+#: across keys, so a detection may arrive before the odometry of the same instant.
+POSE_HISTORY = 256
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +122,7 @@ class RosBridge:
         self._subscribers: list[zenoh.Subscriber[None]] = []
         self._robots: dict[str, RobotPublisher] = {}
         self._seen: set[str] = set()
-        self._poses: dict[str, tuple[float, float, float]] = {}
+        self._poses: dict[str, deque[tuple[float, tuple[float, float, float]]]] = {}
         self._hash_checked: set[tuple[str, str]] = set()
         self._thread = threading.Thread(target=self._run, name="lessmap-ros", daemon=True)
         self._lock = threading.Lock()
@@ -191,7 +196,9 @@ class RosBridge:
             message = self.converter.decode(type_name, payload)
             pose = None if message is None else self.converter.pose(type_name, message)
             if pose is not None:
-                self._poses[robot] = pose
+                stamp = self.converter.stamp(message)
+                history = self._poses.setdefault(robot, deque(maxlen=POSE_HISTORY))
+                history.append((time.time() if stamp is None else stamp, pose))
                 self.counts["poses"] += 1
             return
         if not self.converter.is_landmark_type(type_name):
@@ -206,10 +213,18 @@ class RosBridge:
         if features is None:
             return
         stamp = self.converter.stamp(message)
+        stamp_s = time.time() if stamp is None else stamp
         self._publisher(robot).publish(
-            features, stamp_s=time.time() if stamp is None else stamp, pose=self._poses.get(robot)
+            features, stamp_s=stamp_s, pose=self._pose_at(robot, stamp_s)
         )
         self.counts["frames"] += 1
+
+    def _pose_at(self, robot: str, stamp_s: float) -> tuple[float, float, float] | None:
+        """Return the robot's received pose nearest in time to ``stamp_s``, if any."""
+        history = self._poses.get(robot)
+        if not history:
+            return None
+        return min(history, key=lambda entry: abs(entry[0] - stamp_s))[1]
 
     def _robot_of(self, topic: list[str], tail: int) -> str | None:
         if self.robot is not None:

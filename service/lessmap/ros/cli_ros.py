@@ -1,7 +1,7 @@
-"""``lessmap ros``: a live bridge from ROS 2 (rmw_zenoh) landmark topics to lessmap frames.
+"""``lessmap ros`` (live, from rmw_zenoh) and ``lessmap import`` (offline, from bags).
 
 No ROS installation is needed: the bridge is a Zenoh client of the ROS 2 router
-(``rmw_zenohd``) and decodes CDR with rosbags (the ``lessmap[ros]`` extra).
+(``rmw_zenohd``); both decode with rosbags (the ``lessmap[ros]`` extra).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.errors import ConfigError
@@ -100,7 +101,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="NAME",
         help="a topic with the robot's pose (nav_msgs/Odometry, PoseStamped, "
-        "PoseWithCovarianceStamped), e.g. odom; its latest pose goes with each frame",
+        "PoseWithCovarianceStamped), e.g. odom; the pose nearest in time goes with each frame",
     )
     parser.add_argument(
         "--robot",
@@ -223,3 +224,68 @@ def _wait(duration_s: float | None) -> None:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def configure_import(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap import``."""
+    parser.description = (
+        "Convert the landmark topics of a rosbag2 (sqlite3 or MCAP folder or file) or ROS 1 "
+        "bag to a frames file (one frame per message, one robot per ROS namespace), for "
+        "lessmap segment, eval, plot and replay. Needs pip install 'lessmap[ros]'."
+    )
+    parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bag(s) to read")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="frames file to write (default: BAG's name + .frames.jsonl, here)",
+    )
+    parser.add_argument(
+        "--topic",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a landmark topic: relative (detections: in every namespace) or absolute; "
+        "repeatable. Default: every AprilTagDetectionArray and ArucoMarkers topic",
+    )
+    parser.add_argument(
+        "--pose-topic",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a topic with the robot's pose (Odometry, PoseStamped, "
+        "PoseWithCovarianceStamped); the latest pose before each frame goes with it",
+    )
+    parser.add_argument("--robot", help="one robot name for every frame (default: namespace)")
+    parser.add_argument(
+        "--root-robot",
+        default="robot",
+        help="robot name of topics in the root namespace (default robot)",
+    )
+    add_message_options(parser)
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Write the frames file; print what was written as JSON."""
+    from lessmap.ros.bags import import_bags
+
+    converter = converter_from_args(args)
+    first: Path = args.bags[0]
+    out: Path = args.out or Path(f"{first.stem or first.name}.frames.jsonl")
+    stats = import_bags(
+        args.bags,
+        out,
+        converter,
+        topics=args.topic,
+        pose_topics=args.pose_topic,
+        robot=args.robot,
+        root_robot=args.root_robot,
+    )
+    summary = {
+        "out": str(out),
+        "robots": stats.frames,
+        "topics": stats.topics,
+        **dict(sorted(converter.counts.items())),
+    }
+    print(json.dumps(summary))
+    return 0
