@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
+from scipy import sparse
 
 from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.spectral import Bisection, Components, fiedler_pair, lambda2_exceeds, split_graph
@@ -61,12 +62,15 @@ def test_the_certificate_fails_near_a_split_and_on_a_disconnected_graph(weak: fl
     assert not lambda2_exceeds(w, lambda2 + 1e-6)
 
 
-def test_an_isolated_node_or_a_sparse_matrix_is_never_certified() -> None:
+def test_an_isolated_node_is_never_certified_and_csr_agrees_with_dense() -> None:
     w = np.zeros((3, 3))
     w[0, 1] = w[1, 0] = 1.0
     assert not lambda2_exceeds(w, 0.0)
-    dense = random_connected(np.random.default_rng(0), 10, 1.0)
-    assert not lambda2_exceeds(dense, 0.0)  # CSR: not handled, so not proven
+    assert not lambda2_exceeds(sparse.csr_array(w), 0.0)
+    graph = random_connected(np.random.default_rng(0), 10, 1.0)
+    lambda2, _ = fiedler_pair(graph.toarray())
+    for bound in (0.0, lambda2 - 1e-6, lambda2 + 1e-6):
+        assert lambda2_exceeds(graph, bound) is lambda2_exceeds(graph.toarray(), bound)
 
 
 def test_split_graph_finds_components_without_searching_connected_graphs() -> None:

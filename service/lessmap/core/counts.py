@@ -8,10 +8,14 @@ and hands the edges to a ``CountStore``. Two stores implement the same interface
   block, and a refresh recomputes only the touched rows and columns of W. On graphs of tens
   of nodes this avoids rebuilding scipy.sparse containers at every decision, which cost
   several times the eigen-solve itself (profiled under fleet load).
-- ``SparseCounts`` keeps one upper-triangular (i < j) CSR matrix of int64 counts, canonical
-  (sorted indices, no duplicates) whenever nothing is pending. Frames append their pairs in
-  O(pairs) vectorized numpy and the pending pairs are merged in one vectorized pass before
-  anything reads the edges, so a burst of frames (coalesced under load) counts cheaply.
+- ``SparseCounts`` keeps the upper-triangular (i < j) entries as one sorted key array (the
+  CSR order) with int64 counts and W aligned to it. Frames append their pairs in O(pairs)
+  vectorized numpy and the pending pairs are merged before anything reads the edges: known
+  pairs in place, new ones inserted, so a burst of frames (coalesced under load) counts
+  cheaply and a frame never rebuilds the matrix.
+
+Both stores also remember W at a ``mark`` and report the entries that changed since, which is
+what the drift certificate (``lessmap.core.drift``) needs.
 
 Both hold the same integer counts and compute W_ij = a_ij / min(n_i, n_j) (Eq. 1) with the
 same IEEE division, so W is equal to the last bit whichever form holds the graph. Which form
@@ -77,6 +81,20 @@ class UpperCounts:
         )
 
 
+@dataclass(frozen=True, slots=True)
+class Changes:
+    """Entries (i < j) of W that moved since the store's last ``mark``, with both values.
+
+    A pair that was not an edge at the mark had W = 0 then; entries with no change are left
+    out. What ``lessmap.core.drift`` needs to bound how far λ2 can have moved.
+    """
+
+    rows: NDArray[np.int64]  # i of each entry
+    cols: NDArray[np.int64]  # j of each entry, > i
+    delta: NDArray[np.float64]  # W_ij now - W_ij at the mark
+    now: NDArray[np.float64]  # W_ij now
+
+
 class CountStore(Protocol):
     """The edges of a CovGraph: counts a_ij and CovRate W, in one storage form.
 
@@ -112,6 +130,18 @@ class CountStore(Protocol):
         """W as of the last ``refresh`` as a dense (n, n) array (may be a read-only view)."""
         ...
 
+    def degrees(self) -> NDArray[np.float64]:
+        """Row sums of W as of the last ``refresh``, shape (n,)."""
+        ...
+
+    def mark(self) -> None:
+        """Remember W as of the last ``refresh``, for ``changes``."""
+        ...
+
+    def changes(self) -> Changes | None:
+        """The entries of W that differ from the last ``mark``; None before any mark."""
+        ...
+
     def edge_count(self) -> int:
         """Number of pairs with a_ij > 0."""
         ...
@@ -138,6 +168,8 @@ class DenseCounts:
         rows = np.repeat(np.arange(upper.nodes, dtype=np.int64), np.diff(upper.indptr))
         self._counts[rows, upper.indices] = upper.counts
         self._counts[upper.indices, rows] = upper.counts
+        self._marked: NDArray[np.float64] | None = None  # W at the last ``mark``
+        self._moved = np.zeros(side, dtype=bool)  # rows recomputed since the mark
         self._all_stale = True  # every row of W is computed on the first refresh
 
     def resize(self, nodes: int) -> None:
@@ -151,7 +183,9 @@ class DenseCounts:
             old = self._counts.shape[0]
             counts[:old, :old] = self._counts
             rates[:old, :old] = self._rates
-            self._counts, self._rates = counts, rates
+            moved = np.zeros(side, dtype=bool)
+            moved[:old] = self._moved
+            self._counts, self._rates, self._moved = counts, rates, moved
         self._nodes = nodes
 
     def add_frame(self, nodes: NDArray[np.int64]) -> None:
@@ -171,6 +205,7 @@ class DenseCounts:
         else:
             rows_of = np.flatnonzero(touched)
         if rows_of.size:
+            self._moved[rows_of] = True
             rows = self._counts[rows_of, :n] / np.minimum(counts[rows_of, None], counts[None, :])
             self._rates[rows_of, :n] = rows
             self._rates[:n, rows_of] = rows.T
@@ -191,6 +226,37 @@ class DenseCounts:
         view.flags.writeable = False
         return view
 
+    def degrees(self) -> NDArray[np.float64]:
+        """Row sums of W, shape (n,): the same sum the spectral code takes of the view."""
+        degrees: NDArray[np.float64] = self.similarity_array().sum(axis=1)
+        return degrees
+
+    def mark(self) -> None:
+        """Remember W as it stands, for ``changes``."""
+        n = self._nodes
+        self._marked = self._rates[:n, :n].copy()
+        self._moved[:] = False
+
+    def changes(self) -> Changes | None:
+        """The entries of W that differ from the last ``mark`` (None before any mark)."""
+        if self._marked is None:
+            return None
+        n, old = self._nodes, self._marked.shape[0]
+        # Only rows recomputed since the mark (and nodes added since) can have moved.
+        moved = np.flatnonzero(self._moved[:n])
+        rows = np.union1d(moved, np.arange(old, n))
+        delta = self._rates[rows, :n]
+        now = delta.copy()
+        inside = rows < old
+        delta[np.ix_(inside, np.arange(old))] -= self._marked[rows[inside]]
+        # Each pair once: (i, j) from row i when j is not a listed row or j > i.
+        listed = np.zeros(n, dtype=bool)
+        listed[rows] = True
+        keep = (delta != 0.0) & (~listed[None, :] | (np.arange(n)[None, :] > rows[:, None]))
+        at, cols = np.nonzero(keep)
+        i, j = rows[at], cols
+        return Changes(np.minimum(i, j), np.maximum(i, j), delta[at, cols], now[at, cols])
+
     def edge_count(self) -> int:
         """Number of pairs with a_ij > 0."""
         n = self._nodes
@@ -210,20 +276,31 @@ class DenseCounts:
 
 
 class SparseCounts:
-    """Upper-triangular CSR a_ij (int64) with W aligned to its entries, for any size."""
+    """Upper-triangular a_ij (int64) with W aligned to its entries, for any size.
+
+    Entries are kept in one sorted array of keys ``i << 32 | j`` (i < j: the CSR order), with
+    the counts and W values aligned to it. A merge finds the pending pairs by binary search:
+    pairs already counted are incremented in place and only new pairs are inserted, so a
+    frame costs O(its pairs · log edges) plus one shifting copy when it brings new pairs,
+    instead of rebuilding the matrix. The CSR arrays are derived from the keys when a caller
+    asks for them.
+    """
 
     def __init__(self, nodes: int, upper: UpperCounts) -> None:
         """Hold ``upper`` (edges among its nodes) in a graph of ``nodes`` nodes."""
         self._nodes = nodes
-        self._edges = _csr(upper.counts, upper.indices, upper.indptr, upper.nodes)
-        self._rates = np.zeros(0, dtype=np.float64)  # aligned with self._edges.data
+        rows = np.repeat(np.arange(upper.nodes, dtype=np.int64), np.diff(upper.indptr))
+        self._keys = (rows << _KEY_SHIFT) | np.asarray(upper.indices, dtype=np.int64)
+        self._counts = np.array(upper.counts, dtype=np.int64)
+        self._rates = np.zeros(self._keys.size, dtype=np.float64)
+        self._marked: NDArray[np.float64] | None = None  # W at the last ``mark``
         self._pending_rows: list[NDArray[np.int64]] = []
         self._pending_cols: list[NDArray[np.int64]] = []
-        self._structure_changed = True  # W is computed in full on the first refresh
+        self._all_stale = True  # W is computed in full on the first refresh
 
     def resize(self, nodes: int) -> None:
-        """Record the node count; the CSR matrix is padded on the next merge."""
-        self._nodes = nodes  # the CSR matrix is padded when the pending pairs are merged
+        """Record the node count (new nodes have no entries)."""
+        self._nodes = nodes
 
     def add_frame(self, nodes: NDArray[np.int64]) -> None:
         """Queue the frame's pairs i < j for the next merge."""
@@ -234,48 +311,51 @@ class SparseCounts:
             self._pending_cols.append(nodes[right])
 
     def _merge(self) -> None:
-        """Pad the CSR counts to the node count and merge the pending pairs into them."""
-        n = self._nodes
-        if self._edges.shape[0] != n:
-            # Growing a CSR matrix is padding its indptr: new rows are empty.
-            indptr = np.concatenate(
-                [self._edges.indptr, np.full(n - self._edges.shape[0], self._edges.nnz)]
-            ).astype(np.int64)
-            self._edges = sparse.csr_array(
-                (self._edges.data, self._edges.indices, indptr), shape=(n, n)
-            )
+        """Add the pending pairs to the counts: in place where known, inserted where new."""
         if not self._pending_rows:
             return
-        rows = np.concatenate(self._pending_rows)
-        cols = np.concatenate(self._pending_cols)
+        keys = (np.concatenate(self._pending_rows) << _KEY_SHIFT) | np.concatenate(
+            self._pending_cols
+        )
         self._pending_rows.clear()
         self._pending_cols.clear()
-        batch = sparse.coo_array(
-            (np.ones(rows.size, dtype=np.int64), (rows, cols)), shape=(n, n)
-        ).tocsr()
-        old_nnz = self._edges.nnz
-        merged = (self._edges + batch).tocsr()
-        merged.sum_duplicates()
-        merged.sort_indices()
-        # New pairs shift the entries, so W's values no longer line up with them.
-        self._structure_changed |= merged.nnz != old_nnz
-        self._edges = _csr(merged.data, merged.indices, merged.indptr, n)
+        keys.sort()
+        starts = np.flatnonzero(np.concatenate(([True], keys[1:] != keys[:-1])))
+        distinct = keys[starts]
+        repeats = np.diff(np.append(starts, keys.size))
+        at = np.searchsorted(self._keys, distinct)
+        known = at < self._keys.size
+        known[known] = self._keys[at[known]] == distinct[known]
+        self._counts[at[known]] += repeats[known]  # distinct keys: no lost updates
+        fresh = ~known
+        if fresh.any():
+            # New pairs have a touched endpoint, so the next refresh computes their W.
+            where = at[fresh]
+            self._keys = np.insert(self._keys, where, distinct[fresh])
+            self._counts = np.insert(self._counts, where, repeats[fresh])
+            self._rates = np.insert(self._rates, where, 0.0)
+            if self._marked is not None:
+                self._marked = np.insert(self._marked, where, 0.0)
+
+    def _rows_cols(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        return self._keys >> _KEY_SHIFT, self._keys & _COL_MASK
+
+    def _indptr(self) -> NDArray[np.int64]:
+        bounds = np.arange(self._nodes + 1, dtype=np.int64) << _KEY_SHIFT
+        indptr: NDArray[np.int64] = np.searchsorted(self._keys, bounds).astype(np.int64)
+        return indptr
 
     def refresh(self, counts: NDArray[np.int64], touched: NDArray[np.bool_]) -> None:
         """Merge the pending pairs and recompute the entries with a touched endpoint."""
         self._merge()
-        rows_of_entries = np.repeat(
-            np.arange(self._nodes, dtype=np.int64), np.diff(self._edges.indptr)
-        )
-        cols_of_entries = self._edges.indices
-        if self._structure_changed or self._rates.size != self._edges.nnz:
-            mask = np.ones(self._edges.nnz, dtype=bool)
-            self._rates = np.zeros(self._edges.nnz, dtype=np.float64)
-            self._structure_changed = False
-        else:
-            mask = touched[rows_of_entries] | touched[cols_of_entries]
-        r, c = rows_of_entries[mask], cols_of_entries[mask]
-        self._rates[mask] = self._edges.data[mask] / np.minimum(counts[r], counts[c])
+        rows, cols = self._rows_cols()
+        if self._all_stale:
+            self._all_stale = False
+            self._rates = self._counts / np.minimum(counts[rows], counts[cols])
+            return
+        mask = touched[rows] | touched[cols]
+        r, c = rows[mask], cols[mask]
+        self._rates[mask] = self._counts[mask] / np.minimum(counts[r], counts[c])
 
     def similarity(self) -> sparse.csr_array:
         """W as a symmetric CSR float64 matrix."""
@@ -284,50 +364,63 @@ class SparseCounts:
     def similarity_csr(self) -> sparse.csr_array:
         """W as a symmetric CSR float64 matrix."""
         self._merge()
+        n = self._nodes
         upper = sparse.csr_array(
-            (self._rates.copy(), self._edges.indices, self._edges.indptr), shape=self._edges.shape
+            (self._rates.copy(), self._keys & _COL_MASK, self._indptr()), shape=(n, n)
         )
-        return (upper + upper.T).tocsr()
+        symmetric: sparse.csr_array = (upper + upper.T).tocsr()
+        return symmetric
 
     def similarity_array(self) -> NDArray[np.float64]:
         """W as a dense (n, n) array (a copy)."""
         dense: NDArray[np.float64] = self.similarity_csr().toarray()
         return dense
 
+    def degrees(self) -> NDArray[np.float64]:
+        """Row sums of W as of the last ``refresh``, shape (n,)."""
+        rows, cols = self._rows_cols()
+        n = self._nodes
+        both = np.bincount(rows, self._rates, n) + np.bincount(cols, self._rates, n)
+        return np.asarray(both, dtype=np.float64)
+
+    def mark(self) -> None:
+        """Remember W as it stands, for ``changes``."""
+        self._marked = self._rates.copy()
+
+    def changes(self) -> Changes | None:
+        """The entries of W that differ from the last ``mark`` (None before any mark)."""
+        if self._marked is None:
+            return None
+        moved = np.flatnonzero(self._rates != self._marked)
+        keys = self._keys[moved]
+        now = self._rates[moved]
+        return Changes(keys >> _KEY_SHIFT, keys & _COL_MASK, now - self._marked[moved], now)
+
     def edge_count(self) -> int:
         """Number of pairs with a_ij > 0."""
         self._merge()
-        return int(self._edges.nnz)
+        return int(self._keys.size)
 
     def pair_count(self, i: int, j: int) -> int:
         """a_ij for two distinct node indices."""
         self._merge()
-        lo, hi = min(i, j), max(i, j)
-        start, stop = self._edges.indptr[lo], self._edges.indptr[lo + 1]
-        pos = np.searchsorted(self._edges.indices[start:stop], hi)
-        if pos < stop - start and self._edges.indices[start + pos] == hi:
-            return int(self._edges.data[start + pos])
+        key = (min(i, j) << _KEY_SHIFT) | max(i, j)
+        pos = int(np.searchsorted(self._keys, key))
+        if pos < self._keys.size and self._keys[pos] == key:
+            return int(self._counts[pos])
         return 0
 
     def upper(self, kept: NDArray[np.int64] | None = None) -> UpperCounts:
         """a_ij as canonical int64 CSR arrays, of all nodes or of ``kept`` only."""
         self._merge()
+        whole = UpperCounts(self._indptr(), self._keys & _COL_MASK, self._counts.copy())
         if kept is None:
-            return UpperCounts.from_csr(self._edges)
-        sub = self._edges[kept][:, kept].tocsr()
+            return whole
+        sub = whole.csr()[kept][:, kept].tocsr()
         sub.sort_indices()
         return UpperCounts.from_csr(sub)
 
 
-def _csr(
-    data: NDArray[np.integer], indices: NDArray[np.integer], indptr: NDArray[np.integer], n: int
-) -> sparse.csr_array:
-    # int64 throughout, as snapshots store them (scipy may still narrow the index arrays).
-    return sparse.csr_array(
-        (
-            np.asarray(data, dtype=np.int64),
-            np.asarray(indices, dtype=np.int64),
-            np.asarray(indptr, dtype=np.int64),
-        ),
-        shape=(n, n),
-    )
+#: Entry keys are ``i << 32 | j``: node indices stay below 2**31 (int64 IDs, memory).
+_KEY_SHIFT = 32
+_COL_MASK = (1 << _KEY_SHIFT) - 1

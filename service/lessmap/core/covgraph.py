@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
     from scipy import sparse
 
-    from lessmap.core.counts import CountStore
+    from lessmap.core.counts import Changes, CountStore
     from lessmap.core.spectral import Similarity
 
 
@@ -201,6 +201,26 @@ class CovGraph:
         """
         self._refresh()
         return self._store.similarity()
+
+    def degrees(self) -> NDArray[np.float64]:
+        """Return the row sums d of W (Eq. 1), shape (n,), without building W's matrix."""
+        self._refresh()
+        return self._store.degrees()
+
+    def mark(self) -> None:
+        """Remember W as it stands now; ``changes`` reports what moved since."""
+        self._refresh()
+        self._store.mark()
+
+    def changes(self) -> Changes | None:
+        """Return the entries of W that moved since the last ``mark`` (None: no mark).
+
+        A mark lasts until the graph is reshaped (``keep_only``, a load) or changes storage
+        form (growing past ``dense_max_nodes``); node indices never change in between, so
+        the nodes added since the mark are the last ones.
+        """
+        self._refresh()
+        return self._store.changes()
 
     def covrate_dense(self) -> NDArray[np.float64]:
         """Return W (Eq. 1) as a dense (n, n) array (a read-only view in the dense form)."""

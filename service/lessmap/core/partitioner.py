@@ -11,7 +11,10 @@ Rules of this file:
    area (ties: the cluster whose features were first seen later). The other side is closed
    as a submap. The new CovGraph keeps the new cluster (``seed``) or starts empty (``fresh``).
 4. Everything that influences a later decision is in ``PartitionerState``; a restored
-   partitioner makes exactly the decisions the original would have made.
+   partitioner makes exactly the decisions the original would have made. The λ2 floor
+   (``lessmap.core.drift``) is not state: it only proves what a solve would find, so a
+   restored partitioner, which starts without one, proves afresh and decides the same
+   (its figures may then carry λ2 where the original reported only the bound).
 """
 
 from __future__ import annotations
@@ -23,9 +26,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lessmap.core.covgraph import CovGraph, CovGraphState
+from lessmap.core.drift import Prover
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.params import PartitionParams, SeedMode
-from lessmap.core.spectral import Components, cut_endpoints, lambda2_exceeds, split_graph
+from lessmap.core.spectral import Bisection, Components, cut_endpoints, split_graph
 from lessmap.core.submaps import Evaluation, Reason, Submap, Transition
 
 if TYPE_CHECKING:
@@ -153,6 +157,7 @@ class Partitioner:
         self._frames_since_transition = 0
         self._frames_applied = 0
         self._transitions = 0
+        self._prover = Prover()
         self.last_evaluation: Evaluation | None = None
 
     # -- read ------------------------------------------------------------------------------
@@ -251,14 +256,18 @@ class Partitioner:
 
     def _test(self, seq: int) -> Decision:
         """Run the spectral test (Eq. 4) on the CovGraph as it stands; change nothing."""
-        if self._graph.node_count < 2:
-            return Decision(seq=seq, nodes=self._graph.node_count)
+        nodes = self._graph.node_count
+        if nodes < 2:
+            return Decision(seq=seq, nodes=nodes)
+        bound = self.params.lambda2_min
+        # Proven λ2 > λ2_min settles the decision without W's matrix or a solve.
+        if not self.always_solve and self._prover.certify(self._graph, bound):
+            return Decision(seq=seq, nodes=nodes, lambda2_above=bound)
         # W in the form the graph holds it: dense arrays when small, CSR when large.
         w = self._graph.similarity()
-        nodes = w.shape[0]
-        if not self.always_solve and lambda2_exceeds(w, self.params.lambda2_min):
-            return Decision(seq=seq, nodes=nodes, lambda2_above=self.params.lambda2_min)
         split = split_graph(w, dense_max_nodes=self.params.dense_max_nodes)
+        if isinstance(split, Bisection) and split.lambda2 > bound and not self.always_solve:
+            self._prover.solved(self._graph, w, split.lambda2, bound)  # renew the floor
         if isinstance(split, Components):
             reason, components = Reason.DISCONNECTED, split.count
             ncut = lambda2 = None
@@ -382,6 +391,7 @@ class Partitioner:
         return records[start].seq
 
     def _open_next(self, new_side: NDArray[np.bool_], opened: Submap) -> None:
+        self._prover.reset()
         if self.params.seed_mode is SeedMode.SEED:
             self._graph.keep_only(np.flatnonzero(new_side))
         else:

@@ -86,16 +86,19 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     A graph that falls apart has λ2 = 0 and never passes, nor does one with an isolated
     node. False means "not proven": the caller solves as usual, so decisions never change.
 
+    A CSR W is factorized densely too (O(n²) memory): callers bound its size
+    (``lessmap.core.drift.PROOF_MAX_NODES``).
+
     Args:
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n).
-        bound: the λ2 to beat (λ2_min).
+        bound: the λ2 to beat (λ2_min, or a floor to establish above it).
 
     Returns:
-        True when λ2 > bound is proven; False otherwise, and always for a sparse W.
+        True when λ2 > bound is proven; False otherwise.
     """
-    if not isinstance(w, np.ndarray):
-        return False  # the Cholesky certificate pays off on dense W only
-    return _dense_lambda2_exceeds(w, bound)
+    if isinstance(w, np.ndarray):
+        return _dense_lambda2_exceeds(w, bound)
+    return _sparse_lambda2_exceeds(w, bound)
 
 
 def split_graph(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bisection | Components:
@@ -367,6 +370,25 @@ def _sparse_split(w: sparse.csr_array, dense_max_nodes: int) -> Bisection | Comp
     if count > 1:
         return Components(count=count, labels=labels)
     return _sparse_bisection(w, _sparse_degrees(w), dense_max_nodes)
+
+
+def _sparse_lambda2_exceeds(w: sparse.csr_array, bound: float) -> bool:
+    # The dense certificate's matrix, written straight from the CSR entries (no dense W).
+    n = w.shape[0]
+    if n < 2:
+        return False
+    degrees = _sparse_degrees(w)
+    if not degrees.min() > 0.0:
+        return False
+    shift = bound + CERTIFICATE_MARGIN
+    matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
+    rows = np.repeat(np.arange(n), np.diff(w.indptr))
+    matrix[rows, w.indices] -= w.data  # canonical CSR: no repeated entries
+    matrix.flat[:: n + 1] += (1.0 - shift) * degrees
+    # The transpose is Fortran-ordered, so LAPACK factorizes it in place (no copy); dpotrf
+    # reads one triangle, and either triangle holds the same matrix up to rounding.
+    _, info = lapack.dpotrf(matrix.T, lower=1, clean=0, overwrite_a=1)
+    return bool(info == 0)
 
 
 def _sparse_components(w: sparse.csr_array) -> tuple[int, NDArray[np.int32]]:

@@ -1,0 +1,203 @@
+"""A proven lower bound of λ2 carried from one decision to the next (the drift certificate).
+
+Most decisions are nowhere near a transition: inside a room λ2 sits around 0.5-0.9 while
+λ2_min is 0.2 (Eq. 4), and a frame moves W only on the edges of its own features. Once λ2
+of the CovGraph is proven above some floor l (a Cholesky certificate, ``lambda2_exceeds``,
+or a dense LAPACK solve), the next graph's λ2 is bounded below by l minus how far the frame
+can have moved the spectrum, and that costs O(changed entries + nodes) instead of a
+factorization or an eigen-solve. While the floor stays above λ2_min the decision is proven
+(no transition: Eq. 4 needs λ2 <= λ2_min); when it sinks below, the partitioner proves
+afresh or solves, exactly as it would without the floor. The floor never decides anything
+the exact solver would not: it only proves λ2 > λ2_min + ``CERTIFICATE_MARGIN``.
+
+The bound. With S = D^-1/2 W D^-1/2 and u1 = D^1/2 1 / √Σd (L_sym u1 = 0 exactly),
+
+    H = I - S + 2 u1 u1ᵀ  has the eigenvalues 2 and λ2, λ3, ... of L_sym,
+
+so λ2 >= λ_min(H) for every graph with positive degrees (connected or not). Let G be the
+graph at the mark (nodes O, degrees d0, proven λ_min(H0) >= l) and G' the graph now, with
+the nodes N added since (node indices never change between marks, so N comes last). Then:
+
+- Old block (Weyl): λ_min(H'_OO) >= l - ||H'_OO - H0||₂, and H'_OO - H0 splits into
+  D'^-1/2 (W'_OO - W0) D'^-1/2 (Frobenius norm over the changed entries), R S0 R - S0 with
+  R = diag(√(d0/d')) (norm <= r (1 + max R), r = max |R - I|, since ||S0||₂ = 1), and
+  2 (u'_O u'_Oᵀ - u0 u0ᵀ) (norm <= 2 ||u'_O - u0|| (||u'_O|| + 1)).
+- New nodes: H'_NN = I - S'_NN + 2 u'_N u'_Nᵀ >= 1 - ||S'_NN||_F, and the off-diagonal
+  block B = 2 u'_O u'_Nᵀ - S'_ON has ||B||₂ <= ||B||_F, summed exactly (the rank-one
+  part in closed form, its overlap with S'_ON over S'_ON's entries). For
+  x = (x_O, x_N), xᵀH'x >= a |x_O|² + c |x_N|² - 2 β |x_O| |x_N|, so λ_min(H') is at least
+  the smaller eigenvalue of [[a, β], [β, c]]. A new node costs the floor about β²/(c - a),
+  not β: that is why the blocks are kept apart.
+
+Every norm is bounded from above by a Frobenius norm, so the result is a proof. The sums
+are rounded (relative error ~1e-16 each, ~1e-13 over thousands of carries), far below
+``CERTIFICATE_MARGIN`` (1e-8), which every certified decision keeps in hand.
+
+The floor is a cache of proofs, not session state: dropping it (a snapshot restore, a
+transition, a change of storage form) only means the next decision proves afresh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lessmap.core.spectral import CERTIFICATE_MARGIN, lambda2_exceeds
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from lessmap.core.counts import Changes
+    from lessmap.core.covgraph import CovGraph
+    from lessmap.core.spectral import Similarity
+
+#: Graphs up to this many nodes may be proven by a dense Cholesky factorization when the
+#: floor is lost (O(n²) memory, ~n³/3 flops: 20 MB and ~50 ms at 1,600 nodes). Above, the
+#: sparse path solves every decision the floor does not settle, as before.
+PROOF_MAX_NODES = 2048
+
+#: A fresh proof aims at bound + this share of (estimated λ2 - bound): the higher it is,
+#: the longer the floor lasts; a miss costs one more factorization and lowers the estimate.
+REACH = 0.75
+
+#: Smaller graphs are proven by the plain Cholesky certificate at every decision: at tens of
+#: nodes it costs less than the bookkeeping of carrying a floor.
+DRIFT_MIN_NODES = 128
+
+#: Fresh proofs aimed above the bound per decision before one at the bound itself.
+AIMS = 2
+
+#: A fresh proof aims above the bound only when the estimate exceeds it by this much.
+MIN_HEADROOM = 0.02
+
+
+@dataclass(frozen=True, slots=True)
+class Floor:
+    """λ2 of the graph at the mark is proven >= ``lower``; ``degrees`` are its d (n,)."""
+
+    lower: float
+    degrees: NDArray[np.float64]
+
+
+def carry(floor: Floor, degrees: NDArray[np.float64], changes: Changes) -> float:
+    """Return a proven lower bound of λ2 now, from the floor at the mark (see the module).
+
+    Args:
+        floor: the proven floor and the degrees at the mark, shape (m,).
+        degrees: the row sums of W now, shape (n,), n >= m.
+        changes: the entries of W that moved since the mark.
+
+    Returns:
+        The bound; -inf when it cannot be carried (an isolated node, fewer nodes).
+    """
+    old, n = floor.degrees.size, degrees.size
+    if n < old or old < 2 or not degrees.min() > 0.0:
+        return -np.inf
+    inv_sqrt = 1.0 / np.sqrt(degrees)
+    scaled = changes.delta * inv_sqrt[changes.rows] * inv_sqrt[changes.cols]
+    touches_new = changes.cols >= old  # cols > rows: a new endpoint is always cols
+    both_new = changes.rows >= old
+    moved = float(np.sqrt(2.0 * np.sum(np.square(scaled[~touches_new]))))
+    ratio = np.sqrt(floor.degrees / degrees[:old])
+    rescaled = float(np.max(np.abs(ratio - 1.0))) * (1.0 + float(ratio.max()))
+    u_now = np.sqrt(degrees / degrees.sum())
+    u_then = np.sqrt(floor.degrees / floor.degrees.sum())
+    u_old = u_now[:old]
+    norm_old = float(np.linalg.norm(u_old))
+    turned = 2.0 * float(np.linalg.norm(u_old - u_then)) * (norm_old + 1.0)
+    a = floor.lower - moved - rescaled - turned
+    if n == old:
+        return a
+    c = 1.0 - float(np.sqrt(2.0 * np.sum(np.square(scaled[both_new]))))
+    # ||B||_F² exactly, B = 2 u'_O u'_Nᵀ - S'_ON: the rank-one part is dense, S'_ON is not.
+    cross = touches_new & ~both_new
+    rank_one = 4.0 * norm_old**2 * float(np.sum(np.square(u_now[old:])))
+    overlap = 4.0 * float(
+        np.sum(scaled[cross] * u_now[changes.rows[cross]] * u_now[changes.cols[cross]])
+    )
+    beta = float(np.sqrt(max(0.0, float(np.sum(np.square(scaled[cross]))) + rank_one - overlap)))
+    return 0.5 * (a + c) - float(np.hypot(0.5 * (a - c), beta))
+
+
+class Prover:
+    """The proven λ2 floor of one session's CovGraph and how to renew it (no decisions).
+
+    ``certify`` answers whether λ2 > bound + ``CERTIFICATE_MARGIN`` is proven now: by
+    carrying the floor, else (dense form) by a Cholesky certificate aimed above the bound
+    so that the new floor lasts, then at the bound itself. ``solved`` takes the figures of a
+    decision that ran the eigen-solve: an exact dense solve is itself a floor; after a
+    sparse (ARPACK) solve, which proves nothing, one Cholesky certificate may set the floor
+    for the decisions that follow (graphs up to ``PROOF_MAX_NODES``).
+    """
+
+    def __init__(self, proof_max_nodes: int = PROOF_MAX_NODES) -> None:
+        """Start without a floor; graphs up to ``proof_max_nodes`` may be factorized."""
+        self._proof_max = proof_max_nodes
+        self._floor: Floor | None = None
+        self._estimate = 1.0  # where λ2 is expected: the last solve or the last miss
+
+    def reset(self) -> None:
+        """Forget the floor (the graph was reshaped) and expect a room-like λ2 again."""
+        self._floor = None
+        self._estimate = 1.0
+
+    def certify(self, graph: CovGraph, bound: float) -> bool:
+        """Return True when λ2 > bound + ``CERTIFICATE_MARGIN`` is proven for the graph."""
+        if graph.node_count < DRIFT_MIN_NODES:
+            self._floor = None
+            return lambda2_exceeds(graph.similarity(), bound)
+        degrees = graph.degrees()
+        if self._floor is not None:
+            changes = graph.changes()
+            # Carried from the proof itself, not from the last decision: a drift that
+            # partly cancels, or moves different nodes' degrees, is not counted twice.
+            if changes is not None and carry(self._floor, degrees, changes) > bound + (
+                CERTIFICATE_MARGIN
+            ):
+                return True
+        self._floor = None
+        if not graph.is_dense:
+            return False  # a solve (ARPACK) costs less than a dense proof: see ``solved``
+        return self._prove(graph, graph.similarity(), bound, degrees)
+
+    def solved(self, graph: CovGraph, w: Similarity, lambda2: float, bound: float) -> None:
+        """Take the λ2 of a solve on W (the graph's) that found no transition."""
+        self._estimate = lambda2
+        if graph.node_count < DRIFT_MIN_NODES:
+            return
+        degrees = graph.degrees()
+        if graph.is_dense:
+            # LAPACK's dsyevr is backward stable: its λ2 is within ~n·ε·||L_sym||
+            # (||L_sym|| <= 2) of the true one, far inside the margin.
+            self._keep(graph, min(lambda2, 2.0) - CERTIFICATE_MARGIN, degrees, bound)
+        elif graph.node_count <= self._proof_max and lambda2 > bound + MIN_HEADROOM:
+            self._prove(graph, w, bound, degrees, at_bound=False)
+
+    def _prove(
+        self,
+        graph: CovGraph,
+        w: Similarity,
+        bound: float,
+        degrees: NDArray[np.float64],
+        *,
+        at_bound: bool = True,
+    ) -> bool:
+        for _ in range(AIMS):
+            if self._estimate <= bound + MIN_HEADROOM:
+                break
+            shift = bound + REACH * (self._estimate - bound)
+            if lambda2_exceeds(w, shift):
+                self._keep(graph, shift, degrees, bound)
+                return True
+            self._estimate = shift  # λ2 is below it: aim lower
+        return at_bound and lambda2_exceeds(w, bound)
+
+    def _keep(
+        self, graph: CovGraph, lower: float, degrees: NDArray[np.float64], bound: float
+    ) -> None:
+        if lower <= bound + MIN_HEADROOM:
+            return  # a floor at the bound would certify nothing later
+        self._floor = Floor(lower, degrees)
+        graph.mark()
