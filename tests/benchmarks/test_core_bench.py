@@ -34,10 +34,11 @@ def test_the_table_is_printed_at_tiny_sizes(capsys: pytest.CaptureFixture[str]) 
     "stream",
     [
         core_bench.room_chain(50, frames=20),
+        core_bench.room_chain(200, frames=20),  # dense counts, the λ2 floor carried
         core_bench.room_chain(450, frames=12),  # above 400 nodes: CSR counts and ARPACK
         core_bench.visual(frames_per_room=25, alive=120, pool=300, warmup=5),
     ],
-    ids=["room chain 50", "room chain 450", "small visual"],
+    ids=["room chain 50", "room chain 200", "room chain 450", "small visual"],
 )
 def test_decisions_on_the_benchmark_streams_equal_the_exact_dense_solver(stream: Stream) -> None:
     params = core_bench.params_of(stream)

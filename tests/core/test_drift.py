@@ -1,0 +1,176 @@
+"""The drift certificate: a carried λ2 floor is a proof, and decisions do not change."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from lessmap.core import CovGraph, Partitioner, PartitionParams, drift
+from lessmap.core.counts import Changes
+from lessmap.core.drift import Floor, carry
+from lessmap.core.snapshot import from_bytes, to_bytes
+from lessmap.core.spectral import fiedler_pair
+from lessmap.frames_file import read_frames
+from tests.conftest import dataset
+from tests.core.helpers import random_connected, room_walk
+from tests.core.test_certificate import decisions
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from tests.core.helpers import Frames
+
+
+def changes_between(before: NDArray[np.float64], after: NDArray[np.float64]) -> Changes:
+    """Brute force: the upper entries of ``after`` that differ from ``before`` (padded)."""
+    m = before.shape[0]
+    padded = np.zeros_like(after)
+    padded[:m, :m] = before
+    delta = np.triu(after - padded, k=1)
+    rows, cols = np.nonzero(delta)
+    return Changes(rows, cols, delta[rows, cols], after[rows, cols])
+
+
+def perturbed(
+    rng: np.random.Generator, w: NDArray[np.float64], share: float, scale: float, added: int
+) -> NDArray[np.float64]:
+    """W with a share of its entries rescaled, a few new edges and ``added`` new nodes."""
+    n = w.shape[0]
+    out = np.zeros((n + added, n + added))
+    out[:n, :n] = np.triu(w, k=1)
+    hit = np.triu(rng.random((n, n)) < share, k=1)
+    out[:n, :n][hit] *= 1.0 + scale * rng.uniform(-1.0, 1.0, int(hit.sum()))
+    for new in range(n, n + added):
+        partners = rng.choice(new, size=min(new, 1 + int(rng.integers(0, 6))), replace=False)
+        out[partners, new] = rng.uniform(0.05, 1.0, partners.size)
+    out = np.clip(out, 0.0, 1.0)
+    return out + out.T
+
+
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(3, 40),
+    share=st.floats(0.0, 1.0),
+    scale=st.sampled_from([0.0, 1e-6, 0.01, 0.2, 1.0]),
+    added=st.integers(0, 4),
+)
+@settings(max_examples=300, deadline=None)
+def test_the_carried_floor_never_exceeds_lambda2(
+    seed: int, n: int, share: float, scale: float, added: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    w0 = random_connected(rng, n, float(rng.uniform(0.1, 1.0))).toarray()
+    lambda2_then, _ = fiedler_pair(w0)
+    w1 = perturbed(rng, w0, share, scale, added)
+    degrees = w1.sum(axis=1)
+    lower = carry(Floor(lambda2_then, w0.sum(axis=1)), degrees, changes_between(w0, w1))
+    if degrees.min() > 0.0:
+        lambda2_now, _ = fiedler_pair(w1)
+        assert lower <= lambda2_now + 1e-9
+    else:
+        assert lower == -np.inf
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_floor_is_tight_for_small_changes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    w0 = random_connected(rng, 30, 0.4).toarray()
+    floor = Floor(0.5, w0.sum(axis=1))
+    assert carry(floor, w0.sum(axis=1), changes_between(w0, w0)) == 0.5  # nothing moved
+    for scale in (1e-3, 1e-6):
+        w1 = perturbed(rng, w0, 0.3, scale, 0)
+        moved = float(np.linalg.norm(w1 - w0))
+        lower = carry(floor, w1.sum(axis=1), changes_between(w0, w1))
+        assert 0.5 - 20 * moved <= lower <= 0.5
+
+
+@pytest.mark.parametrize("dense_max_nodes", [400, 2])
+def test_both_stores_report_the_changes_since_the_mark(dense_max_nodes: int) -> None:
+    rng = np.random.default_rng(3)
+    graph = CovGraph(dense_max_nodes)
+    frames = [rng.choice(60, size=12, replace=False).tolist() for _ in range(40)]
+    for seq, frame in enumerate(frames[:20]):
+        graph.add_frame(seq, frame)
+    before = graph.covrate_dense().copy()
+    graph.mark()
+    found = graph.changes()
+    assert found is not None
+    assert found.rows.size == 0
+    for seq, frame in enumerate(frames[20:], start=20):
+        graph.add_frame(seq, [*frame, 100 + seq])  # a new node in every frame
+    after = graph.covrate_dense()
+    found = graph.changes()
+    expected = changes_between(before, after)
+    assert found is not None
+    got = sorted(zip(found.rows.tolist(), found.cols.tolist(), found.delta, found.now, strict=True))
+    want = sorted(
+        zip(
+            expected.rows.tolist(),
+            expected.cols.tolist(),
+            expected.delta,
+            expected.now,
+            strict=True,
+        )
+    )
+    assert got == want
+    assert np.allclose(graph.degrees(), after.sum(axis=1), rtol=1e-14, atol=0.0)  # sum order
+
+
+def laser() -> PartitionParams:
+    return PartitionParams.from_profile("laser")
+
+
+@pytest.fixture
+def floor_on_small_graphs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Carry the floor from 2 nodes up, so that the data sets' small graphs exercise it."""
+    monkeypatch.setattr(drift, "DRIFT_MIN_NODES", 2)
+
+
+@pytest.mark.usefixtures("floor_on_small_graphs")
+@pytest.mark.parametrize("name", ["dlr.frames.jsonl", "mrclam6.frames.jsonl"])
+def test_decisions_with_the_floor_equal_full_solves_on_datasets(name: str) -> None:
+    frames = [list(row.features) for row in read_frames(dataset(name))]
+    fast = Partitioner(laser())
+    full = Partitioner(laser(), always_solve=True)
+    assert decisions(fast, frames) == decisions(full, frames)
+    assert full.transitions > 10
+
+
+@pytest.mark.usefixtures("floor_on_small_graphs")
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("dense_max_nodes", [400, 40])
+def test_decisions_with_the_floor_equal_full_solves_on_room_walks(
+    seed: int, dense_max_nodes: int
+) -> None:
+    walk = room_walk(seed, rooms=5, back=True, door_frames=2, door_share=0.2)
+    params = PartitionParams(dense_max_nodes=dense_max_nodes)
+    fast = Partitioner(params)
+    full = Partitioner(params, always_solve=True)
+    assert decisions(fast, walk.frames) == decisions(full, walk.frames)
+    assert fast.transitions >= 1
+
+
+def decisions_with_restores(frames: Frames, cuts: set[int]) -> list[tuple[object, ...]]:
+    partitioner = Partitioner(laser())
+    found: list[tuple[object, ...]] = []
+    for seq, frame in enumerate(frames):
+        if seq in cuts:
+            partitioner = from_bytes(to_bytes(partitioner))  # the floor is dropped here
+        transition = partitioner.observe(seq, float(seq), frame)
+        evaluation = partitioner.last_evaluation
+        assert evaluation is not None
+        found.append((seq, evaluation.nodes, evaluation.transition, transition))
+    return found
+
+
+@pytest.mark.usefixtures("floor_on_small_graphs")
+@pytest.mark.parametrize("seed", range(3))
+def test_a_restore_mid_stream_gives_the_same_later_decisions(seed: int) -> None:
+    walk = room_walk(seed, rooms=4, back=True, door_frames=2, door_share=0.2)
+    rng = np.random.default_rng(seed)
+    cuts = {int(c) for c in rng.choice(len(walk.frames), size=8, replace=False)}
+    cuts |= {d + k for d in walk.doors[:2] for k in range(-2, 3)}
+    assert decisions_with_restores(walk.frames, cuts) == decisions_with_restores(walk.frames, set())
