@@ -47,7 +47,8 @@ def perturbed(
         partners = rng.choice(new, size=min(new, 1 + int(rng.integers(0, 6))), replace=False)
         out[partners, new] = rng.uniform(0.05, 1.0, partners.size)
     out = np.clip(out, 0.0, 1.0)
-    return out + out.T
+    symmetric: NDArray[np.float64] = out + out.T
+    return symmetric
 
 
 @given(
