@@ -94,6 +94,18 @@ COMMANDS: dict[str, Command] = {
         "configure_import",
         "run_import",
     ),
+    "view": Command(
+        "lessmap.viz.cli_viz",
+        "show a fleet in Foxglove or Lichtblick: a Foxglove WebSocket server (lessmap[viz])",
+        "configure_view",
+        "run_view",
+    ),
+    "record": Command(
+        "lessmap.viz.cli_viz",
+        "record a fleet's view (the channels of lessmap view) to an MCAP file (lessmap[viz])",
+        "configure_record",
+        "run_record",
+    ),
 }
 
 #: Failures a user can fix: one line on stderr and exit code 1, no traceback. Named by

@@ -9,17 +9,14 @@ from __future__ import annotations
 import json
 import logging
 import os
-import signal
-import threading
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.errors import ConfigError
+from lessmap.foreground import StopSignal, stop_signals
 
 if TYPE_CHECKING:
     import argparse
-    from types import FrameType
 
     from lessmap.ros.convert import Converter
 
@@ -145,6 +142,11 @@ def converter_from_args(args: argparse.Namespace) -> Converter:
 
 def run(args: argparse.Namespace) -> int:
     """Run the bridge until a signal or ``--duration``; print its counts as JSON."""
+    with stop_signals() as stop:
+        return _run(args, stop)
+
+
+def _run(args: argparse.Namespace, stop: StopSignal) -> int:
     import zenoh
 
     from lessmap.ros.bridge import RosBridge, topic_specs
@@ -177,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
                 root_robot=args.root_robot,
             ).start()
             try:
-                _wait(args.duration)
+                stop.wait(args.duration)
             finally:
                 bridge.stop()
             summary = {
@@ -199,31 +201,6 @@ def _env_domain() -> int:
         msg = f"ROS_DOMAIN_ID={raw!r} is not a ROS domain id (0-232)"
         raise ConfigError(msg)
     return int(raw)
-
-
-def _wait(duration_s: float | None) -> None:
-    """Park the main thread until SIGINT/SIGTERM or the duration ends."""
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        log.info("received %s", signal.Signals(signum).name)
-        stop.set()
-
-    main = threading.current_thread() is threading.main_thread()
-    previous = (
-        {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
-        if main
-        else {}
-    )
-    deadline = None if duration_s is None else time.monotonic() + duration_s
-    try:
-        # Short waits: signals are handled between them.
-        while not stop.wait(0.2):
-            if deadline is not None and time.monotonic() >= deadline:
-                break
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def configure_import(parser: argparse.ArgumentParser) -> None:

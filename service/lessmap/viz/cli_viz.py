@@ -1,0 +1,172 @@
+"""``lessmap view`` (a Foxglove WebSocket server) and ``lessmap record`` (an MCAP file).
+
+Both follow one fleet with the same feed and the same channels (``lessmap.viz.scene``): what
+a live Foxglove or Lichtblick shows is what the MCAP file replays later.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from lessmap.errors import ConfigError
+from lessmap.foreground import StopSignal, stop_signals
+
+if TYPE_CHECKING:
+    import argparse
+
+    import foxglove
+    from foxglove.mcap import MCAPWriter
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--fleet", required=True, help="the fleet to show")
+    parser.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"the lessmap router (default {DEFAULT_ENDPOINT}); repeatable",
+    )
+    parser.add_argument(
+        "--covgraph",
+        metavar="ROBOT",
+        help="also show this robot's CovGraph (its current submap, from its frames)",
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: run until SIGINT/SIGTERM)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="how long to retry while no router answers (default 10)",
+    )
+
+
+def configure_view(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap view``."""
+    parser.description = (
+        "Show a fleet in Foxglove or Lichtblick: a Foxglove WebSocket server with each "
+        "robot's trajectory coloured by submap (where frames carry poses), transitions as "
+        "log entries and markers, the per-robot state table and optionally a robot's "
+        "CovGraph. Open ws://HOST:PORT in the app. Needs pip install 'lessmap[viz]'."
+    )
+    _common(parser)
+    parser.add_argument(
+        "--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)"
+    )
+    parser.add_argument(
+        "--port", type=int, default=8765, help="port (default 8765; 0: any free one)"
+    )
+    parser.add_argument("--mcap", type=Path, default=None, help="also record the channels to FILE")
+
+
+def configure_record(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap record``."""
+    parser.description = (
+        "Record a fleet's view to an MCAP file (the channels of lessmap view), for Foxglove, "
+        "Lichtblick or any MCAP reader later. Needs pip install 'lessmap[viz]'."
+    )
+    _common(parser)
+    parser.add_argument("--mcap", type=Path, required=True, help="the MCAP file to write")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace FILE if it exists (default: refuse)"
+    )
+
+
+def run_view(args: argparse.Namespace) -> int:
+    """Serve the fleet over WebSocket until a signal or --duration."""
+    with stop_signals() as stop:
+        return _run_view(args, stop)
+
+
+def _run_view(args: argparse.Namespace, stop: StopSignal) -> int:
+    import foxglove
+
+    context = foxglove.Context()
+    try:
+        server = foxglove.start_server(
+            name=f"lessmap {args.fleet}", host=args.host, port=args.port, context=context
+        )
+    except Exception as exc:  # foxglove raises its own error kinds for a taken port
+        msg = f"cannot serve on {args.host}:{args.port}: {exc}"
+        raise ConfigError(msg) from exc
+    port = server.port  # 0 once stopped
+    log.warning(
+        "Foxglove WebSocket server on ws://%s:%d (open it in Foxglove or Lichtblick)",
+        args.host,
+        port,
+    )
+    writer = _open_mcap(args.mcap, context, overwrite=False) if args.mcap else None
+    try:
+        counts = _follow(args, context, stop)
+    finally:
+        if writer is not None:
+            writer.close()
+        server.stop()
+    print(json.dumps({"fleet": args.fleet, "port": port, **counts}))
+    return 0
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """Record the fleet's channels to an MCAP file until a signal or --duration."""
+    with stop_signals() as stop:
+        return _run_record(args, stop)
+
+
+def _run_record(args: argparse.Namespace, stop: StopSignal) -> int:
+    import foxglove
+
+    context = foxglove.Context()
+    writer = _open_mcap(args.mcap, context, overwrite=args.overwrite)
+    try:
+        counts = _follow(args, context, stop)
+    finally:
+        writer.close()
+    print(json.dumps({"fleet": args.fleet, "mcap": str(args.mcap), **counts}))
+    return 0
+
+
+def _open_mcap(path: Path, context: foxglove.Context, *, overwrite: bool) -> MCAPWriter:
+    import foxglove
+
+    if path.exists() and not overwrite:
+        msg = f"{path} exists (give --overwrite to replace it)"
+        raise ConfigError(msg)
+    try:
+        return foxglove.open_mcap(path, allow_overwrite=overwrite, context=context)
+    except Exception as exc:  # foxglove's own error kinds
+        msg = f"cannot write {path}: {exc}"
+        raise ConfigError(msg) from exc
+
+
+def _follow(
+    args: argparse.Namespace, context: foxglove.Context, stop: StopSignal
+) -> dict[str, int]:
+    from lessmap.viz.feed import FleetFeed
+    from lessmap_client.connection import Connection
+    from lessmap_client.session import open_session
+
+    session = open_session(args.connect or [DEFAULT_ENDPOINT], timeout_s=args.connect_timeout)
+    try:
+        with Connection.from_session(session) as conn:
+            feed = FleetFeed(session, conn, args.fleet, context, covgraph=args.covgraph).start()
+            try:
+                stop.wait(args.duration)
+            finally:
+                feed.stop()
+            return dict(sorted(feed.counts.items()))
+    finally:
+        session.close()

@@ -1,0 +1,196 @@
+"""``lessmap view`` and ``lessmap record`` on a live service: what Foxglove would receive."""
+
+from __future__ import annotations
+
+import json
+import struct
+import time
+from typing import TYPE_CHECKING, Any
+
+import pytest
+
+from tests.conftest import free_port, wait_until
+from tests.viz.conftest import (
+    FRAMES_PER_ROOM,
+    ROOMS,
+    publish_walks,
+    start_command,
+    stop_command,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
+    from tests.conftest import ServeProcess
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+TOPICS = {"/lessmap/scene", "/lessmap/transitions", "/lessmap/state"}
+ROBOTS = ["amr1", "amr2"]
+FRAMES = FRAMES_PER_ROOM * ROOMS
+
+
+def connect_ws(port: int) -> Any:
+    from websockets.sync.client import connect
+    from websockets.typing import Subprotocol
+
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            return connect(
+                f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol(SUBPROTOCOL)], open_timeout=5
+            )
+        except OSError:
+            assert time.monotonic() < deadline, "the view server never listened"
+            time.sleep(0.1)
+
+
+def test_view_serves_the_fleet_over_the_foxglove_websocket_protocol(
+    serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
+) -> None:
+    import lessmap_client
+
+    service = serve("--memory-only", "--max-batch-frames", "1")
+    port = free_port()
+    view = start_command(
+        tmp_path,
+        "view",
+        *("view", "--fleet", fleet_name, "-e", service.endpoint, "--port", str(port)),
+        *("--covgraph", "amr1"),
+    )
+    try:
+        with connect_ws(port) as ws:
+            assert ws.subprotocol == SUBPROTOCOL
+            channels: dict[int, dict[str, Any]] = {}
+            deadline = time.monotonic() + 20
+            while set(c["topic"] for c in channels.values()) < TOPICS | {"/lessmap/covgraph"}:
+                assert time.monotonic() < deadline, f"advertised: {channels}"
+                message = ws.recv(timeout=5)
+                if isinstance(message, str):
+                    op = json.loads(message)
+                    if op["op"] == "advertise":
+                        channels.update({c["id"]: c for c in op["channels"]})
+            subscriptions = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+            topic_of = {i: channels[cid]["topic"] for i, cid in enumerate(channels)}
+            with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
+                assert conn.wait_for_service(20)
+                publish_walks(conn, fleet_name, ROBOTS)
+                received: dict[str, list[bytes]] = {}
+
+                def applied_everywhere() -> bool:
+                    for payload in received.get("/lessmap/state", [])[::-1]:
+                        rows = {r["robot"]: r for r in json.loads(payload)["robots"]}
+                        return all(
+                            rows.get(r, {}).get("frames_applied") == FRAMES
+                            and rows[r]["transitions"] >= 1
+                            for r in ROBOTS
+                        )
+                    return False
+
+                deadline = time.monotonic() + 30
+                while not (
+                    applied_everywhere()
+                    and len(received.get("/lessmap/transitions", [])) >= len(ROBOTS)
+                    and any(b"amr2/transitions" in p for p in received.get("/lessmap/scene", []))
+                    and received.get("/lessmap/covgraph")
+                ):
+                    assert time.monotonic() < deadline, {k: len(v) for k, v in received.items()}
+                    try:
+                        message = ws.recv(timeout=1)
+                    except TimeoutError:
+                        continue
+                    if isinstance(message, bytes) and message[0] == 0x01:  # MessageData
+                        sub_id, _log_time = struct.unpack_from("<IQ", message, 1)
+                        received.setdefault(topic_of[sub_id], []).append(message[13:])
+    finally:
+        summary = stop_command(view)
+
+    by_topic = {c["topic"]: c for c in channels.values()}
+    assert by_topic["/lessmap/state"]["encoding"] == "json"
+    assert by_topic["/lessmap/transitions"]["schemaName"] == "foxglove.Log"
+    assert by_topic["/lessmap/scene"]["schemaName"] == "foxglove.SceneUpdate"
+    logs = b"".join(received["/lessmap/transitions"])
+    for robot in ROBOTS:  # protobuf keeps strings verbatim
+        assert f"{robot}: submap 0 → 1 from seq {FRAMES_PER_ROOM}".encode() in logs
+    scenes = b"".join(received["/lessmap/scene"])
+    assert b"amr1/trajectory" in scenes
+    assert b"amr1/covgraph" in b"".join(received["/lessmap/covgraph"])
+    assert summary["port"] == port
+    assert summary["transitions"] == len(ROBOTS)
+    assert summary["frames"] == len(ROBOTS) * FRAMES
+
+
+def test_record_writes_the_same_channels_to_mcap(
+    serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    import lessmap_client
+
+    service = serve("--memory-only", "--max-batch-frames", "1")
+    out = tmp_path / "fleet.mcap"
+    record = start_command(
+        tmp_path,
+        "record",
+        "record",
+        "--fleet",
+        fleet_name,
+        "-e",
+        service.endpoint,
+        "--mcap",
+        str(out),
+    )
+    log = tmp_path / "record.log"
+    try:
+        wait_until(lambda: "following fleet" in log.read_text(), 30, "the recorder to subscribe")
+        with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
+            assert conn.wait_for_service(20)
+            publish_walks(conn, fleet_name, ROBOTS)
+
+            def applied() -> bool:
+                states = {s.robot: s.frames_applied for s in conn.states(fleet_name)}
+                return all(states.get(r) == FRAMES for r in ROBOTS)
+
+            wait_until(applied, 30, "every frame to be applied")
+            wait_until(
+                lambda: log.read_text().count("submap 0 -> 1") == len(ROBOTS),
+                30,
+                "the recorder to receive the transitions",
+            )
+    finally:
+        summary = stop_command(record)
+
+    counts: dict[str, int] = {}
+    payloads: dict[str, list[bytes]] = {}
+    with out.open("rb") as handle:
+        reader = make_reader(handle)
+        topics = {c.topic: c for c in reader.get_summary().channels.values()}  # type: ignore[union-attr]
+        for _schema, channel, message in reader.iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            payloads.setdefault(channel.topic, []).append(message.data)
+    assert set(topics) == TOPICS
+    assert topics["/lessmap/state"].message_encoding == "json"
+    assert counts["/lessmap/transitions"] == len(ROBOTS) == summary["transitions"]
+    assert counts["/lessmap/scene"] == summary["scene updates"] >= 1
+    assert counts["/lessmap/state"] == summary["state tables"] >= 1
+    final = json.loads(payloads["/lessmap/state"][-1])
+    assert [r["robot"] for r in final["robots"]] == ROBOTS
+    assert {r["frames_applied"] for r in final["robots"]} == {FRAMES}
+    assert {r["submap"] for r in final["robots"]} == {1}
+    scenes = b"".join(payloads["/lessmap/scene"])
+    assert b"amr1/trajectory" in scenes
+    assert b"amr2/transitions" in scenes
+
+
+def test_record_refuses_to_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lessmap.cli import main
+
+    existing = tmp_path / "x.mcap"
+    existing.write_bytes(b"keep")
+    argv = ["record", "--fleet", "f", "--mcap", str(existing), "-e", "tcp/127.0.0.1:1"]
+    assert main([*argv, "--connect-timeout", "0.1"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"lessmap record: {existing} exists (give --overwrite to replace it)"
+    )
+    assert existing.read_bytes() == b"keep"
