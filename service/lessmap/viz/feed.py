@@ -111,6 +111,12 @@ class FleetFeed:
             self._transitions = None
         self._queue.put(None)
         self._thread.join(timeout_s)
+        if self.covgraph_robot is not None and self.covgraph_robot not in self.model.tracks:
+            log.warning(
+                "--covgraph %s: no frame of that robot was seen (robots: %s)",
+                self.covgraph_robot,
+                ", ".join(sorted(self.model.tracks)) or "none",
+            )
 
     # -- Zenoh's and the SDK's threads: queue only -------------------------------------------
 
