@@ -2,17 +2,35 @@
 //!
 //! It speaks the wire contract v2 (`schemas/README.md` of the lessmap repository): the typed
 //! messages and their msgpack codec ([`messages`], [`codec`]), names, keys and partitions
-//! ([`names`]).
+//! ([`names`]), a robot publisher ([`RobotPublisher`]) and fleet subscriptions and queries,
+//! all declared from one [`Connection`], as in the Python SDK.
+//!
+//! ```no_run
+//! use std::time::Duration;
+//! use lessmap_client::Connection;
+//!
+//! let conn = Connection::connect(&["tcp/127.0.0.1:7447"], Duration::from_secs(10))?;
+//! let robot = conn.robot("warehouse", "amr-7")?;
+//! robot.publish(&[12, 40, 41, 97])?; // seq 0, stamped now
+//! robot.close()?; // SessionEnd with the last seq
+//! # Ok::<(), lessmap_client::ClientError>(())
+//! ```
 
 pub mod codec;
+pub mod connection;
 pub mod messages;
 pub mod names;
+pub mod robot;
+pub mod subscription;
 
 pub use codec::{
     decode, decode_inbound, encode, encoding, ErrorCode, Inbound, WireError, WireLimits,
 };
+pub use connection::{ClientError, Connection, DEFAULT_ENDPOINT, DEFAULT_HISTORY};
 pub use messages::{
     Error, Frame, Health, Message, Reason, SessionEnd, SessionState, Submap, SubmapSummary,
     Transition,
 };
 pub use names::{keys, owner_and_standby, partition_of, ranking, validate_name};
+pub use robot::{RobotOptions, RobotPublisher, RobotStatus};
+pub use subscription::Subscription;

@@ -1,0 +1,644 @@
+//! The robot side: publish the frames of one robot session to the lessmap service.
+//!
+//! Invariants of this file:
+//!
+//! * Frames go through a zenoh-ext `AdvancedPublisher` with a cache (1000 frames by default)
+//!   and publisher detection, so an instance that takes the robot's partition over fetches the
+//!   frames it missed (contract section 6, rule 8). Congestion control is *block*: a frame is
+//!   never dropped silently.
+//! * `SessionEnd` goes on the same key as the frames, so it never overtakes them.
+//! * The robot follows its own `errors` key: Zenoh's callback only hands the payload to a
+//!   bounded channel; the robot's follower thread decodes it, fences it by epoch, updates the
+//!   status and calls `on_error`. A `SESSION_CLOSED` about the current session becomes a flag
+//!   the next `publish` acts on, so frames are never renumbered behind the caller's back.
+//! * The robot follows the instances' liveliness tokens; `status().owner` ranks them for its
+//!   partition (section 2a).
+
+use std::collections::hash_map::RandomState;
+use std::collections::{BTreeMap, BTreeSet};
+use std::hash::{BuildHasher, Hasher};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, RecvTimeoutError};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use zenoh::pubsub::Subscriber;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::{Session, Wait};
+use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
+
+use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
+use crate::connection::{current_states, get_all, ClientError};
+use crate::messages::{Error, Frame, Health, Message, SessionEnd, SessionState};
+use crate::names::{keys, owner_and_standby, partition_of, validate_name};
+
+/// Error reports waiting for the follower thread; more are dropped and counted.
+const INBOX_MAX: usize = 1000;
+
+/// A fresh session id: the start time plus randomness, a valid name.
+pub fn new_session_id() -> String {
+    let secs = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    // RandomState is seeded per process from the OS: enough to keep restarts apart.
+    let mut hasher = RandomState::new().build_hasher();
+    hasher.write_u128(
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    hasher.write_u32(std::process::id());
+    format!("{secs}-{:012x}", hasher.finish() & 0xffff_ffff_ffff)
+}
+
+fn now_s() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// A callback for the service's reports about a robot's sessions.
+pub type ErrorCallback = Box<dyn Fn(&Error) + Send + 'static>;
+
+/// How a robot publisher behaves.
+pub struct RobotOptions {
+    /// The session id; a fresh random one by default (a restarted robot must use a new one).
+    pub session_id: Option<String>,
+    /// Frames kept in the publication cache for recovery by the service.
+    pub cache: usize,
+    /// Start a new session by itself when the service closed the current one (default
+    /// `true`: a closed session discards every frame, and a robot in the field should keep
+    /// being segmented). `false`: `publish` fails with `ClientError::SessionClosed`.
+    pub auto_new_session: bool,
+    /// Called with every `Error` the service reports about this publisher's sessions, on the
+    /// publisher's own thread (never Zenoh's), so it may block.
+    pub on_error: Option<ErrorCallback>,
+}
+
+impl Default for RobotOptions {
+    fn default() -> Self {
+        RobotOptions {
+            session_id: None,
+            cache: 1000,
+            auto_new_session: true,
+            on_error: None,
+        }
+    }
+}
+
+/// What a robot publisher sent and what the service reported back (a snapshot).
+#[derive(Clone, Debug)]
+pub struct RobotStatus {
+    /// Fleet of the robot.
+    pub fleet: String,
+    /// The robot.
+    pub robot: String,
+    /// The current session.
+    pub session_id: String,
+    /// Seq the next frame of the current session will carry.
+    pub next_seq: u64,
+    /// Last seq sent in the current session.
+    pub last_seq: Option<u64>,
+    /// Frames published over every session of this publisher.
+    pub frames_sent: u64,
+    /// Sessions this publisher started.
+    pub sessions: usize,
+    /// `Error` reports about this publisher's sessions, per code.
+    pub errors: BTreeMap<String, u64>,
+    /// The latest of them.
+    pub last_error: Option<Error>,
+    /// The service reported the current session closed.
+    pub closed_by_service: bool,
+    /// Reports dropped unread because too many were waiting.
+    pub reports_dropped: u64,
+    /// The robot's partition, the last chunk of its frames key.
+    pub partition: u16,
+    /// The owner of the partition among the live instances; `None`: nobody serves the robot.
+    pub owner: Option<String>,
+    /// Reports dropped for an epoch below the highest seen (a deposed owner's).
+    pub reports_stale: u64,
+}
+
+impl RobotStatus {
+    /// Reports received with this code.
+    pub fn count(&self, code: ErrorCode) -> u64 {
+        self.errors.get(code.as_str()).copied().unwrap_or(0)
+    }
+}
+
+struct State {
+    session_id: String,
+    next_seq: u64,
+    frames_sent: u64,
+    sessions: Vec<String>,
+    errors: BTreeMap<String, u64>,
+    last_error: Option<Error>,
+    closed_report: bool,
+    highest_epoch: u64,
+    stale: u64,
+    live: BTreeSet<String>,
+}
+
+impl State {
+    fn start_session(&mut self, session_id: String) {
+        self.session_id = session_id.clone();
+        self.sessions.push(session_id);
+        self.next_seq = 0;
+        self.closed_report = false;
+    }
+}
+
+struct Shared {
+    state: Mutex<State>,
+    live_changed: Condvar,
+    dropped: AtomicU64,
+    stop: AtomicBool,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // A panic in on_error never holds this lock, so poisoning is not expected; recover.
+        self.state
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+}
+
+/// Publishes the frames of one robot session, numbered from 0, and follows its errors.
+///
+/// Declare one with `Connection::robot`. `close` (or dropping it) ends the session with a
+/// `SessionEnd` carrying the last seq, so the service frees it at once.
+pub struct RobotPublisher {
+    fleet: String,
+    robot: String,
+    partition: u16,
+    key: String,
+    session: Session,
+    auto_new_session: bool,
+    limits: WireLimits,
+    shared: Arc<Shared>,
+    publisher: Option<AdvancedPublisher<'static>>,
+    errors_sub: Option<Subscriber<()>>,
+    live_sub: Option<Subscriber<()>>,
+    follower: Option<JoinHandle<()>>,
+}
+
+impl RobotPublisher {
+    pub(crate) fn new(
+        session: Session,
+        fleet: &str,
+        robot: &str,
+        options: RobotOptions,
+    ) -> Result<RobotPublisher, ClientError> {
+        validate_name(fleet, "fleet")?;
+        validate_name(robot, "robot")?;
+        let session_id = options.session_id.unwrap_or_else(new_session_id);
+        validate_name(&session_id, "session")?;
+        let key = keys::frames(fleet, robot)?;
+        let shared = Arc::new(Shared {
+            state: Mutex::new(State {
+                session_id: session_id.clone(),
+                next_seq: 0,
+                frames_sent: 0,
+                sessions: vec![session_id],
+                errors: BTreeMap::new(),
+                last_error: None,
+                closed_report: false,
+                highest_epoch: 0,
+                stale: 0,
+                live: BTreeSet::new(),
+            }),
+            live_changed: Condvar::new(),
+            dropped: AtomicU64::new(0),
+            stop: AtomicBool::new(false),
+        });
+        let publisher = session
+            .declare_publisher(key.clone())
+            .encoding(encoding::<Frame>())
+            .congestion_control(CongestionControl::Block)
+            .cache(CacheConfig::default().max_samples(options.cache))
+            .publisher_detection()
+            .wait()?;
+        let mut robot_pub = RobotPublisher {
+            fleet: fleet.to_owned(),
+            robot: robot.to_owned(),
+            partition: partition_of(fleet, robot),
+            key,
+            session: session.clone(),
+            auto_new_session: options.auto_new_session,
+            limits: WireLimits::default(),
+            shared: Arc::clone(&shared),
+            publisher: Some(publisher),
+            errors_sub: None,
+            live_sub: None,
+            follower: None,
+        };
+        // Reports: Zenoh's thread hands them over; the follower handles them.
+        let (tx, rx) = sync_channel::<Vec<u8>>(INBOX_MAX);
+        let counter = Arc::clone(&shared);
+        robot_pub.errors_sub = Some(
+            session
+                .declare_subscriber(keys::errors(fleet, robot)?)
+                .callback(move |sample: Sample| {
+                    if tx
+                        .try_send(sample.payload().to_bytes().into_owned())
+                        .is_err()
+                    {
+                        counter.dropped.fetch_add(1, Ordering::Relaxed);
+                    }
+                })
+                .wait()?,
+        );
+        let follower_shared = Arc::clone(&shared);
+        let on_error = options.on_error;
+        let label = format!("{fleet}/{robot}");
+        robot_pub.follower = Some(
+            std::thread::Builder::new()
+                .name(format!("lessmap-robot-{label}"))
+                .spawn(move || loop {
+                    match rx.recv_timeout(Duration::from_millis(100)) {
+                        Ok(payload) => handle_report(&follower_shared, &label, &payload, &on_error),
+                        Err(RecvTimeoutError::Timeout) => {}
+                        Err(RecvTimeoutError::Disconnected) => return,
+                    }
+                    if follower_shared.stop.load(Ordering::Relaxed) {
+                        return;
+                    }
+                })
+                .map_err(|err| ClientError::Connect(format!("cannot start a thread: {err}")))?,
+        );
+        // Instances: a liveliness subscriber with history gives the live ones, then changes.
+        let prefix = keys::instances().trim_end_matches('*').to_owned();
+        let live_shared = Arc::clone(&shared);
+        robot_pub.live_sub = Some(
+            session
+                .liveliness()
+                .declare_subscriber(keys::instances())
+                .history(true)
+                .callback(move |sample: Sample| {
+                    let key = sample.key_expr().as_str();
+                    if let Some(name) = key.strip_prefix(prefix.as_str()) {
+                        let mut state = live_shared.lock();
+                        if sample.kind() == SampleKind::Put {
+                            state.live.insert(name.to_owned());
+                        } else {
+                            state.live.remove(name);
+                        }
+                        live_shared.live_changed.notify_all();
+                    }
+                })
+                .wait()?,
+        );
+        Ok(robot_pub)
+    }
+
+    /// Fleet of the robot.
+    pub fn fleet(&self) -> &str {
+        &self.fleet
+    }
+
+    /// The robot's name.
+    pub fn robot(&self) -> &str {
+        &self.robot
+    }
+
+    /// The robot's partition: the last chunk of its frames key.
+    pub fn partition(&self) -> u16 {
+        self.partition
+    }
+
+    /// The current session id.
+    pub fn session_id(&self) -> String {
+        self.shared.lock().session_id.clone()
+    }
+
+    /// Seq the next frame will carry.
+    pub fn next_seq(&self) -> u64 {
+        self.shared.lock().next_seq
+    }
+
+    /// A snapshot of what was sent and what the service reported about it.
+    pub fn status(&self) -> RobotStatus {
+        let state = self.shared.lock();
+        let live: Vec<&String> = state.live.iter().collect();
+        RobotStatus {
+            fleet: self.fleet.clone(),
+            robot: self.robot.clone(),
+            session_id: state.session_id.clone(),
+            next_seq: state.next_seq,
+            last_seq: state.next_seq.checked_sub(1),
+            frames_sent: state.frames_sent,
+            sessions: state.sessions.len(),
+            errors: state.errors.clone(),
+            last_error: state.last_error.clone(),
+            closed_by_service: state.closed_report,
+            reports_dropped: self.shared.dropped.load(Ordering::Relaxed),
+            partition: self.partition,
+            owner: owner_and_standby(self.partition, &live).0,
+            reports_stale: state.stale,
+        }
+    }
+
+    /// Publish one frame stamped now, with the next seq; return that seq.
+    pub fn publish(&self, features: &[u64]) -> Result<u64, ClientError> {
+        self.publish_frame(features, None, None, None)
+    }
+
+    /// Publish one frame and return its seq.
+    ///
+    /// `stamp_s` defaults to now; `seq` to the next one (an explicit seq must not be below
+    /// it; a gap is reported by the service). After a new session the numbering starts at 0.
+    /// A frame that breaks a limit or a type rule is a `ClientError::Wire` and nothing is sent.
+    pub fn publish_frame(
+        &self,
+        features: &[u64],
+        stamp_s: Option<f64>,
+        pose: Option<[f64; 3]>,
+        seq: Option<u64>,
+    ) -> Result<u64, ClientError> {
+        let publisher = self.publisher.as_ref().ok_or(ClientError::Closed)?;
+        let (session_id, next_seq) = {
+            let mut state = self.shared.lock();
+            if state.closed_report {
+                if !self.auto_new_session {
+                    return Err(ClientError::SessionClosed(format!(
+                        "{}/{}: the service closed session {}",
+                        self.fleet, self.robot, state.session_id
+                    )));
+                }
+                let old = state.session_id.clone();
+                state.start_session(new_session_id());
+                tracing::warn!(
+                    "{}/{}: the service closed session {old}; publishing under new session {}",
+                    self.fleet,
+                    self.robot,
+                    state.session_id
+                );
+            }
+            (state.session_id.clone(), state.next_seq)
+        };
+        if features.len() > self.limits.max_features_per_frame {
+            return Err(WireError::with_limit(
+                ErrorCode::LimitExceeded,
+                "max_features_per_frame",
+                format!(
+                    "frame has {} features, over max_features_per_frame={}",
+                    features.len(),
+                    self.limits.max_features_per_frame
+                ),
+            )
+            .into());
+        }
+        let frame_seq = seq.unwrap_or(next_seq);
+        if frame_seq < next_seq {
+            return Err(WireError::new(
+                ErrorCode::OutOfOrder,
+                format!("seq {frame_seq} is before the next seq {next_seq}"),
+            )
+            .into());
+        }
+        let frame = Frame {
+            session: session_id.clone(),
+            seq: frame_seq,
+            stamp_s: stamp_s.unwrap_or_else(now_s),
+            features: features.to_vec(),
+            pose,
+        };
+        frame.validate()?;
+        let payload = encode(&frame);
+        if payload.len() > self.limits.max_payload_bytes {
+            return Err(WireError::with_limit(
+                ErrorCode::LimitExceeded,
+                "max_payload_bytes",
+                format!("frame of {} bytes, over max_payload_bytes", payload.len()),
+            )
+            .into());
+        }
+        publisher.put(payload).wait()?;
+        let mut state = self.shared.lock();
+        state.frames_sent += 1;
+        if state.session_id == session_id {
+            state.next_seq = frame_seq + 1;
+        }
+        Ok(frame_seq)
+    }
+
+    /// End the current session (unless the service closed it) and start a new one; return
+    /// its id. The next frame carries seq 0.
+    pub fn new_session(&self, session_id: Option<&str>) -> Result<String, ClientError> {
+        if self.publisher.is_none() {
+            return Err(ClientError::Closed);
+        }
+        let new_id = session_id.map_or_else(new_session_id, str::to_owned);
+        validate_name(&new_id, "session")?;
+        let (old, last, still_open) = {
+            let mut state = self.shared.lock();
+            if state.sessions.contains(&new_id) {
+                return Err(ClientError::SessionClosed(format!(
+                    "session id {new_id:?} was already used by this publisher"
+                )));
+            }
+            let old = (
+                state.session_id.clone(),
+                state.next_seq.checked_sub(1),
+                !state.closed_report,
+            );
+            state.start_session(new_id.clone());
+            old
+        };
+        if still_open {
+            self.send_end(&old, last)?;
+        }
+        Ok(new_id)
+    }
+
+    /// Wait until the robot's partition has an owner that serves it; `false` after `timeout`.
+    ///
+    /// The owner is the first of the live instances by rendezvous ranking. A new owner takes
+    /// its partitions a moment after its token appears, so this also asks the owner's
+    /// `Health` until it lists the partition (an owner that does not answer is taken at its
+    /// token), and last waits until the owner's frames subscription matches this robot's key,
+    /// so the next frame is routed to it.
+    pub fn wait_for_service(&self, timeout: Duration) -> Result<bool, ClientError> {
+        let deadline = Instant::now() + timeout;
+        let publisher = self.publisher.as_ref().ok_or(ClientError::Closed)?;
+        loop {
+            let owner = {
+                let mut state = self.shared.lock();
+                loop {
+                    let live: Vec<&String> = state.live.iter().collect();
+                    if let Some(owner) = owner_and_standby(self.partition, &live).0 {
+                        break owner;
+                    }
+                    let left = deadline.saturating_duration_since(Instant::now());
+                    if left.is_zero() {
+                        return Ok(false);
+                    }
+                    state = self
+                        .shared
+                        .live_changed
+                        .wait_timeout(state, left)
+                        .unwrap_or_else(|poisoned| poisoned.into_inner())
+                        .0;
+                }
+            };
+            let ask = deadline
+                .saturating_duration_since(Instant::now())
+                .clamp(Duration::from_millis(100), Duration::from_secs(1));
+            if self.owner_serves(&owner, ask)? {
+                while !publisher.matching_status().wait()?.matching() {
+                    if Instant::now() >= deadline {
+                        return Ok(false);
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                return Ok(true);
+            }
+            if Instant::now() >= deadline {
+                return Ok(false);
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn owner_serves(&self, owner: &str, timeout: Duration) -> Result<bool, ClientError> {
+        let replies = get_all::<Health>(&self.session, &keys::health(owner)?, timeout)?;
+        if replies.is_empty() {
+            return Ok(true);
+        }
+        Ok(replies
+            .iter()
+            .any(|h| h.instance == owner && h.partitions.contains(&self.partition)))
+    }
+
+    /// The service's state of the current session, or `None` (no frame of it arrived yet, no
+    /// service, or the service holds another session for this robot name).
+    pub fn state(&self, timeout: Duration) -> Result<Option<SessionState>, ClientError> {
+        let session_id = self.session_id();
+        let found = get_all::<SessionState>(
+            &self.session,
+            &keys::state(&self.fleet, &self.robot)?,
+            timeout,
+        )?;
+        Ok(current_states(found)
+            .into_iter()
+            .next()
+            .filter(|state| state.session == session_id))
+    }
+
+    fn send_end(&self, session_id: &str, last_seq: Option<u64>) -> Result<(), ClientError> {
+        let end = SessionEnd {
+            session: session_id.to_owned(),
+            last_seq,
+            stamp_s: now_s(),
+        };
+        // Same key as the frames: Zenoh keeps the order of puts on one key.
+        self.session
+            .put(self.key.as_str(), encode(&end))
+            .encoding(encoding::<SessionEnd>())
+            .congestion_control(CongestionControl::Block)
+            .wait()?;
+        Ok(())
+    }
+
+    /// End the session explicitly (a `SessionEnd` with the last seq), then release
+    /// everything. Dropping the publisher does the same, ignoring errors.
+    pub fn close(mut self) -> Result<(), ClientError> {
+        self.shut()
+    }
+
+    fn shut(&mut self) -> Result<(), ClientError> {
+        let Some(publisher) = self.publisher.take() else {
+            return Ok(());
+        };
+        let (session_id, last, still_open) = {
+            let state = self.shared.lock();
+            (
+                state.session_id.clone(),
+                state.next_seq.checked_sub(1),
+                !state.closed_report,
+            )
+        };
+        let ended = if still_open {
+            self.send_end(&session_id, last)
+        } else {
+            Ok(())
+        };
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(sub) = self.errors_sub.take() {
+            sub.undeclare().wait()?;
+        }
+        if let Some(sub) = self.live_sub.take() {
+            sub.undeclare().wait()?;
+        }
+        if let Some(follower) = self.follower.take() {
+            if follower.thread().id() != std::thread::current().id() {
+                let _ = follower.join();
+            }
+        }
+        publisher.undeclare().wait()?;
+        ended
+    }
+}
+
+impl Drop for RobotPublisher {
+    fn drop(&mut self) {
+        if let Err(err) = self.shut() {
+            tracing::warn!(
+                "{}/{}: closing the robot publisher: {err}",
+                self.fleet,
+                self.robot
+            );
+        }
+    }
+}
+
+/// Handle one report on the follower thread.
+fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option<ErrorCallback>) {
+    let error = match decode::<Error>(payload) {
+        Ok(error) => error,
+        Err(err) => {
+            tracing::warn!("{label}: skipped an undecodable error report: {err}");
+            return;
+        }
+    };
+    {
+        let mut state = shared.lock();
+        if let Some(session) = &error.session {
+            if !state.sessions.contains(session) {
+                return; // about another publisher's session of this robot name
+            }
+        }
+        if let Some(epoch) = error.epoch {
+            if epoch < state.highest_epoch {
+                state.stale += 1; // a deposed owner's late report
+                return;
+            }
+            state.highest_epoch = epoch;
+        }
+        *state
+            .errors
+            .entry(error.code.as_str().to_owned())
+            .or_insert(0) += 1;
+        state.last_error = Some(error.clone());
+        if error.code == ErrorCode::SessionClosed
+            && error.session.as_deref() == Some(state.session_id.as_str())
+        {
+            state.closed_report = true;
+        }
+    }
+    tracing::warn!(
+        "{label}: the service reported {} for session {:?} seq {:?}: {}",
+        error.code,
+        error.session,
+        error.seq,
+        error.detail
+    );
+    if let Some(callback) = on_error {
+        if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| callback(&error))).is_err() {
+            tracing::error!("{label}: on_error panicked");
+        }
+    }
+}
