@@ -181,7 +181,7 @@ class RosBridge:
         chunks = key.split("/")
         type_name = ros_name(chunks[-2]) if len(chunks) >= 4 else None
         if type_name is None:
-            self.converter.lost(f"unsupported key {key}", "not an rmw_zenoh topic key")
+            self.converter.lost("unsupported key", f"{key} is not an rmw_zenoh topic key")
             return
         self._check_hash(type_name, chunks[-1])
         robot = self._robot_of(chunks[1:-2], spec.tail)
