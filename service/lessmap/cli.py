@@ -188,7 +188,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     # may then restart itself with other allocator settings (``serve``).
     args.own_process = argv is None
     # A daemon reports its lifecycle (INFO) by default; one-shot tools only warnings.
-    base = logging.INFO if args.command in ("serve", "router") else logging.WARNING
+    daemons = ("serve", "router", "ros", "view", "record")
+    base = logging.INFO if args.command in daemons else logging.WARNING
     configure_logging(max(logging.DEBUG, base - 10 * args.verbose), args.log_format)
     try:
         code = run(args)

@@ -28,8 +28,9 @@ from typing import TYPE_CHECKING
 import zenoh
 
 from lessmap.ros.msgtypes import dds_name, ros_name
+from lessmap_client.errors import SessionClosedError
 from lessmap_schemas import keys
-from lessmap_schemas.errors import InvalidNameError
+from lessmap_schemas.errors import InvalidNameError, WireError
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -214,9 +215,16 @@ class RosBridge:
             return
         stamp = self.converter.stamp(message)
         stamp_s = time.time() if stamp is None else stamp
-        self._publisher(robot).publish(
-            features, stamp_s=stamp_s, pose=self._pose_at(robot, stamp_s)
-        )
+        try:
+            self._publisher(robot).publish(
+                features, stamp_s=stamp_s, pose=self._pose_at(robot, stamp_s)
+            )
+        except SessionClosedError as exc:
+            self.converter.lost("robot name taken", f"{exc} (another publisher of that robot?)")
+            return
+        except WireError as exc:
+            self.converter.lost(f"refused {exc.code}", str(exc))
+            return
         self.counts["frames"] += 1
 
     def _pose_at(self, robot: str, stamp_s: float) -> tuple[float, float, float] | None:

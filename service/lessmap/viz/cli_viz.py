@@ -104,7 +104,7 @@ def _run_view(args: argparse.Namespace, stop: StopSignal) -> int:
         msg = f"cannot serve on {args.host}:{args.port}: {exc}"
         raise ConfigError(msg) from exc
     port = server.port  # 0 once stopped
-    log.warning(
+    log.info(
         "Foxglove WebSocket server on ws://%s:%d (open it in Foxglove or Lichtblick)",
         args.host,
         port,
