@@ -18,6 +18,7 @@ from tests.ros.conftest import APRILTAG, ARUCO, apriltag_array, aruco_markers, r
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
+    from pathlib import Path
 
     from rosbags.typesys.store import Typestore
 
@@ -103,3 +104,46 @@ def test_every_detector_topic_by_type_with_namespaces_as_robots(
     warnings = [r.getMessage() for r in caplog.records if "type hash" in r.getMessage()]
     assert len(warnings) == 1
     assert APRILTAG in warnings[0]
+
+
+def test_a_custom_type_from_its_msg_text_with_its_own_id_path(
+    sessions: tuple[zenoh.Session, zenoh.Session], fleet_name: str, tmp_path: Path
+) -> None:
+    from lessmap.ros.extract import feature_id
+    from lessmap.ros.msgtypes import read_definitions, typestore
+    from lessmap_client.connection import Connection
+
+    kind = "my_msgs/msg/Landmarks"
+    definition = tmp_path / "Landmarks.msg"
+    definition.write_text("std_msgs/Header header\nstring[] names\n")
+    store = typestore(read_definitions([f"{kind}={definition}"]))
+    converter = Converter(store, parse_id_options([f"{kind}=names[]"]), max_features=3)
+    ros, bridge_session = sessions
+    key = f"0/amr9/landmarks/my_msgs::msg::dds_::Landmarks_/{store.hash_rihs01(kind)}"
+    header = apriltag_array(store, [], 9.0).header
+    with Connection.from_session(bridge_session) as conn:
+        specs = topic_specs(0, ["landmarks"], [], [])
+        bridge = RosBridge(bridge_session, conn, fleet_name, converter, specs, wait_service_s=0)
+        bridge.start()
+        frames: list[bytes] = []
+        sub = bridge_session.declare_subscriber(
+            f"lessmap/v2/{fleet_name}/amr9/frames/*", lambda s: frames.append(s.payload.to_bytes())
+        )
+        try:
+            pub = ros.declare_publisher(key)
+            wait_until(partial(matched, pub), 20, "the bridge to subscribe")
+            for names in (["door", "plant"], ["a", "b", "c", "d"]):  # the second: over the limit
+                message = store.types[kind](header=header, names=names)
+                pub.put(bytes(store.serialize_cdr(message, kind)))
+            wait_until(lambda: converter.counts["received"] == 2, 20, "both messages")
+            wait_until(lambda: len(frames) == 1, 20, "the frame")
+        finally:
+            sub.undeclare()
+            bridge.stop()
+    from lessmap_schemas.codec import decode
+    from lessmap_schemas.messages import Frame
+
+    frame = decode(frames[0], Frame)
+    assert frame.features == [feature_id("door"), feature_id("plant")]
+    assert frame.stamp_s == 9.0
+    assert converter.counts["lost: over max_features_per_frame"] == 1
