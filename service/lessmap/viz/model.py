@@ -116,6 +116,8 @@ class FleetModel:
     def on_transition(self, t: Transition) -> Mark | None:
         """Add a transition; return its mark (None for a repeat or another session's)."""
         track = self.tracks.get(t.robot)
+        if track is not None and track.session != t.session and track.last_seq >= 0:
+            return None  # an older session's (history): the robot's frames are of another
         if track is None or track.session != t.session:
             track = self.tracks[t.robot] = Track(t.robot, t.session)
         if any(mark.opened == t.opened.id for mark in track.marks):
