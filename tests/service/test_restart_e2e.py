@@ -84,7 +84,7 @@ def test_sigterm_and_restart_resume_every_session_exactly(
     assert second.terminate() == 0
 
 
-FRAMES_PER_S = 120.0  # paced: the robot's 1000-frame cache spans ~8 s of it
+FRAMES_PER_S = 120.0  # paced: a 1000-frame cache spans ~8 s of it, the test's 3000 25 s
 
 
 class PacedRobot:
@@ -131,9 +131,14 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     # Checkpoints every 300 frames: the kill lands well after the last one (seq 1199), so
     # the frames between it and the crash, which the dead process had applied and whose
     # transitions it had published, must come back from the cache too.
+    # The rule a site sizes by: checkpoint interval + rate x downtime <= min(robot cache,
+    # catch-up frames). A busy CI machine can take 10 s to restart the service (120 frames/s
+    # x 10 s): cache and catch-up are sized for that, and the cache gets time to answer
+    # (with the 1000-frame defaults a slow restart rightly reported frames as missing).
     options = (
         *("-m", "peer", "-e", router, "--max-batch-frames", "1"),
         *("--checkpoint-every-frames", "300"),
+        *("--catchup-max-frames", "3000", "--catchup-wait-s", "10"),
     )
     session = client_session(router)
     raw: list[Transition] = []
@@ -152,7 +157,7 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     raw_sub = session.declare_subscriber(keys.transitions(fleet_name, "dlr"), keep(raw, Transition))
     error_sub = session.declare_subscriber(keys.errors(fleet_name, "dlr"), keep(errors, Error))
     with FleetClient(fleet_name, session=session) as client:
-        robot = RobotPublisher(fleet_name, "dlr", session=session)
+        robot = RobotPublisher(fleet_name, "dlr", session=session, cache=3000)
         first = serve(*options)
         assert robot.wait_for_service(20.0), first.log()
         paced = PacedRobot(robot, frames)
