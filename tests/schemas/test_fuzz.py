@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from typing import Any
 
 import msgpack
@@ -28,8 +29,11 @@ from lessmap_schemas import (
 from lessmap_schemas.partition import PARTITIONS, partition_of
 from tests.schemas.samples import samples
 
+# Random cases per property in the default run; a long fuzz run is one variable away
+# (LESSMAP_FUZZ_EXAMPLES=20000 python -m pytest tests/schemas/test_fuzz.py).
+EXAMPLES = int(os.environ.get("LESSMAP_FUZZ_EXAMPLES", "600"))
 FUZZ = settings(
-    max_examples=2000,
+    max_examples=EXAMPLES,
     deadline=None,
     database=None,  # never write .hypothesis/ into the checkout
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
@@ -103,7 +107,7 @@ values = st.recursive(
 )
 
 
-@settings(FUZZ, max_examples=1000)  # nested values cost ~3 ms each to generate
+@settings(FUZZ, max_examples=max(1, EXAMPLES // 2))  # nested values cost ~3 ms each to generate
 @given(values, readers)
 def test_random_msgpack_values(value: object, reader: tuple[Any, WireLimits]) -> None:
     outcome(msgpack.packb(value, use_bin_type=True), *reader)
@@ -164,7 +168,7 @@ frames = st.builds(
 )
 
 
-@settings(FUZZ, max_examples=1000)
+@settings(FUZZ, max_examples=max(1, EXAMPLES // 2))
 @given(frames)
 def test_valid_frames_round_trip(frame: Frame) -> None:
     data = encode(frame)
@@ -173,7 +177,7 @@ def test_valid_frames_round_trip(frame: Frame) -> None:
     assert all(math.isfinite(x) for x in frame.pose or ())
 
 
-@settings(FUZZ, max_examples=1000)
+@settings(FUZZ, max_examples=max(1, EXAMPLES // 2))
 @given(st.sampled_from(samples()), keys, st.integers(0, 1100), leaves)
 def test_deeply_nested_values(message: Message, field: str, depth: int, leaf: object) -> None:
     # msgpack-python cannot pack past 511 levels, so the map is assembled by hand.
