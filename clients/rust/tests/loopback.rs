@@ -1,0 +1,285 @@
+//! The robot publisher, subscriptions and queries on real Zenoh sessions on loopback.
+//!
+//! The test plays the service with a Zenoh router session of its own (a liveliness token, a
+//! `Health` and `SessionState` queryables, puts on the errors and transitions keys), so the
+//! client's own rules are checked without a lessmap service: numbering, session ends, a new
+//! session after `SESSION_CLOSED`, epoch fencing, de-duplication, highest epoch of replies.
+
+use std::net::TcpListener;
+use std::time::{Duration, Instant};
+
+use lessmap_client::codec::{decode_inbound, encode, Inbound};
+use lessmap_client::{
+    keys, partition_of, Connection, Error, ErrorCode, Health, Reason, SessionState, SubmapSummary,
+    Transition,
+};
+use zenoh::{Session, Wait};
+
+const WAIT: Duration = Duration::from_secs(10);
+
+/// A router on a free loopback port, and its endpoint.
+fn router() -> (Session, String) {
+    let port = TcpListener::bind("127.0.0.1:0")
+        .and_then(|listener| listener.local_addr())
+        .expect("a free port")
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"router\"").unwrap();
+    config
+        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    (zenoh::open(config).wait().expect("router"), endpoint)
+}
+
+/// Poll `done` until it holds; panic naming `what` after `WAIT`.
+fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + WAIT;
+    while !done() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn summary(id: u64) -> SubmapSummary {
+    SubmapSummary {
+        id,
+        first_seq: id * 10,
+        last_seq: id * 10 + 9,
+        frame_count: 10,
+        features: vec![id],
+    }
+}
+
+fn transition(fleet: &str, robot: &str, closed: u64, epoch: u64) -> Transition {
+    Transition {
+        fleet: fleet.into(),
+        robot: robot.into(),
+        session: "s1".into(),
+        seq: closed * 10 + 10,
+        boundary_seq: closed * 10 + 10,
+        stamp_s: 1.0,
+        reason: Reason::Spectral,
+        ncut: Some(0.1),
+        lambda2: Some(0.05),
+        closed: summary(closed),
+        opened: summary(closed + 1),
+        boundary_features: vec![],
+        batch_frames: 1,
+        instance: "fake-a".into(),
+        partition: partition_of(fleet, robot),
+        epoch,
+    }
+}
+
+fn report(session: &str, code: ErrorCode, epoch: u64) -> Error {
+    Error {
+        fleet: Some("fleet".into()),
+        robot: Some("r1".into()),
+        session: Some(session.into()),
+        code,
+        detail: "from the test".into(),
+        seq: None,
+        stamp_s: 1.0,
+        instance: "fake-a".into(),
+        epoch: Some(epoch),
+    }
+}
+
+#[test]
+fn robot_numbers_frames_follows_its_errors_and_ends_its_sessions() {
+    let (service, endpoint) = router();
+    let (fleet, name) = ("fleet", "r1");
+    let partition = partition_of(fleet, name);
+    let frames = service
+        .declare_subscriber(keys::frames(fleet, name).unwrap())
+        .wait()
+        .unwrap();
+    let _token = service
+        .liveliness()
+        .declare_token(keys::instance_token("fake-a").unwrap())
+        .wait()
+        .unwrap();
+    let _health = service
+        .declare_queryable(keys::health("fake-a").unwrap())
+        .callback(move |query| {
+            let health = Health {
+                instance: "fake-a".into(),
+                version: "test".into(),
+                sessions: 0,
+                uptime_s: 1.0,
+                frames_applied: 0,
+                partitions: vec![partition],
+                standby: vec![],
+                queue_depth: 0,
+                lag_s: 0.0,
+            };
+            query
+                .reply(query.key_expr().clone(), encode(&health))
+                .wait()
+                .unwrap();
+        })
+        .wait()
+        .unwrap();
+
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+    let robot = conn.robot(fleet, name).unwrap();
+    assert!(robot.wait_for_service(WAIT).unwrap());
+    assert_eq!(robot.status().owner.as_deref(), Some("fake-a"));
+    assert_eq!(robot.partition(), partition);
+    let first = robot.session_id();
+    assert_eq!(robot.publish(&[1, 2, 3]).unwrap(), 0);
+    assert_eq!(robot.publish(&[3, 4]).unwrap(), 1);
+    let mut received = Vec::new();
+    let mut take = |n: usize| {
+        while received.len() < n {
+            let sample = frames.recv_timeout(WAIT).unwrap().expect("a frame in time");
+            received
+                .push(decode_inbound(&sample.payload().to_bytes(), &Default::default()).unwrap());
+        }
+        received.clone()
+    };
+    let got = take(2);
+    assert!(
+        matches!(&got[0], Inbound::Frame(f) if f.seq == 0 && f.session == first && f.features == [1, 2, 3])
+    );
+    assert!(matches!(&got[1], Inbound::Frame(f) if f.seq == 1 && f.session == first));
+
+    // The service closes the session: the next frame opens a new one, numbered from 0.
+    let errors_key = keys::errors(fleet, name).unwrap();
+    service
+        .put(
+            &errors_key,
+            encode(&report(&first, ErrorCode::SessionClosed, 5)),
+        )
+        .wait()
+        .unwrap();
+    wait_until("the robot to see SESSION_CLOSED", || {
+        robot.status().closed_by_service
+    });
+    assert_eq!(robot.publish(&[5]).unwrap(), 0);
+    let second = robot.session_id();
+    assert_ne!(second, first);
+    let got = take(3);
+    assert!(matches!(&got[2], Inbound::Frame(f) if f.seq == 0 && f.session == second));
+    let status = robot.status();
+    assert_eq!(
+        (status.sessions, status.count(ErrorCode::SessionClosed)),
+        (2, 1)
+    );
+
+    // A deposed owner's late report (lower epoch) changes nothing.
+    service
+        .put(
+            &errors_key,
+            encode(&report(&second, ErrorCode::SessionClosed, 4)),
+        )
+        .wait()
+        .unwrap();
+    wait_until("the stale report", || robot.status().reports_stale == 1);
+    assert!(!robot.status().closed_by_service);
+
+    robot.close().unwrap();
+    let got = take(4);
+    assert!(
+        matches!(&got[3], Inbound::SessionEnd(e) if e.session == second && e.last_seq == Some(0))
+    );
+    conn.close().unwrap();
+    drop(frames);
+    service.close().wait().unwrap();
+}
+
+#[test]
+fn subscription_fences_deduplicates_and_queries_keep_the_highest_epoch() {
+    let (service, endpoint) = router();
+    let key = keys::transitions("fleet", "r2").unwrap();
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+    let mut sub = conn.subscribe_transitions("fleet", "*", None).unwrap();
+    let publisher = service.declare_publisher(key).wait().unwrap();
+    wait_until("the subscription to match", || {
+        publisher.matching_status().wait().unwrap().matching()
+    });
+    for (closed, epoch) in [(0, 5), (0, 5), (1, 3), (1, 5)] {
+        publisher
+            .put(encode(&transition("fleet", "r2", closed, epoch)))
+            .wait()
+            .unwrap();
+    }
+    publisher.put(b"not msgpack".to_vec()).wait().unwrap();
+    publisher
+        .put(encode(&transition("fleet", "r2", 2, 6)))
+        .wait()
+        .unwrap();
+    let got: Vec<(u64, u64)> = (0..3)
+        .map(|_| sub.recv(WAIT).expect("a transition in time"))
+        .map(|t| (t.closed.id, t.epoch))
+        .collect();
+    assert_eq!(got, [(0, 5), (1, 5), (2, 6)]);
+    assert_eq!(
+        (sub.duplicates(), sub.dropped_stale(), sub.undecodable()),
+        (1, 1, 1)
+    );
+
+    // Two instances answer for one robot (a hand-over): the highest epoch is current.
+    let state = |epoch: u64, applied: u64| SessionState {
+        fleet: "fleet".into(),
+        robot: "r2".into(),
+        session: "s1".into(),
+        instance: format!("i{epoch}"),
+        epoch,
+        open: true,
+        last_seq: Some(applied - 1),
+        frames_applied: applied,
+        frames_duplicate: 0,
+        frames_missing: 0,
+        frames_rejected: 0,
+        transitions: 0,
+        current_submap: summary(0),
+        closed_submaps: vec![],
+        nodes: 1,
+        edges: 0,
+    };
+    let mut queryables = Vec::new();
+    for (epoch, applied) in [(7, 10), (3, 90)] {
+        let reply = encode(&state(epoch, applied));
+        queryables.push(
+            service
+                .declare_queryable(keys::state("fleet", "r2").unwrap())
+                .callback(move |query| {
+                    query
+                        .reply(query.key_expr().clone(), reply.clone())
+                        .wait()
+                        .unwrap();
+                })
+                .wait()
+                .unwrap(),
+        );
+    }
+    wait_until("both queryables to answer", || {
+        let replies = service
+            .get(keys::state("fleet", "r2").unwrap())
+            .target(zenoh::query::QueryTarget::All)
+            .consolidation(zenoh::query::ConsolidationMode::None)
+            .timeout(Duration::from_secs(2))
+            .wait()
+            .unwrap();
+        replies
+            .iter()
+            .filter(|reply| reply.result().is_ok())
+            .count()
+            == 2
+    });
+    let current = conn.state("fleet", "r2", Duration::from_secs(2)).unwrap();
+    // The higher epoch wins over more frames applied.
+    assert_eq!(
+        current.map(|s| (s.epoch, s.instance)),
+        Some((7, "i7".to_owned()))
+    );
+    drop(sub);
+    drop(queryables);
+    conn.close().unwrap();
+    service.close().wait().unwrap();
+}
