@@ -47,6 +47,25 @@ _LENGTH_ERROR = re.compile(r"(\d+) exceeds max_(str|bin|array|map|ext)_len\((\d+
 _UNPACK_ERRORS = (ValueError, TypeError, OverflowError, RecursionError, msgpack.UnpackException)
 
 
+class _DuplicateKeyError(ValueError):
+    """A map names one key twice (section 4, rule 1)."""
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict[str, object]:
+    # msgpack-python would keep the last of two equal keys, another reader the first: a
+    # payload that two conforming readers could read differently is refused by all.
+    out = dict(pairs)
+    if len(out) == len(pairs):
+        return out
+    seen: set[str] = set()
+    for key, _ in pairs:
+        if key in seen:
+            msg = f"a map names the key {_short(key)} twice"
+            raise _DuplicateKeyError(msg)
+        seen.add(key)
+    raise AssertionError  # unreachable: fewer keys than pairs means a repeat
+
+
 def encoding(message: Message | type[Message]) -> str:
     """Return the Zenoh encoding string of a message, e.g. `application/msgpack;lessmap.Frame/1`.
 
@@ -165,6 +184,7 @@ def _plan(expected: tuple[type[Message], ...], limits: WireLimits) -> _Plan:
     unpack = {
         "raw": False,
         "strict_map_key": True,
+        "object_pairs_hook": _unique_keys,
         "max_str_len": max(limits.max_detail_len, limits.max_name_len, 32),
         "max_bin_len": 0,  # no message has a bytes field
         "max_ext_len": 0,  # nor an extension type
@@ -180,6 +200,8 @@ def _plan(expected: tuple[type[Message], ...], limits: WireLimits) -> _Plan:
 
 
 def _unpack_error(exc: BaseException, plan: _Plan) -> WireError:
+    if type(exc) is _DuplicateKeyError:
+        return WireError(str(exc), ErrorCode.INVALID)
     match = _LENGTH_ERROR.fullmatch(str(exc)) if type(exc) is ValueError else None
     if match is None:
         msg = f"not a msgpack value ({type(exc).__name__}: {exc})"[:512]

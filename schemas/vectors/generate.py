@@ -53,6 +53,14 @@ def pack_map(fields: dict[str, object]) -> bytes:
     return bytes(out)
 
 
+def pack_pairs(pairs: list[tuple[str, object]]) -> bytes:
+    """Pack a map from key/value pairs, repeats included (a dict cannot hold a repeat)."""
+    out = bytearray(msgpack.Packer().pack_map_header(len(pairs)))
+    for key, value in pairs:
+        out += pack(key) + pack(value)
+    return bytes(out)
+
+
 def edit(base: dict[str, object], **changes: object) -> dict[str, object]:
     """Return `base` with fields changed in place, appended, or removed (`DROP`)."""
     out = {**base, **changes}
@@ -206,6 +214,8 @@ def common(kind: str) -> list[Invalid]:
         ("bin value", pack(edit(base, blob=b"\x00\x01")), "INVALID", None),
         ("extension value", pack(edit(base, ext=msgpack.ExtType(5, b"x"))), "INVALID", None),
         ("map of 40 extra entries", pack(many), "INVALID", None),
+        ("key v twice, same value", pack_pairs([*base.items(), ("v", 2)]), "INVALID", None),
+        ("key type twice", pack_pairs([*base.items(), ("type", other)]), "INVALID", None),
         (
             "string of 1025 bytes",
             pack(edit(base, x="x" * 1025)),

@@ -489,7 +489,17 @@ impl Reader<'_> {
                                 *key = Some(done);
                                 break;
                             }
-                            Some(k) => entries.push((k, done)),
+                            Some(k) => {
+                                // Two readers could keep different values of a repeated
+                                // key: the contract refuses the payload (section 4, rule 1).
+                                if entries.iter().any(|(seen, _)| *seen == k) {
+                                    return Err(WireError::new(
+                                        ErrorCode::Invalid,
+                                        format!("a map names the key {k} twice"),
+                                    ));
+                                }
+                                entries.push((k, done));
+                            }
                         }
                         if entries.len() < *n {
                             break;

@@ -13,7 +13,13 @@ use lessmap_client::{Error, Frame, Health, Message, SessionEnd, SessionState, Su
 use serde_json::Value;
 
 fn vectors_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../schemas/vectors")
+    // Read at run time, not baked in with env!(): the build cache is shared by every clone
+    // on a machine, and a test binary built in another clone must still read this one's files.
+    let crate_dir = std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(
+        || std::env::current_dir().expect("a current directory"),
+        PathBuf::from,
+    );
+    crate_dir.join("../../schemas/vectors")
 }
 
 fn load(name: &str) -> Value {
