@@ -10,7 +10,14 @@ from hypothesis import given, settings, strategies as st
 from scipy import sparse
 
 from lessmap.core import Partitioner, PartitionParams
-from lessmap.core.spectral import Bisection, Components, fiedler_pair, lambda2_exceeds, split_graph
+from lessmap.core.spectral import (
+    CERTIFICATE_MAX_NODES,
+    Bisection,
+    Components,
+    fiedler_pair,
+    lambda2_exceeds,
+    split_graph,
+)
 from lessmap.frames_file import read_frames
 from tests.conftest import dataset
 from tests.core.helpers import random_connected, room_walk, two_cliques
@@ -71,6 +78,16 @@ def test_an_isolated_node_is_never_certified_and_csr_agrees_with_dense() -> None
     lambda2, _ = fiedler_pair(graph.toarray())
     for bound in (0.0, lambda2 - 1e-6, lambda2 + 1e-6):
         assert lambda2_exceeds(graph, bound) is lambda2_exceeds(graph.toarray(), bound)
+
+
+def test_the_certificate_refuses_graphs_beyond_its_rounding_argument() -> None:
+    # A ring one node over the limit: λ2 = 1 - cos(2π/n) ≈ 7.9e-7 > 0 + margin, so its
+    # Cholesky would pass, but the rounding bound no longer fits in the margin: no proof.
+    n = CERTIFICATE_MAX_NODES + 1
+    rows = np.arange(n)
+    upper = sparse.csr_array((np.ones(n), (rows, (rows + 1) % n)), shape=(n, n))
+    ring = sparse.csr_array(upper + upper.T)
+    assert not lambda2_exceeds(ring, 0.0)
 
 
 def test_split_graph_finds_components_without_searching_connected_graphs() -> None:

@@ -29,9 +29,15 @@ the nodes N added since (node indices never change between marks, so N comes las
   the smaller eigenvalue of [[a, β], [β, c]]. A new node costs the floor about β²/(c - a),
   not β: that is why the blocks are kept apart.
 
-Every norm is bounded from above by a Frobenius norm, so the result is a proof. The sums
-are rounded (relative error ~1e-16 each, ~1e-13 over thousands of carries), far below
-``CERTIFICATE_MARGIN`` (1e-8), which every certified decision keeps in hand.
+Every norm is bounded from above by a Frobenius norm, so the result is a proof in exact
+arithmetic. In floating point, each sum of K squares or products is within g_K = Kε/(1 - Kε)
+of its value relative to the sum of its terms' magnitudes (Higham, Accuracy and Stability,
+§3.1), and each entry carries a few more ε. ``carry`` subtracts that allowance explicitly
+(``_rounding``), with K = changed entries + nodes; ||B||_F² is a difference of sums and can
+cancel (a nearly complete bipartite block), so its allowance is added before the square
+root, never left to the margin. The allowance is ~1e-12 at thousands of changes, far below
+what a frame moves the floor. The floor itself comes from a proof that keeps
+``CERTIFICATE_MARGIN`` (1e-8) in hand over the Cholesky's own rounding (``lambda2_exceeds``).
 
 The floor is a cache of proofs, not session state: dropping it (a snapshot restore, a
 transition, a change of storage form) only means the next decision proves afresh.
@@ -97,6 +103,7 @@ def carry(floor: Floor, degrees: NDArray[np.float64], changes: Changes) -> float
     old, n = floor.degrees.size, degrees.size
     if n < old or old < 2 or not degrees.min() > 0.0:
         return -np.inf
+    slack = _rounding(changes.rows.size + n)
     inv_sqrt = 1.0 / np.sqrt(degrees)
     scaled = changes.delta * inv_sqrt[changes.rows] * inv_sqrt[changes.cols]
     touches_new = changes.cols >= old  # cols > rows: a new endpoint is always cols
@@ -109,18 +116,43 @@ def carry(floor: Floor, degrees: NDArray[np.float64], changes: Changes) -> float
     u_old = u_now[:old]
     norm_old = float(np.linalg.norm(u_old))
     turned = 2.0 * float(np.linalg.norm(u_old - u_then)) * (norm_old + 1.0)
-    a = floor.lower - moved - rescaled - turned
+    drift = moved + rescaled + turned
+    a = floor.lower - drift - slack * (abs(floor.lower) + drift + 1.0)
     if n == old:
         return a
-    c = 1.0 - float(np.sqrt(2.0 * np.sum(np.square(scaled[both_new]))))
-    # ||B||_F² exactly, B = 2 u'_O u'_Nᵀ - S'_ON: the rank-one part is dense, S'_ON is not.
+    within = float(np.sqrt(2.0 * np.sum(np.square(scaled[both_new]))))
+    c = 1.0 - within - slack * (within + 1.0)
     cross = touches_new & ~both_new
-    rank_one = 4.0 * norm_old**2 * float(np.sum(np.square(u_now[old:])))
-    overlap = 4.0 * float(
-        np.sum(scaled[cross] * u_now[changes.rows[cross]] * u_now[changes.cols[cross]])
+    beta = cross_norm(
+        float(np.sum(np.square(scaled[cross]))),
+        4.0 * norm_old**2 * float(np.sum(np.square(u_now[old:]))),
+        4.0
+        * float(np.sum(scaled[cross] * u_now[changes.rows[cross]] * u_now[changes.cols[cross]])),
+        slack,
     )
-    beta = float(np.sqrt(max(0.0, float(np.sum(np.square(scaled[cross]))) + rank_one - overlap)))
-    return 0.5 * (a + c) - float(np.hypot(0.5 * (a - c), beta))
+    lowest = 0.5 * (a + c) - float(np.hypot(0.5 * (a - c), beta))
+    return lowest - slack * (abs(a) + abs(c) + beta)
+
+
+def cross_norm(square_sum: float, rank_one: float, overlap: float, slack: float) -> float:
+    """Return an upper bound of ||B||_F, B = 2 u'_O u'_Nᵀ - S'_ON, from its expansion.
+
+    ||B||_F² = ||S'_ON||_F² + 4 ||u'_O||² ||u'_N||² - 4 Σ S'_ij u'_i u'_j: three sums that
+    nearly cancel when the new nodes join the old ones like a complete bipartite graph, so
+    the rounding of the sums (``slack`` relative to their magnitudes) is added before the
+    square root. Dropping it would return 0 where ||B||_F is ~1e-7.
+    """
+    rounding = slack * (square_sum + rank_one + abs(overlap))
+    return float(np.sqrt(max(0.0, square_sum + rank_one - overlap) + rounding))
+
+
+def _rounding(terms: int) -> float:
+    """Relative rounding allowance of the sums in ``carry``: 2 g_K with K = terms + 16."""
+    k = (terms + 16) * _EPS
+    return 2.0 * k / (1.0 - k)
+
+
+_EPS = float(np.finfo(np.float64).eps)
 
 
 class Prover:

@@ -42,8 +42,12 @@ Similarity: TypeAlias = "sparse.csr_array | NDArray[np.float64]"
 #: λ2 above this proves a dense graph connected without a search (see ``split_graph``).
 CONNECTED_LAMBDA2 = 1e-9
 
-#: ``lambda2_exceeds`` certifies λ2 > bound + this, far above Cholesky's rounding (~1e-10).
+#: ``lambda2_exceeds`` certifies λ2 > bound + this, above Cholesky's rounding (see there).
 CERTIFICATE_MARGIN = 1e-8
+
+#: ``lambda2_exceeds`` answers "not proven" above this size: its rounding bound, 1.5·n(n+1)·ε,
+#: reaches ``CERTIFICATE_MARGIN`` at about 5,470 nodes (8.3e-9 at 5,000).
+CERTIFICATE_MAX_NODES = 5000
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,14 +84,20 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
 
     is congruent to a matrix with the eigenvalues 1 (on u1 = D^1/2 1 / √S, the eigenvector
     of L_sym = I - D^-1/2 W D^-1/2 for λ1 = 0) and λk - t (k >= 2), so by Sylvester's law
-    of inertia M is positive definite exactly when λ2 > t. Cholesky is backward stable
-    with a componentwise error |E_ij| <= c·n·ε·√(M_ii M_jj); scaled back by D^-1/2 that
-    moves λ2 by at most about 2·c·n²·ε (~1e-10 at 400 nodes), which the margin covers.
+    of inertia M is positive definite exactly when λ2 > t. Cholesky is backward stable: a
+    factorization that completes is exact for M + E with |E_ij| <= g·√(M_ii M_jj),
+    g = g_{n+1}/(1 - g_{n+1}) ≈ (n+1)ε, g_k = kε/(1 - kε) (Higham, Accuracy and
+    Stability, Thm 10.5 and Cauchy-Schwarz on the computed factor). Scaled back by
+    D^-1/2, with M_ii/d_i = 1 - t + (t+1)·d_i/S <= 1.5 for 0 <= t (d_i <= S/2), E moves
+    λ2 by at most
+    ||D^-1/2 E D^-1/2||_F <= 1.5·n(n+1)·ε: 5.4e-11 at 400 nodes, 5.6e-9 at 4,096, under the
+    margin up to ``CERTIFICATE_MAX_NODES`` (rounding M's entries and the degrees adds
+    ~n·ε). Larger graphs are never factorized (False), so a True is always a proof.
     A graph that falls apart has λ2 = 0 and never passes, nor does one with an isolated
     node. False means "not proven": the caller solves as usual, so decisions never change.
 
     A CSR W is factorized densely too (O(n²) memory): callers bound its size
-    (``lessmap.core.drift.PROOF_MAX_NODES``).
+    (``lessmap.core.drift.PROOF_MAX_NODES``), and so does ``CERTIFICATE_MAX_NODES``.
 
     Args:
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n).
@@ -96,6 +106,8 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     Returns:
         True when λ2 > bound is proven; False otherwise.
     """
+    if w.shape[0] > CERTIFICATE_MAX_NODES or bound < 0.0:
+        return False  # outside the rounding argument above: not proven, never wrong
     if isinstance(w, np.ndarray):
         return _dense_lambda2_exceeds(w, bound)
     return _sparse_lambda2_exceeds(w, bound)
