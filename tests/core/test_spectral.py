@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 from scipy import linalg, sparse
 
 from lessmap.core import GraphError, normalized_bisection, normalized_cut
-from lessmap.core.spectral import fiedler_pair, two_means_1d
+from lessmap.core.spectral import components, fiedler_pair, two_means_1d
 from tests.core.helpers import (
     as_partition,
     brute_ncut,
@@ -248,3 +248,27 @@ def test_two_cliques_joined_by_a_weak_edge(seed: int, solver: str) -> None:
 def test_fiedler_pair_rejects_degenerate_graphs(w: sparse.csr_array) -> None:
     with pytest.raises(GraphError):
         fiedler_pair(w)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 40), parts=st.integers(1, 6))
+@settings(max_examples=200, deadline=None)
+def test_both_forms_number_components_by_their_lowest_node(seed: int, n: int, parts: int) -> None:
+    rng = np.random.default_rng(seed)
+    part = rng.integers(0, parts, size=n)
+    upper = np.triu((rng.random((n, n)) < 0.5) & (part[:, None] == part[None, :]), k=1)
+    w = (upper | upper.T).astype(np.float64)
+    count, labels = components(sparse.csr_array(w))
+    dense_count, dense_labels = components(w)
+    assert (count, labels.tolist()) == (dense_count, dense_labels.tolist())
+    _, first = np.unique(labels, return_index=True)
+    assert np.all(np.diff(first) > 0)  # component k starts after component k - 1
+    assert np.array_equal(labels[first], np.arange(count))
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_sparse_ncut_equals_the_brute_force_sum(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    w = random_connected(rng, 30, 0.3)
+    side = rng.random(30) < 0.5
+    side[:2] = [True, False]
+    assert normalized_cut(w, side) == pytest.approx(brute_ncut(w.toarray(), side), rel=1e-12)

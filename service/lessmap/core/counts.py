@@ -354,6 +354,12 @@ class SparseCounts:
             self._rates = self._counts / np.minimum(counts[rows], counts[cols])
             return
         mask = touched[rows] | touched[cols]
+        if 4 * int(np.count_nonzero(mask)) > mask.size:
+            # Most entries moved (a frame of hundreds of features): one pass over all of
+            # them beats gathering and scattering through the mask. Same integers, same
+            # division, so the entries that did not move keep their exact values.
+            np.divide(self._counts, np.minimum(counts[rows], counts[cols]), out=self._rates)
+            return
         r, c = rows[mask], cols[mask]
         self._rates[mask] = self._counts[mask] / np.minimum(counts[r], counts[c])
 

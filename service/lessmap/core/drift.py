@@ -80,6 +80,13 @@ AIMS = 2
 #: A fresh proof aims above the bound only when the estimate exceeds it by this much.
 MIN_HEADROOM = 0.02
 
+#: After a floor that did not outlast one decision, the next sparse solves skip the
+#: floor-setting Cholesky: 1, 2, 4, ... up to this many, until a floor lasts again. A
+#: stream that brings hundreds of landmarks a frame (stereo, visual odometry) moves the
+#: spectrum more per frame than any floor can absorb; there the factorization (≈ n³/3
+#: flops, several solves' worth) would be paid at every decision and used by none.
+MAX_SKIPPED_PROOFS = 16
+
 
 @dataclass(frozen=True, slots=True)
 class Floor:
@@ -171,43 +178,57 @@ class Prover:
         self._proof_max = proof_max_nodes
         self._floor: Floor | None = None
         self._estimate = 1.0  # where λ2 is expected: the last solve or the last miss
+        self._carried = 0  # decisions the current floor settled
+        self._skip = 0  # sparse solves left that set no floor
+        self._backoff = 1  # the next skip, doubled while floors keep failing at once
 
     def reset(self) -> None:
         """Forget the floor (the graph was reshaped) and expect a room-like λ2 again."""
         self._floor = None
         self._estimate = 1.0
+        self._skip, self._backoff = 0, 1
+
+    def _lost(self) -> None:
+        """The floor no longer proves the bound: note whether it was worth its proof."""
+        if self._carried == 0:
+            self._skip = self._backoff
+            self._backoff = min(2 * self._backoff, MAX_SKIPPED_PROOFS)
+        else:
+            self._backoff = 1
+        self._floor = None
 
     def certify(self, graph: CovGraph, bound: float) -> bool:
         """Return True when λ2 > bound + ``CERTIFICATE_MARGIN`` is proven for the graph."""
         if graph.node_count < DRIFT_MIN_NODES:
             self._floor = None
             return lambda2_exceeds(graph.similarity(), bound)
-        degrees = graph.degrees()
         if self._floor is not None:
             changes = graph.changes()
             # Carried from the proof itself, not from the last decision: a drift that
             # partly cancels, or moves different nodes' degrees, is not counted twice.
-            if changes is not None and carry(self._floor, degrees, changes) > bound + (
+            if changes is not None and carry(self._floor, graph.degrees(), changes) > bound + (
                 CERTIFICATE_MARGIN
             ):
+                self._carried += 1
                 return True
-        self._floor = None
+            self._lost()
         if not graph.is_dense:
             return False  # a solve (ARPACK) costs less than a dense proof: see ``solved``
-        return self._prove(graph, graph.similarity(), bound, degrees)
+        return self._prove(graph, graph.similarity(), bound, graph.degrees())
 
     def solved(self, graph: CovGraph, w: Similarity, lambda2: float, bound: float) -> None:
         """Take the λ2 of a solve on W (the graph's) that found no transition."""
         self._estimate = lambda2
         if graph.node_count < DRIFT_MIN_NODES:
             return
-        degrees = graph.degrees()
         if graph.is_dense:
             # LAPACK's dsyevr is backward stable: its λ2 is within ~n·ε·||L_sym||
             # (||L_sym|| <= 2) of the true one, far inside the margin.
-            self._keep(graph, min(lambda2, 2.0) - CERTIFICATE_MARGIN, degrees, bound)
+            self._keep(graph, min(lambda2, 2.0) - CERTIFICATE_MARGIN, graph.degrees(), bound)
+        elif self._skip > 0:
+            self._skip -= 1  # the last floor did not outlast a decision: not worth a proof
         elif graph.node_count <= self._proof_max and lambda2 > bound + MIN_HEADROOM:
-            self._prove(graph, w, bound, degrees, at_bound=False)
+            self._prove(graph, w, bound, graph.degrees(), at_bound=False)
 
     def _prove(
         self,
@@ -234,4 +255,5 @@ class Prover:
         if lower <= bound + MIN_HEADROOM:
             return  # a floor at the bound would certify nothing later
         self._floor = Floor(lower, degrees)
+        self._carried = 0
         graph.mark()

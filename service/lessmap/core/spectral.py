@@ -404,8 +404,16 @@ def _sparse_lambda2_exceeds(w: sparse.csr_array, bound: float) -> bool:
 
 
 def _sparse_components(w: sparse.csr_array) -> tuple[int, NDArray[np.int32]]:
-    count, labels = csgraph.connected_components(w, directed=False)
-    return int(count), labels.astype(np.int32)
+    # W is symmetric, so its strong components are its components; scipy's undirected
+    # search builds the transpose first (a quarter of a decision at 1 M entries, measured).
+    count, labels = csgraph.connected_components(w, directed=True, connection="strong")
+    if count == 1:
+        return 1, np.zeros(w.shape[0], dtype=np.int32)
+    # Number the components in order of their lowest node, as the dense search does.
+    _, lowest = np.unique(labels, return_index=True)
+    order = np.empty(count, dtype=np.int32)
+    order[np.argsort(lowest)] = np.arange(count, dtype=np.int32)
+    return int(count), order[labels]
 
 
 def _sparse_bisection(
@@ -424,7 +432,11 @@ def _sparse_fiedler(
     n = w.shape[0]
     _require_solvable(n, degrees)
     inv_sqrt = 1.0 / np.sqrt(degrees)
-    scaled = sparse.csr_array(sparse.diags_array(inv_sqrt) @ w @ sparse.diags_array(inv_sqrt))
+    # D^-1/2 W D^-1/2 on W's own index arrays: half the cost of two diagonal products.
+    row_scale = np.repeat(inv_sqrt, np.diff(w.indptr))
+    data = row_scale * w.data
+    data *= inv_sqrt[w.indices]
+    scaled = sparse.csr_array((data, w.indices, w.indptr), shape=w.shape)
     if n <= dense_max_nodes:
         lambda2, u2 = _lapack_second_pair(np.eye(n) - scaled.toarray())
     else:
@@ -438,9 +450,8 @@ def _sparse_fiedler(
 def _sparse_ncut(
     w: sparse.csr_array, side: NDArray[np.bool_], degrees: NDArray[np.float64]
 ) -> float:
-    coo = w.tocoo()
-    crossing = side[coo.row] != side[coo.col]
-    cut = float(coo.data[crossing].sum()) / 2.0  # symmetric: each cut edge counted twice
+    # cut = Σ_{i in B, j in A} W_ij: one product with W, no COO copy of its entries.
+    cut = float((w @ (~side).astype(np.float64))[side].sum())
     return _ncut(cut, side, degrees)
 
 
