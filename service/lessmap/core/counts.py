@@ -247,8 +247,8 @@ class DenseCounts:
         rows = np.union1d(moved, np.arange(old, n))
         delta = self._rates[rows, :n]
         now = delta.copy()
-        inside = rows < old
-        delta[np.ix_(inside, np.arange(old))] -= self._marked[rows[inside]]
+        inside = int(np.searchsorted(rows, old))  # rows is sorted: the old ones come first
+        delta[:inside, :old] -= self._marked[rows[:inside]]
         # Each pair once: (i, j) from row i when j is not a listed row or j > i.
         listed = np.zeros(n, dtype=bool)
         listed[rows] = True
