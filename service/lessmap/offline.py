@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from lessmap.core import GraphError, Partitioner, Transition
+from lessmap.core.areas import AreaTracker, AreaTransition
 from lessmap.errors import DatasetError
 
 if TYPE_CHECKING:
@@ -19,6 +20,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
     from lessmap.core import PartitionParams
+    from lessmap.core.areas import AreaParams
     from lessmap.frames_file import FrameRow
 
 
@@ -31,11 +33,12 @@ class SegmentSummary:
     robots: dict[str, int] = field(default_factory=dict)  # robot -> transitions
     submaps: int = 0  # closed submaps plus one open submap per robot
     elapsed_s: float = 0.0
+    areas: dict[str, int] | None = None  # robot -> areas opened (--method areas only)
 
     def as_dict(self) -> dict[str, Any]:
         """Return the summary as JSON-ready values."""
         per_frame_ms = 1000.0 * self.elapsed_s / self.frames if self.frames else 0.0
-        return {
+        record: dict[str, Any] = {
             "summary": True,
             "frames": self.frames,
             "robots": len(self.robots),
@@ -45,6 +48,10 @@ class SegmentSummary:
             "elapsed_s": round(self.elapsed_s, 3),
             "ms_per_frame": round(per_frame_ms, 4),
         }
+        if self.areas is not None:
+            record["method"] = "areas"
+            record["areas_per_robot"] = self.areas
+        return record
 
 
 def transition_record(robot: str, transition: Transition) -> dict[str, Any]:
@@ -71,6 +78,47 @@ def transition_record(robot: str, transition: Transition) -> dict[str, Any]:
         },
         "boundary_features": list(transition.boundary_features),
     }
+
+
+def area_record(robot: str, change: AreaTransition) -> dict[str, Any]:
+    """Return one area change as a JSON-ready dict: the transition plus its areas."""
+    return transition_record(robot, change.transition) | {
+        "area": change.area,
+        "left_area": change.left_area,
+        "revisit_of": change.revisit_of,
+        "overlap": round(change.overlap, 4),
+    }
+
+
+def segment_areas(
+    frames: Iterable[FrameRow],
+    params: AreaParams,
+    on_change: Callable[[str, AreaTransition], None] | None = None,
+) -> SegmentSummary:
+    """Run the area tracker of each robot over its frames (``--method areas``)."""
+    trackers: dict[str, AreaTracker] = {}
+    summary = SegmentSummary(areas={})
+    started = time.perf_counter()
+    for frame in frames:
+        tracker = trackers.get(frame.robot)
+        if tracker is None:
+            tracker = trackers[frame.robot] = AreaTracker(params)
+            summary.robots[frame.robot] = 0
+        try:
+            change = tracker.observe(frame.seq, frame.stamp_s, frame.features)
+        except GraphError as exc:
+            msg = f"{frame.where or 'frame'}: robot {frame.robot}: {exc}"
+            raise DatasetError(msg) from exc
+        summary.frames += 1
+        if change is not None:
+            summary.transitions += 1
+            summary.robots[frame.robot] += 1
+            if on_change is not None:
+                on_change(frame.robot, change)
+    summary.elapsed_s = time.perf_counter() - started
+    summary.submaps = summary.transitions + len(trackers)
+    summary.areas = {robot: tracker.area_count for robot, tracker in trackers.items()}
+    return summary
 
 
 def segment(
@@ -106,7 +154,7 @@ def segment(
 def configure(parser: argparse.ArgumentParser) -> None:
     """Define ``lessmap segment``."""
     from lessmap.flags import add_flags
-    from lessmap.partition_options import add_partition_options
+    from lessmap.partition_options import add_method_option, add_partition_options
     from lessmap.settings import LimitSettings
 
     parser.description = (
@@ -117,6 +165,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE", help="frames file (.frames.jsonl)")
     parser.add_argument("--robot", action="append", help="only this robot (repeatable)")
     parser.add_argument("--summary-only", action="store_true", help="print only the summary")
+    add_method_option(parser)
     add_partition_options(parser)
     only = frozenset({"max_features_per_frame"})
     skip = frozenset(LimitSettings.model_fields) - only
@@ -131,10 +180,11 @@ def run(args: argparse.Namespace) -> int:
 
     from lessmap.errors import ConfigError
     from lessmap.frames_file import read_frames
-    from lessmap.partition_options import partition_params
+    from lessmap.partition_options import area_params, partition_settings
     from lessmap.settings import LimitSettings
 
-    params = partition_params(args)
+    settings = partition_settings(args)
+    params = settings.partition_params()
     given = vars(args).keys() & LimitSettings.model_fields.keys()
     values = {name: getattr(args, name) for name in given}  # the defaults are serve's
     try:
@@ -153,7 +203,16 @@ def run(args: argparse.Namespace) -> int:
         if not args.summary_only:
             out.write(json.dumps(transition_record(robot, transition)) + "\n")
 
-    summary = segment(frames, params, on_transition=emit)
+    def emit_area(robot: str, change: AreaTransition) -> None:
+        if not args.summary_only:
+            out.write(json.dumps(area_record(robot, change)) + "\n")
+
+    if args.method == "areas":
+        areas = area_params(settings)
+        summary = segment_areas(frames, areas, on_change=emit_area)
+        params = areas.proposal
+    else:
+        summary = segment(frames, params, on_transition=emit)
     record = summary.as_dict()
     record["file"] = path.name
     record["params"] = {
@@ -161,6 +220,13 @@ def run(args: argparse.Namespace) -> int:
         "lambda2_min": params.lambda2_min,
         "seed_mode": str(params.seed_mode),
     }
+    if args.method == "areas":
+        record["params"] |= {
+            "pool_min_features": areas.pool_min_features,
+            "pool_max_frames": areas.pool_max_frames,
+            "min_area_features": areas.min_area_features,
+            "revisit_overlap": areas.revisit_overlap,
+        }
     out.write(json.dumps(record) + "\n")
     out.flush()
     return 0

@@ -6,11 +6,13 @@ They are fields of the service's settings (``serve``) and flags of the offline c
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from lessmap.core import PROFILES, PartitionParams, SeedMode
+from lessmap.core.areas import AreaParams
 from lessmap.errors import ConfigError
 from lessmap.flags import add_flags, flag_specs, given
 
@@ -18,6 +20,10 @@ if TYPE_CHECKING:
     import argparse
 
 TITLE = "partitioning (LESS-mapping Eq. 4)"
+
+#: The offline segmentation methods: ``paper`` is LESS-mapping as published (the default);
+#: ``areas`` is ``lessmap.core.areas`` (pooled evidence, confirmed splits, named revisits).
+METHODS = ("paper", "areas")
 
 
 class PartitionSettings(BaseModel):
@@ -80,3 +86,35 @@ def partition_settings(args: argparse.Namespace) -> PartitionSettings:
 def partition_params(args: argparse.Namespace) -> PartitionParams:
     """Build the partition parameters from parsed options."""
     return partition_settings(args).partition_params()
+
+
+def add_method_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--method paper|areas`` (offline commands only; the service runs the paper)."""
+    parser.add_argument(
+        "--method",
+        choices=METHODS,
+        default="paper",
+        help="paper: LESS-mapping as published (default); areas: pooled evidence, "
+        "confirmed splits of at least 5 features, revisits named (the proposer's thresholds "
+        "are Ncut 0.4, λ2 0.4 unless --ncut-min/--lambda2-min are given)",
+    )
+
+
+def area_params(settings: PartitionSettings) -> AreaParams:
+    """Return the area tracker's parameters: its own proposer thresholds unless overridden.
+
+    The profile is not applied: the proposer answers before the paper's thresholds would.
+    The guards and the seed mode pass through to the proposer.
+    """
+    base = AreaParams()
+    proposal = replace(
+        base.proposal,
+        ncut_min=settings.ncut_min if settings.ncut_min is not None else base.proposal.ncut_min,
+        lambda2_min=settings.lambda2_min
+        if settings.lambda2_min is not None
+        else base.proposal.lambda2_min,
+        seed_mode=settings.seed_mode,
+        min_frames_between=settings.min_frames_between,
+        min_cluster_size=settings.min_cluster_size,
+    )
+    return replace(base, proposal=proposal)

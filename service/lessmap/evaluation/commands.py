@@ -13,7 +13,12 @@ from lessmap.core import PartitionParams
 from lessmap.errors import ConfigError
 from lessmap.evaluation.consistency import DEFAULT_DOOR_DISTANCE_M, DEFAULT_TOLERANCE_FRAMES
 from lessmap.evaluation.infoloss import DEFAULT_ANCHOR_INFORMATION
-from lessmap.partition_options import add_partition_options, partition_params
+from lessmap.partition_options import (
+    add_partition_options,
+    area_params,
+    partition_params,
+    partition_settings,
+)
 
 if TYPE_CHECKING:
     from lessmap.evaluation.consistency import Consistency, Detection
@@ -98,6 +103,7 @@ def run_eval(args: argparse.Namespace) -> int:
         lambda2_values=lams,
         jobs=args.jobs,
         anchor_information=args.anchor_information,
+        areas=area_params(partition_settings(args)),
     )
     sys.stdout.write(report.to_text())
     truth: SimTruth | None = None
@@ -138,6 +144,7 @@ def _consistency(
         The truth, the scores (LESS-mapping first) and each method's detections.
     """
     from lessmap.evaluation.consistency import (
+        area_detections,
         fixed_feature_detections,
         lessmap_detections,
         score,
@@ -155,6 +162,7 @@ def _consistency(
     detections = {name: lessmap_detections(frames, params)}
     for limit in args.fixed_features[:1]:
         detections[f"fixed-{limit} features"] = fixed_feature_detections(frames, limit)
+    detections["areas"] = area_detections(frames, area_params(partition_settings(args)))
     results = [
         score(truth, found, method=method, **options) for method, found in detections.items()
     ]

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 from lessmap.core import Partitioner
+from lessmap.core.areas import AreaTracker
 from lessmap.evaluation.baselines import fixed_features
 from lessmap.sim import groundtruth
 
@@ -32,6 +33,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
 
     from lessmap.core import PartitionParams
+    from lessmap.core.areas import AreaParams
     from lessmap.frames_file import FrameRow
     from lessmap.sim.simulator import RoomChange, SimTruth
 
@@ -123,6 +125,21 @@ def lessmap_detections(frames: Iterable[FrameRow], params: PartitionParams) -> l
                     frame.robot, transition.seq, transition.boundary_seq, str(transition.reason)
                 )
             )
+    return found
+
+
+def area_detections(frames: Iterable[FrameRow], params: AreaParams) -> list[Detection]:
+    """Run one area tracker per robot over the frames (file order); return its changes."""
+    trackers: dict[str, AreaTracker] = {}
+    found: list[Detection] = []
+    for frame in frames:
+        tracker = trackers.get(frame.robot)
+        if tracker is None:
+            tracker = trackers[frame.robot] = AreaTracker(params)
+        change = tracker.observe(frame.seq, frame.stamp_s, frame.features)
+        if change is not None:
+            t = change.transition
+            found.append(Detection(frame.robot, t.seq, t.boundary_seq, str(t.reason)))
     return found
 
 

@@ -7,6 +7,8 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from lessmap.evaluation.baselines import fixed_features, fixed_frames, single_submap
 from lessmap.evaluation.infoloss import (
     DEFAULT_ANCHOR_INFORMATION,
@@ -14,16 +16,16 @@ from lessmap.evaluation.infoloss import (
     landmark_information,
     landmark_submaps,
 )
-from lessmap.evaluation.segmentation import submap_stats
+from lessmap.evaluation.segmentation import consecutive, submap_stats
 from lessmap.evaluation.sweep import DEFAULT_GRID, format_table, run_grid, sweep
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    import numpy as np
     from numpy.typing import NDArray
 
     from lessmap.core import PartitionParams
+    from lessmap.core.areas import AreaParams
     from lessmap.evaluation.dataset import Dataset
     from lessmap.evaluation.infoloss import LandmarkInformation
     from lessmap.evaluation.segmentation import LessmapRun, SubmapStats
@@ -159,6 +161,13 @@ class EvalReport:
         return "\n".join(lines) + "\n"
 
 
+def fixed_frames_row(report: EvalReport) -> MethodResult:
+    """Return the fixed-frames baseline cut to the paper run's submap count."""
+    return next(
+        m for m in report.methods if m.name.startswith("fixed-") and m.name.endswith(" frames")
+    )
+
+
 def evaluate(
     dataset: Dataset,
     params: PartitionParams,
@@ -169,6 +178,7 @@ def evaluate(
     lambda2_values: Sequence[float] = DEFAULT_GRID,
     jobs: int = 1,
     anchor_information: float = DEFAULT_ANCHOR_INFORMATION,
+    areas: AreaParams | None = None,
 ) -> EvalReport:
     """Compute e for LESS-mapping, the baselines and a threshold sweep on one data set.
 
@@ -182,6 +192,9 @@ def evaluate(
         lambda2_values: sweep grid (empty: no sweep).
         jobs: worker processes for the sweep.
         anchor_information: the first-pose prior (see ``lessmap.evaluation.infoloss``).
+        areas: also segment with ``lessmap.core.areas``: its segments, its areas (revisits
+            merged) and fixed frames cut to as many submaps as it has segments, appended
+            after the paper's rows.
     """
     started = time.perf_counter()
     frames = dataset.frames
@@ -208,6 +221,20 @@ def evaluate(
     length = frames_per_submap or max(1, math.ceil(len(frames) / count))
     methods.append(result(f"fixed-{length} frames", fixed_frames(features, length)))
     methods.append(result("no partition", single_submap(features)))
+    if areas is not None:
+        from lessmap.evaluation.areas import area_of_frames, run_method
+
+        events = run_method(frames, "areas", areas=areas).get(dataset.robot, [])
+        seqs = [frame.seq for frame in frames]
+        starts = [event.boundary_seq for event in events]
+        segments = np.searchsorted(np.sort(starts), seqs, side="right").astype(np.int64)
+        merged = np.asarray(area_of_frames(seqs, events), dtype=np.int64)
+        methods.append(result("areas (segments)", consecutive(segments)))
+        methods.append(result("areas (revisits merged)", consecutive(merged)))
+        length = max(1, math.ceil(len(frames) / (len(events) + 1)))
+        methods.append(
+            result(f"fixed-{length} frames (areas' count)", fixed_frames(features, length))
+        )
     rows = sweep(frames, info, params, ncut_values, lambda2_values, jobs=jobs, known=runs)
     return EvalReport(
         dataset=dataset.name,

@@ -31,7 +31,7 @@ from lessmap.evaluation.diagnosis import (
     variant_row,
 )
 from lessmap.evaluation.infoloss import landmark_information
-from lessmap.evaluation.report import evaluate
+from lessmap.evaluation.report import evaluate, fixed_frames_row
 from lessmap.evaluation.simrun import load_for_eval, load_truth
 from lessmap.frames_file import read_frames
 
@@ -120,7 +120,7 @@ def recorded(
                 scale,
                 loss(scaled, features, main),
                 loss(scaled, features, report.methods[1].labels),
-                loss(scaled, features, report.methods[-2].labels),
+                loss(scaled, features, fixed_frames_row(report).labels),
             )
         )
     curves = {
