@@ -82,6 +82,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=Path("docs"), metavar="DIR")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes for the sweep")
     parser.add_argument(
+        "--areas-seeds",
+        type=int,
+        default=5,
+        metavar="N",
+        help="simulated runs per case of the areas comparison (0: leave it out; default 5)",
+    )
+    parser.add_argument(
         "--sweep",
         type=float,
         nargs="+",
@@ -100,12 +107,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         rec = recorded(args.dataset, params, args.sweep, max(args.jobs, 1))
         sim = simulated(args.sim, params) if args.sim is not None else None
+        areas = None
+        if args.areas_seeds > 0:
+            from lessmap.evaluation.areabench import report
+
+            areas = report(args.areas_seeds, args.dataset.parent)
     except (DatasetError, FileNotFoundError) as exc:
         sys.stderr.write(f"results: {exc}\n")
         return 1
     out: Path = args.out
     written = write_figures(out / "figures", rec, sim)
-    page = render(rec, sim, [path.name for path in written], list(argv or sys.argv[1:]))
+    page = render(
+        rec, sim, [path.name for path in written], list(argv or sys.argv[1:]), areas=areas
+    )
     (out / "RESULTS.md").write_text(page, encoding="utf-8")
     elapsed = time.perf_counter() - started
     lines = [f"wrote {path}" for path in [out / "RESULTS.md", *written]]

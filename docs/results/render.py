@@ -315,12 +315,42 @@ def _loss(result: MethodResult) -> Loss:
     return Loss(submaps=result.stats.submaps, e=result.e, e_exclusive=result.e_exclusive)
 
 
+def areas_lines(tables: str) -> list[str]:
+    """The comparison of the paper's method with ``lessmap.core.areas`` (issue 18)."""
+    return [
+        "## Beyond the paper: areas",
+        "",
+        "`lessmap segment --method areas` (`lessmap.core.areas`) drives the paper's "
+        "partitioner as a proposer (Ncut ≤ 0.4, λ2 ≤ 0.4) on frames pooled to 6 features or 4 "
+        "frames, confirms a split only when both sides hold 5 features or more, and names the "
+        "area entered when a known area has seen half of its features (a revisit). The "
+        "default stays `paper`: the tables say where areas win and where they lose. "
+        "Transitions are counted per robot over its stamps; the simulated open room is "
+        "`simulate(seed, rooms=1, room_size_m=...)`: one room, no doors, wall landmarks, a "
+        "5 m sensor.",
+        "",
+        "`python -m lessmap.evaluation.areabench --seeds 5` (about 40 s) prints these tables; "
+        "`lessmap segment --method areas FILE` and `lessmap eval FILE --no-sweep` (areas rows "
+        "in both tables) give the per-file figures.",
+        "",
+        *tables.rstrip().splitlines(),
+        "",
+    ]
+
+
 def render(
-    rec: RecordedResults, sim: SimResults | None, figures: Sequence[str], argv: Sequence[str]
+    rec: RecordedResults,
+    sim: SimResults | None,
+    figures: Sequence[str],
+    argv: Sequence[str],
+    *,
+    areas: str | None = None,
 ) -> str:
-    """Return the whole page."""
+    """Return the whole page (``areas``: the tables of ``lessmap.evaluation.areabench``)."""
     lines = header_lines(argv) + summary_lines(rec, sim) + recorded_lines(rec, figures)
     if sim is not None:
         lines += sim_lines(sim, figures)
+    if areas is not None:
+        lines += areas_lines(areas)
     lines += why_lines(rec, sim, figures)
     return "\n".join(lines).rstrip() + "\n"

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 TOLERANCE_FRAMES = 8
 TINY_FEATURES = 5  # a closed submap below this many features is a fragment
 SPARSE_SPACING_M = (2.0, 3.5)  # wall landmarks every 2-3.5 m instead of 0.6-1.2 m
-OPEN_ROOM_M = (12.0, 16.0)
+OPEN_ROOMS_M = {"8-10 m": (8.0, 10.0), "12-16 m": (12.0, 16.0)}  # sides drawn in these ranges
 
 
 @dataclass(slots=True)
@@ -114,9 +114,7 @@ def open_area(seeds: int, **options: Any) -> dict[str, Tally]:
     """Transitions of both methods in one doorless room, ``seeds`` runs of 3 robots."""
     tallies = {m: Tally() for m in METHODS}
     for seed in range(seeds):
-        run = simulate(
-            seed, rooms=1, robots=3, frames_per_robot=1000, room_size_m=OPEN_ROOM_M, **options
-        )
+        run = simulate(seed, rooms=1, robots=3, frames_per_robot=1000, **options)
         frames = rows(run.frames)
         for method in METHODS:
             tallies[method].add(run_method(frames, method), frames)
@@ -211,8 +209,10 @@ def report(seeds: int, datasets: Path) -> str:
         "270°, sparse": {"fov_deg": 270.0, "landmark_spacing_m": SPARSE_SPACING_M},
         "360°, sparse": {"fov_deg": 360.0, "landmark_spacing_m": SPARSE_SPACING_M},
     }
+    buildings: dict[str, dict[str, SimResult]] = {}
     for case, options in cases.items():
-        for method, result in sim_buildings(seeds, **options).items():
+        buildings[case] = sim_buildings(seeds, **options)
+        for method, result in buildings[case].items():
             s, r = result.score, result.revisits
             latency = "n/a" if s.latency_mean is None else f"{s.latency_mean:.1f}"
             lines.append(
@@ -230,11 +230,17 @@ def report(seeds: int, datasets: Path) -> str:
         "|:---|:---|---:|---:|---:|---:|---:|",
     ]
     areas: dict[str, dict[str, Tally]] = {}
-    open_cases: dict[str, dict[str, Any]] = {
-        "sim open room, 270°, dense": {"fov_deg": 270.0},
-        "sim open room, 360°, dense": {"fov_deg": 360.0},
-        "sim open room, 270°, sparse": {"fov_deg": 270.0, "landmark_spacing_m": SPARSE_SPACING_M},
-    }
+    open_cases: dict[str, dict[str, Any]] = {}
+    for size, sides in OPEN_ROOMS_M.items():
+        open_cases |= {
+            f"sim open room {size}, 270°, dense": {"fov_deg": 270.0, "room_size_m": sides},
+            f"sim open room {size}, 360°, dense": {"fov_deg": 360.0, "room_size_m": sides},
+            f"sim open room {size}, 270°, sparse": {
+                "fov_deg": 270.0,
+                "room_size_m": sides,
+                "landmark_spacing_m": SPARSE_SPACING_M,
+            },
+        }
     for name, options in open_cases.items():
         areas[name] = open_area(seeds, **options)
     for name in ("mrclam6", "mrclam1_w1s", "dlr"):
@@ -250,7 +256,8 @@ def report(seeds: int, datasets: Path) -> str:
                 f"{t.per_robot_10min:.2f} | {t.tiny} |"
             )
     dlr = datasets / "dlr.frames.jsonl"
-    if dlr.is_file():
+    losses = dlr_loss(dlr) if dlr.is_file() else []
+    if losses:
         lines += [
             "",
             "dlr: e (Eq. 5) against fixed frames cut to the same number of submaps",
@@ -262,9 +269,51 @@ def report(seeds: int, datasets: Path) -> str:
         lines += [
             f"| {row.name} | {row.submaps} | {_pct(row.e, 3)} | {_pct(row.e_fixed, 3)} | "
             f"{_pct(row.e_exclusive, 1)} | {_pct(row.e_exclusive_fixed, 1)} |"
-            for row in dlr_loss(dlr)
+            for row in losses
         ]
+    lines += ["", "targets of issue 18, method areas:", ""]
+    lines += verdicts(buildings, areas, losses)
     return "\n".join(lines) + "\n"
+
+
+def _mark(ok: bool) -> str:
+    return "met" if ok else "missed"
+
+
+def verdicts(
+    buildings: dict[str, dict[str, SimResult]],
+    areas: dict[str, dict[str, Tally]],
+    losses: list[LossRow],
+) -> list[str]:
+    """Return one line per target of the issue: met or missed, with the measured figures."""
+    out = []
+    for case, results in buildings.items():
+        s, r = results["areas"].score, results["areas"].revisits
+        ok = (s.recall or 0) >= 0.95 and (s.precision or 0) >= 0.95
+        out.append(
+            f"- {case}: recall and precision ≥ 95%: {_mark(ok)} ({_pct(s.recall)} / "
+            f"{_pct(s.precision)}); revisits ≥ 90% recognised, ≤ 2% false: "
+            f"{_mark((r.recognised_share or 0) >= 0.9 and (r.false_share or 1) <= 0.02)} "
+            f"({_pct(r.recognised_share)} / {_pct(r.false_share, 1)})"
+        )
+    for name, tallies in areas.items():
+        if name.startswith("sim open room") or name == "mrclam6":
+            rate = tallies["areas"].per_robot_10min
+            out.append(
+                f"- {name}: ≤ 1 transition per robot per 10 min: {_mark(rate <= 1.0)} "
+                f"({rate:.2f}; paper {tallies['paper'].per_robot_10min:.2f})"
+            )
+    tiny = sum(t["areas"].tiny for t in areas.values())
+    tiny += sum(r["areas"].tally.tiny for r in buildings.values())
+    out.append(f"- no closed submap below 5 features: {_mark(tiny == 0)} ({tiny} found)")
+    for row in losses:
+        if row.name == "areas":
+            out.append(
+                f"- dlr: e at equal count no worse than fixed frames: "
+                f"{_mark(row.e <= row.e_fixed)} ({_pct(row.e, 3)} vs {_pct(row.e_fixed, 3)}; "
+                f"e exclusive {_pct(row.e_exclusive, 1)} vs {_pct(row.e_exclusive_fixed, 1)})"
+            )
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
