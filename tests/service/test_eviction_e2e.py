@@ -5,12 +5,12 @@ evicted and the service gives most of the wave's memory back. An evicted robot t
 again resumes its session (no SESSION_CLOSED, no gap).
 
 Measured (``-s`` prints it; details in docs/BENCHMARKS.md "Session flood and memory",
-``python -m tests.benchmarks.session_flood``): RSS 96-98 MiB before, 183-282 MiB at the peak,
-110-120 MiB after: 1.13-1.23 x before over 17 runs, median 1.19 (the 1.2 x bar is met in most
-runs, not all). ``lessmap serve`` runs on glibc's malloc with two arenas
-(``lessmap.runtime.memory``), trims after each eviction sweep and after the store has written
-evicted sessions; what stays is glibc arena fragmentation (+11-20 MiB in the thread arena).
-A new robot is served (its state answers with its frame applied) 3-35 ms after its first put;
+``python -m tests.benchmarks.session_flood``): 1.09-1.10 x before here (3 runs). ``lessmap serve``
+runs on glibc's malloc with two arenas (``lessmap.runtime.memory``); once the store has written
+the records of sessions that left, its writer collects (emptying CPython's free lists), clears
+the type attribute cache and SQLite's page cache and trims the heap. What stays (+5-9 MiB) is
+mostly blocks cached by the per-thread malloc caches of zenoh-python's callback threads. A new
+robot is served (its state answers with its frame applied) a few ms after its first put;
 printed, not asserted: wall-clock bounds are flaky on a shared machine.
 """
 
@@ -113,11 +113,11 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     )
     assert wait_s == wait_s, "the new robot's frame was not applied within 10 s"  # not NaN
     # Most of the wave's memory comes back (malloc_trim after evictions on glibc's malloc).
-    # Measured 0.13-0.20 of the peak's growth left; 0.94 before the trim after eviction.
+    # Measured 0.11-0.16 of the peak's growth left; 0.94 before the trim after eviction.
     assert first_after - before_kib <= 0.5 * (first_peak - before_kib)
-    # The durable-sessions bar is 1.2 x: measured 1.13-1.23 x here (median 1.19), so this
-    # guard against a regression leaves room for the spread, not for a new leak.
-    assert first_after <= 1.3 * before_kib
+    # The durable-sessions bar is 1.2 x: measured 1.09-1.11 x (benchmark and this test), so
+    # this guard against a regression leaves room for the spread, not for a new leak.
+    assert first_after <= 1.25 * before_kib
 
     # An evicted robot speaks again: its session resumes where it stopped.
     session.put(keys.frames(fleet_name, "r7"), frame_of(7, 1), congestion_control=BLOCK)

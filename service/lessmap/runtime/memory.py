@@ -111,18 +111,33 @@ def use_system_malloc(argv: list[str] | None = None) -> None:
     os.execv(sys.executable, [sys.executable, *command[1:]])
 
 
+def _clear_type_cache() -> None:
+    """Drop CPython's type attribute cache, and the attribute names it holds."""
+    # The cache keeps a reference to the name of each lookup, in a slot picked by the name's
+    # address. numpy looks attributes up by C string ("setflags" at every
+    # ``flags.writeable = False``, "accumulate" at every cumsum: a new str each time), so up
+    # to 4096 such strings stay alive at random places of the heap. After a flood of 10,000
+    # sessions ~3,000 of them kept as many 4 KiB pages resident (docs/BENCHMARKS.md).
+    # Refilled by the next lookups; clearing costs microseconds.
+    clear = getattr(sys, "_clear_type_cache", None)
+    if clear is not None:
+        clear()
+
+
 def trim_heap() -> bool:
-    """Return free heap pages to the OS (glibc ``malloc_trim``), without a collection."""
+    """Return free heap pages to the OS (glibc ``malloc_trim``) only: no collection."""
     return _TRIM is not None and bool(_TRIM(0))
 
 
 def release_free_memory() -> bool:
-    """Collect garbage, then return freed heap pages to the OS; True when trimmed.
+    """Free what only CPython's caches still hold, then return free heap pages to the OS.
 
-    Called after a sweep evicted sessions (at most once a second per shard), not per frame:
-    a full collection costs milliseconds.
+    A full collection (it also empties CPython's free lists of tuples, lists, dicts and
+    floats: up to 2,000 tuples of each size stay there, each one pinning its page), the type
+    attribute cache, then glibc's ``malloc_trim``. True when trimmed. Called after sessions
+    left memory (by the store's writer once it has written them, at most once a second),
+    not per frame: a full collection costs milliseconds.
     """
     gc.collect()
-    if _TRIM is None:
-        return False
-    return bool(_TRIM(0))
+    _clear_type_cache()
+    return trim_heap()

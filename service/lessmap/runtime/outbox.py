@@ -84,8 +84,12 @@ class Outbox:
         error_rate_per_s: float,
         error_burst: int,
         epoch_for: Callable[[str, str], int | None] | None = None,
+        release_memory: Callable[[], object] = release_free_memory,
     ) -> None:
         self.metrics = metrics
+        # After sessions left memory (evicted, handed over): give their memory back. The
+        # service passes the store's ``release_memory_soon`` (after their records are written).
+        self._release_memory = release_memory
         # The fence (module docstring); a lone instance without ownership owns everything.
         self._epoch_for = epoch_for if epoch_for is not None else (lambda _fleet, _robot: 1)
         self._session = session
@@ -150,7 +154,7 @@ class Outbox:
         if outcome.evicted:
             m.sessions_evicted.inc(outcome.evicted)
             m.sessions.dec(outcome.evicted)
-            release_free_memory()  # evicted graphs are freed: let the process shrink
+            self._release_memory()  # evicted graphs are freed: let the process shrink
         for state in outcome.suspended:  # stop with a store: the session lives on
             m.sessions.dec()
             self._put_state(state)

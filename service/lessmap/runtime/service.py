@@ -131,6 +131,7 @@ class Service:
             error_rate_per_s=s.error_rate_per_s,
             error_burst=s.error_burst,
             epoch_for=self.ownership.epoch_for,
+            release_memory=self.store.release_memory_soon,
         )
         params = s.partition_params()
         ledger = EdgeLedger(s.workers, s.max_edges_total)

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 
 import msgpack
 
-from lessmap.runtime.memory import trim_heap
+from lessmap.runtime.memory import release_free_memory, trim_heap
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -45,8 +45,8 @@ LOCK_FILE = "instance.lock"
 _SCHEMA_VERSION = 2  # 2: records carry the partition epoch (wire contract v2)
 _PRUNE_EVERY_S = 30.0
 _WIRE_VERSION = 2  # of a record shipped between instances (SessionRecord.to_bytes); 2: zlib
-_TRIM_AFTER_RECORDS = 64  # evicted sessions written since the last heap trim that call for one
-_TRIM_EVERY_S = 1.0  # fewer of them: a trim at most this often
+_RELEASE_EVERY_S = 1.0  # memory given back at most this often (a full collection: milliseconds)
+_TRIM_AFTER_RECORDS = 64  # evicted sessions written that call for a plain heap trim in between
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -152,8 +152,13 @@ class CheckpointStore:
         self._pending: dict[RobotKey, SessionRecord | None] = {}  # None: delete
         self._in_flight = False  # the writer holds a batch taken from _pending
         self._lock_file: BinaryIO | None = None
+        # Memory release (``release_memory_soon``): batches taken and written by the writer,
+        # and the number of written batches after which a requested release is due.
+        self._batches_taken = 0
+        self._batches_done = 0
+        self._release_after: int | None = None
+        self._last_release_s = float("-inf")
         self._evicted_since_trim = 0
-        self._last_trim_s = 0.0
         self._cond = threading.Condition()
         self._db_lock = threading.Lock()  # one connection, shared by the writer and readers
         self._db: sqlite3.Connection | None = None
@@ -285,6 +290,24 @@ class CheckpointStore:
             self._pending[key] = None
             self._cond.notify()
 
+    def release_memory_soon(self) -> None:
+        """Give the memory of sessions that left back to the OS, once their records are written.
+
+        Called after sessions were evicted or handed over. Their records are pending here and
+        the writer frees them (snapshots, keys, rows) only after writing them: the writer
+        releases (``memory.release_free_memory`` and SQLite's page cache) after the batch that
+        holds what is pending now, at most once every ``_RELEASE_EVERY_S``; a request inside
+        that time waits for it, none is dropped. Without a writer (memory-only) the calling
+        thread releases at once.
+        """
+        if self._thread is None:
+            release_free_memory()
+            return
+        with self._cond:
+            due = self._batches_taken + (1 if self._pending else 0)
+            self._release_after = max(due, self._release_after or 0)
+            self._cond.notify()
+
     def load(self, key: RobotKey) -> SessionRecord | None:
         """Return the robot's latest record, pending or written.
 
@@ -375,10 +398,11 @@ class CheckpointStore:
         while True:
             with self._cond:
                 while not self._pending and not self._stopping:
-                    self._cond.wait(timeout=_PRUNE_EVERY_S)
+                    self._cond.wait(timeout=self._idle_wait_s())
                     if not self._pending:
                         break
                 batch, self._pending = self._pending, {}
+                self._batches_taken += 1
                 self._in_flight = bool(batch)
                 stopping = self._stopping
             if batch:
@@ -390,22 +414,26 @@ class CheckpointStore:
                         log.exception("state store: shipping checkpoints failed")
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
-            evicted = sum(1 for r in batch.values() if r is not None and r.status == "evicted")
+            self._evicted_since_trim += sum(
+                1 for r in batch.values() if r is not None and r.status == "evicted"
+            )
             del batch
-            self._evicted_since_trim += evicted
-            now_mono = time.monotonic()
-            if self._evicted_since_trim and (
-                self._evicted_since_trim >= _TRIM_AFTER_RECORDS
-                or now_mono - self._last_trim_s >= _TRIM_EVERY_S
-            ):
-                # The shards trim after an eviction sweep, but the evicted snapshots are
-                # freed here, later: without this trim their pages stayed with the process.
-                trim_heap()
-                self._evicted_since_trim = 0
-                self._last_trim_s = now_mono
             with self._cond:
+                self._batches_done += 1
                 self._in_flight = False
                 self._cond.notify_all()  # flush() waiters
+                release = self._release_due()
+            if release:
+                # After the write: the records of the sessions that left are freed only now.
+                self._shrink_cache()
+                release_free_memory()
+                self._last_release_s = time.monotonic()
+                self._evicted_since_trim = 0
+            elif self._evicted_since_trim >= _TRIM_AFTER_RECORDS:
+                # Between two releases (an eviction wave): the cheap part, so the process
+                # does not grow by a second's worth of evicted snapshots.
+                trim_heap()
+                self._evicted_since_trim = 0
             now = self._clock()
             if now - self._last_prune_s >= _PRUNE_EVERY_S:
                 self._last_prune_s = now
@@ -414,6 +442,36 @@ class CheckpointStore:
                 with self._cond:
                     if not self._pending:
                         return
+
+    def _release_due(self) -> bool:
+        """True (and the request is taken) when a requested release may run now (``_cond``)."""
+        if self._release_after is None or self._batches_done < self._release_after:
+            return False
+        if time.monotonic() - self._last_release_s < _RELEASE_EVERY_S:
+            return False
+        self._release_after = None
+        return True
+
+    def _idle_wait_s(self) -> float:
+        """How long the idle writer may wait: until a requested release is due, or pruning."""
+        if self._release_after is not None and self._batches_done >= self._release_after:
+            return max(0.0, self._last_release_s + _RELEASE_EVERY_S - time.monotonic())
+        return _PRUNE_EVERY_S
+
+    def _shrink_cache(self) -> None:
+        """Free SQLite's page cache (the file's pages are read back from the OS on demand).
+
+        The cache grows with the file up to ``cache_size`` (2 MiB): read and written while
+        thousands of sessions came and went, its ~460 pages ended up spread over the heap
+        among the freed sessions and kept ~2 MiB of it resident (docs/BENCHMARKS.md).
+        """
+        with self._db_lock:
+            if self._db is None:
+                return
+            try:
+                self._db.execute("PRAGMA shrink_memory")
+            except sqlite3.Error as exc:
+                log.warning("state store %s: could not shrink the cache: %s", self.path, exc)
 
     def _write(self, batch: dict[RobotKey, SessionRecord | None]) -> None:
         started = time.perf_counter()
