@@ -9,7 +9,7 @@ import json
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from lessmap.core import GraphError, Partitioner, Transition
 from lessmap.core.areas import AreaTracker, AreaTransition
@@ -22,6 +22,8 @@ if TYPE_CHECKING:
     from lessmap.core import PartitionParams
     from lessmap.core.areas import AreaParams
     from lessmap.frames_file import FrameRow
+
+E = TypeVar("E", covariant=True)
 
 
 @dataclass(slots=True)
@@ -90,34 +92,53 @@ def area_record(robot: str, change: AreaTransition) -> dict[str, Any]:
     }
 
 
+class _Observer(Protocol[E]):
+    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> E | None: ...
+
+
+def _run(
+    frames: Iterable[FrameRow],
+    make: Callable[[], _Observer[E]],
+    on_event: Callable[[str, E], None] | None,
+    summary: SegmentSummary,
+) -> dict[str, _Observer[E]]:
+    """Feed each robot's frames to its own observer (made on its first frame); count events."""
+    observers: dict[str, _Observer[E]] = {}
+    started = time.perf_counter()
+    for frame in frames:
+        observer = observers.get(frame.robot)
+        if observer is None:
+            observer = observers[frame.robot] = make()
+            summary.robots[frame.robot] = 0
+        try:
+            event = observer.observe(frame.seq, frame.stamp_s, frame.features)
+        except GraphError as exc:
+            msg = f"{frame.where or 'frame'}: robot {frame.robot}: {exc}"
+            raise DatasetError(msg) from exc
+        summary.frames += 1
+        if event is not None:
+            summary.transitions += 1
+            summary.robots[frame.robot] += 1
+            if on_event is not None:
+                on_event(frame.robot, event)
+    summary.elapsed_s = time.perf_counter() - started
+    summary.submaps = summary.transitions + len(observers)
+    return observers
+
+
 def segment_areas(
     frames: Iterable[FrameRow],
     params: AreaParams,
     on_change: Callable[[str, AreaTransition], None] | None = None,
 ) -> SegmentSummary:
     """Run the area tracker of each robot over its frames (``--method areas``)."""
-    trackers: dict[str, AreaTracker] = {}
     summary = SegmentSummary(areas={})
-    started = time.perf_counter()
-    for frame in frames:
-        tracker = trackers.get(frame.robot)
-        if tracker is None:
-            tracker = trackers[frame.robot] = AreaTracker(params)
-            summary.robots[frame.robot] = 0
-        try:
-            change = tracker.observe(frame.seq, frame.stamp_s, frame.features)
-        except GraphError as exc:
-            msg = f"{frame.where or 'frame'}: robot {frame.robot}: {exc}"
-            raise DatasetError(msg) from exc
-        summary.frames += 1
-        if change is not None:
-            summary.transitions += 1
-            summary.robots[frame.robot] += 1
-            if on_change is not None:
-                on_change(frame.robot, change)
-    summary.elapsed_s = time.perf_counter() - started
-    summary.submaps = summary.transitions + len(trackers)
-    summary.areas = {robot: tracker.area_count for robot, tracker in trackers.items()}
+    trackers = _run(frames, lambda: AreaTracker(params), on_change, summary)
+    summary.areas = {
+        robot: tracker.area_count
+        for robot, tracker in trackers.items()
+        if isinstance(tracker, AreaTracker)
+    }
     return summary
 
 
@@ -127,27 +148,8 @@ def segment(
     on_transition: Callable[[str, Transition], None] | None = None,
 ) -> SegmentSummary:
     """Run the partitioner of each robot over its frames, deciding at every frame."""
-    partitioners: dict[str, Partitioner] = {}
     summary = SegmentSummary()
-    started = time.perf_counter()
-    for frame in frames:
-        partitioner = partitioners.get(frame.robot)
-        if partitioner is None:
-            partitioner = partitioners[frame.robot] = Partitioner(params)
-            summary.robots[frame.robot] = 0
-        try:
-            transition = partitioner.observe(frame.seq, frame.stamp_s, frame.features)
-        except GraphError as exc:
-            msg = f"{frame.where or 'frame'}: robot {frame.robot}: {exc}"
-            raise DatasetError(msg) from exc
-        summary.frames += 1
-        if transition is not None:
-            summary.transitions += 1
-            summary.robots[frame.robot] += 1
-            if on_transition is not None:
-                on_transition(frame.robot, transition)
-    summary.elapsed_s = time.perf_counter() - started
-    summary.submaps = summary.transitions + len(partitioners)
+    _run(frames, lambda: Partitioner(params), on_transition, summary)
     return summary
 
 
