@@ -10,6 +10,7 @@ from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    import argparse
     from collections.abc import Iterator
     from types import FrameType
 
@@ -57,3 +58,21 @@ def stop_signals() -> Iterator[StopSignal]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--duration`` and ``--connect-timeout``, the options every foreground command has."""
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: run until SIGINT/SIGTERM)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="how long to retry while no router answers (default 10)",
+    )

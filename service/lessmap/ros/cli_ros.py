@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.errors import ConfigError
-from lessmap.foreground import StopSignal, stop_signals
+from lessmap.foreground import StopSignal, add_run_options, stop_signals
 
 if TYPE_CHECKING:
     import argparse
@@ -110,20 +110,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="robot name of topics in the root namespace (default robot)",
     )
     add_message_options(parser)
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="stop after S seconds (default: run until SIGINT/SIGTERM)",
-    )
-    parser.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="how long to retry while no router answers (default 10)",
-    )
+    add_run_options(parser)
 
 
 def converter_from_args(args: argparse.Namespace) -> Converter:

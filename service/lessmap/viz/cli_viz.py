@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.errors import ConfigError
-from lessmap.foreground import StopSignal, stop_signals
+from lessmap.foreground import StopSignal, add_run_options, stop_signals
 
 if TYPE_CHECKING:
     import argparse
@@ -39,20 +39,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
         metavar="ROBOT",
         help="also show this robot's CovGraph (its current submap, from its frames)",
     )
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="stop after S seconds (default: run until SIGINT/SIGTERM)",
-    )
-    parser.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="how long to retry while no router answers (default 10)",
-    )
+    add_run_options(parser)
 
 
 def configure_view(parser: argparse.ArgumentParser) -> None:
