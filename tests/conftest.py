@@ -186,11 +186,19 @@ def client_session() -> Iterator[Callable[[str], zenoh.Session]]:
         session.close()
 
 
-def wait_until(predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
-    """Poll ``predicate`` until it holds; fail the test naming ``what`` after the timeout."""
+def wait_until(
+    predicate: Callable[[], bool], timeout_s: float, what: str, why: Callable[[], str] | None = None
+) -> None:
+    """Poll ``predicate`` until it holds; fail the test naming ``what`` after the timeout.
+
+    ``why`` is called on a timeout only, for what the failure should show (logs, a state).
+    """
     deadline = time.monotonic() + timeout_s
     while not predicate():
-        assert time.monotonic() < deadline, f"timed out after {timeout_s} s waiting for {what}"
+        if time.monotonic() >= deadline:
+            detail = f"\n{why()}" if why is not None else ""
+            msg = f"timed out after {timeout_s} s waiting for {what}{detail}"
+            raise AssertionError(msg)
         time.sleep(0.05)
 
 

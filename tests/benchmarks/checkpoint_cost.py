@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
 from lessmap.frames_file import read_frames
-from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.sessions import SessionTable, commit_checkpoints
 from lessmap.runtime.store import CheckpointStore
 from lessmap_schemas.messages import Frame
 
@@ -49,8 +49,11 @@ def run(frames: list[tuple[str, Frame]], every: int | None) -> tuple[float, floa
         )
         started = time.thread_time()
         for robot, frame in frames:
-            table.handle_batch([("bench", robot, frame)], time.monotonic())
-        table.close_all("shutdown")
+            # As the service: the outcome's checkpoints are saved once it is published.
+            commit_checkpoints(
+                table.handle_batch([("bench", robot, frame)], time.monotonic()), store
+            )
+        commit_checkpoints(table.close_all("shutdown"), store)
         worker = time.thread_time() - started
         store.close()
         return worker, store.write_seconds

@@ -2,19 +2,20 @@
 
 The session table and the store are real (a SQLite file under ``tmp_path``); a "restart"
 is a new store and a new table on the same folder, a "crash" drops the old ones without
-stopping them. The reference is one table that never stopped.
+stopping them. The reference is one table that never stopped. The service saves an outcome's
+checkpoints once it published the outcome; ``CommittingTable`` does the same at once.
 """
 
 from __future__ import annotations
 
 import sqlite3
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.runtime.sessions import Outcome, SessionTable
+from lessmap.runtime.sessions import Outcome, SessionTable, commit_checkpoints
 from lessmap.runtime.store import STORE_FILE, CheckpointStore, SessionRecord
 from lessmap.sim.simulator import simulate
 from lessmap_schemas.errors import ErrorCode
@@ -41,6 +42,37 @@ def walk() -> list[Frame]:
 FRAMES = walk()
 
 
+class CommittingTable(SessionTable):
+    """A session table whose outcomes' checkpoints are saved as soon as they are returned."""
+
+    def __init__(self, store: CheckpointStore | None, **settings: Any) -> None:
+        super().__init__(store=store, **settings)
+        self.committed_to = store
+
+    def _committed(self, out: Outcome) -> Outcome:
+        if self.committed_to is not None:
+            commit_checkpoints(out, self.committed_to)
+        return out
+
+    def handle_batch(self, *args: Any, **kwargs: Any) -> Outcome:
+        return self._committed(super().handle_batch(*args, **kwargs))
+
+    def recover(self, *args: Any, **kwargs: Any) -> Outcome:
+        return self._committed(super().recover(*args, **kwargs))
+
+    def catchup_done(self, *args: Any, **kwargs: Any) -> Outcome:
+        return self._committed(super().catchup_done(*args, **kwargs))
+
+    def release_overdue(self, *args: Any, **kwargs: Any) -> Outcome:
+        return self._committed(super().release_overdue(*args, **kwargs))
+
+    def expire_idle(self, *args: Any, **kwargs: Any) -> Outcome:
+        return self._committed(super().expire_idle(*args, **kwargs))
+
+    def close_all(self, *args: Any, **kwargs: Any) -> Outcome:
+        return self._committed(super().close_all(*args, **kwargs))
+
+
 def make_table(
     store: CheckpointStore | None,
     *,
@@ -50,15 +82,15 @@ def make_table(
     catchup_wait_s: float = 2.0,
 ) -> SessionTable:
     # phase=False: checkpoints at exact multiples of ``every``, which the tests below pin.
-    return SessionTable(
-        LASER,
+    return CommittingTable(
+        store,
+        params=LASER,
         max_sessions=8,
         max_nodes=20_000,
         max_batch_frames=1,
         idle_timeout_s=10.0,
         instance="test",
         clock=time.perf_counter,
-        store=store,
         checkpoint_every_frames=every,
         checkpoint_interval_s=3600.0,
         checkpoint_phase=phase,

@@ -17,6 +17,7 @@ from lessmap.core import PartitionParams
 from lessmap.frames_file import FrameRow, read_frames
 from lessmap.offline import segment
 from lessmap_client import FleetClient, RobotPublisher
+from lessmap_client.session import wait_for_service
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode, encode
 from lessmap_schemas.errors import InvalidNameError
@@ -348,6 +349,14 @@ def test_two_instances_split_a_fleet_by_partition(
     first = start_service(
         serve, "--instance", names[0], "--state-dir", str(tmp_path / "a"), metrics=True
     )
+    session = client_session(first.endpoint)
+
+    def logs() -> str:
+        return "\n".join(f"--- {p.instance}:\n{p.log()[-3000:]}" for p in (first, second))
+
+    # The second joins a running first one (a router that is not listening yet would be
+    # retried only after Zenoh's back-off).
+    assert wait_for_service(session, 60.0), first.log()[-3000:]
     second = start_service(
         serve,
         "-e",
@@ -358,9 +367,16 @@ def test_two_instances_split_a_fleet_by_partition(
         str(tmp_path / "b"),
         metrics=True,
     )
-    session = client_session(first.endpoint)
     with FleetClient(fleet, session=session) as client:
-        wait_until(lambda: len(client.instances()) == 2, 30.0, "both instances to be alive")
+        seen: list[list[str]] = []
+
+        def both_alive() -> bool:
+            seen.append(client.instances())
+            return len(seen[-1]) == 2
+
+        wait_until(
+            both_alive, 60.0, "both instances to be alive", lambda: f"saw {seen[-3:]}\n{logs()}"
+        )
 
         def owned(proc: ServeProcess) -> float:
             try:

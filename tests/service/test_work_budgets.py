@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission, pairs_of
-from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.sessions import SessionTable, commit_checkpoints
 from lessmap.runtime.store import CheckpointStore
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame
@@ -116,6 +116,7 @@ def test_a_full_shard_evicts_the_longest_idle_session_to_admit_a_new_one(tmp_pat
         assert out.rejections == []
         assert out.evicted == 2  # both idle for 5 s or more, longest idle first
         assert len(table) == 1
+        commit_checkpoints(out, store)  # the service's outbox, once the outcome is out
         # The evicted robot resumes where it stopped.
         back = table.handle_batch([(FLEET, "old", frame(1, [1, 2]))], 11.0)
         assert back.rejections == []

@@ -61,6 +61,11 @@ class ServiceMetrics:
             ["direction"],
             registry=r,
         )
+        self.checkpoints_withheld = Counter(
+            "lessmap_checkpoints_withheld",
+            "Checkpoints not saved: their session had a transition the fence held back",
+            registry=r,
+        )
         self.checkpoints_shipped = Counter(
             "lessmap_checkpoints_shipped", "Checkpoints put for the standby", registry=r
         )

@@ -7,6 +7,12 @@ misses samples recovers the recent ones; errors are rate-limited per robot.
 The fence: nothing about a robot is published unless ``epoch_for(fleet, robot)`` gives the
 epoch of its partition, i.e. this instance owns the partition and was not frozen since
 (``ownership.py``). Every transition and error carries that epoch.
+
+Checkpoints come last: an outcome's records are saved (and from the store shipped to the
+standby or answered to a new owner) only after its transitions were put, and never for a
+session with a fenced transition (``sessions.py`` rule 5). Zenoh delivers one session's puts
+in order, so a checkpoint that reached another instance implies the transitions it covers
+reached the router; a fenced transition is decided again by the partition's next owner.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from zenoh import ext
 
 from lessmap.runtime.memory import release_free_memory
 from lessmap.runtime.ratelimit import RateLimiter
-from lessmap.runtime.sessions import summary_of
+from lessmap.runtime.sessions import commit_checkpoints, summary_of
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode
@@ -35,6 +41,7 @@ if TYPE_CHECKING:
     from lessmap.core import Transition as CoreTransition
     from lessmap.runtime.metrics import ServiceMetrics
     from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
+    from lessmap.runtime.store import CheckpointStore
     from lessmap_schemas.errors import WireError
 
 log = logging.getLogger(__name__)
@@ -85,8 +92,10 @@ class Outbox:
         error_burst: int,
         epoch_for: Callable[[str, str], int | None] | None = None,
         release_memory: Callable[[], object] = release_free_memory,
+        store: CheckpointStore | None = None,
     ) -> None:
         self.metrics = metrics
+        self._store = store  # where the outcomes' checkpoints go once published
         # After sessions left memory (evicted, handed over): give their memory back. The
         # service passes the store's ``release_memory_soon`` (after their records are written).
         self._release_memory = release_memory
@@ -154,7 +163,6 @@ class Outbox:
         if outcome.evicted:
             m.sessions_evicted.inc(outcome.evicted)
             m.sessions.dec(outcome.evicted)
-            self._release_memory()  # evicted graphs are freed: let the process shrink
         for state in outcome.suspended:  # stop with a store: the session lives on
             m.sessions.dec()
             self._put_state(state)
@@ -185,6 +193,12 @@ class Outbox:
                 },
             )
             self._put_state(state)
+        if self._store is not None and outcome.checkpoints:
+            withheld = commit_checkpoints(outcome, self._store)
+            if withheld:
+                m.checkpoints_withheld.inc(withheld)
+        if outcome.evicted:
+            self._release_memory()  # evicted graphs are freed (and saved): let it shrink
 
     def _count_rejection(self, code: ErrorCode) -> None:
         if code in _NOT_REJECTIONS or code in _DUPLICATES:
@@ -233,6 +247,7 @@ class Outbox:
     def _put_transition(self, session: RobotSession, transition: CoreTransition) -> None:
         epoch = self._fenced(session.fleet, session.robot)
         if epoch is None:
+            session.fenced = True  # its checkpoints would skip this transition for good
             return
         message = wire_transition(session, transition, self._instance, epoch)
         self.metrics.transitions.labels(reason=message.reason).inc()

@@ -132,6 +132,7 @@ class Service:
             error_burst=s.error_burst,
             epoch_for=self.ownership.epoch_for,
             release_memory=self.store.release_memory_soon,
+            store=self.store,
         )
         params = s.partition_params()
         ledger = EdgeLedger(s.workers, s.max_edges_total)
@@ -290,7 +291,7 @@ class Service:
             for shard in self._shards:
                 with shard.lock:
                     outcome = shard.table.close_all("shutdown")
-                self._outbox.publish(outcome, now)
+                    self._outbox.publish(outcome, now)
         self.store.close()
         self._queries.put(None)
         if self._query_thread.is_alive():
@@ -596,13 +597,15 @@ class Service:
         now = time.monotonic()
         dropped = 0
         for shard in self._shards:
-            with shard.lock:
+            with shard.lock:  # after any turn that decided before the fence closed
                 out = shard.table.hand_over(
                     lambda fleet, robot: partition_of(fleet, robot) in leaving, now
                 )
+                if self._outbox is not None:
+                    # Counters and checkpoints only (the fence is closed): not those of a
+                    # session with a fenced transition (the next owner decides it anew).
+                    self._outbox.publish(out, now)
             dropped += out.evicted
-            if self._outbox is not None:
-                self._outbox.publish(out, now)  # counters only: the fence is closed
         self.metrics.partition_moves.labels(direction="out").inc(len(partitions))
         log.info(
             "handed over %d partition(s) (%d session(s) checkpointed): %s",

@@ -38,6 +38,11 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    to the store instead of being closed. Without a file, idle sessions close as before.
    Frames at or below the seq a session was restored at are redeliveries (a robot's cache
    answering a catch-up query): counted as duplicates, never reported as errors.
+   A checkpoint is not saved by the table: it travels in the outcome (``checkpoints``) and
+   ``commit_checkpoints`` saves it after the outcome was published, so no checkpoint (kept,
+   shipped to a standby, answered to a new owner) ever covers a transition that is not on
+   the wire yet. A session with a transition the fence held back (``RobotSession.fenced``)
+   is never checkpointed again: the partition's next owner decides those frames anew.
 6. Catch-up (``catchup_max_frames > 0``, the service turns it on with a store): a frame
    beyond a gap is not applied at once. It is *held*, with every later frame of the session,
    and the outcome carries a ``CatchupRequest``: the shard asks the robot's publication cache
@@ -138,6 +143,7 @@ class RobotSession:
     next_catchup_s: float = 0.0  # no new catch-up query before
     recovered: int = 0  # frames the current hold took from the robot's cache
     edges: int = 0  # upper bound of the CovGraph's edges (exact after a decision)
+    fenced: bool = False  # a transition of it was not published (rule 5): never checkpointed
 
     def counters(self) -> dict[str, Any]:
         """The non-partitioner part of the session, for its checkpoint (JSON-ready)."""
@@ -181,6 +187,21 @@ class RobotSession:
         )
 
 
+def commit_checkpoints(outcome: Outcome, store: CheckpointStore) -> int:
+    """Save an outcome's checkpoints (rule 5); call it once the outcome was published.
+
+    Returns how many were withheld: those of sessions with a transition the fence held back.
+    """
+    withheld = 0
+    for session, record in outcome.checkpoints:
+        if session.fenced:
+            withheld += 1
+        else:
+            store.save(record)
+    outcome.checkpoints.clear()  # committed once, even if published again
+    return withheld
+
+
 def summary_of(submap: Submap) -> SubmapSummary:
     """Convert a core submap to its wire summary."""
     return SubmapSummary(
@@ -211,6 +232,8 @@ class Outcome:
     catchups: list[CatchupRequest] = field(default_factory=list)  # queries for the shard
     frames_recovered: int = 0  # taken from a robot's cache and applied or held
     failures: list[tuple[RobotKey, Exception]] = field(default_factory=list)
+    # Records to save once the rest was published (rule 5, ``commit_checkpoints``).
+    checkpoints: list[tuple[RobotSession, SessionRecord]] = field(default_factory=list)
 
     def reject(
         self,
@@ -493,7 +516,7 @@ class SessionTable:
             self._drain_hold(current, now_s, out)
         else:
             self._apply_frames(current, ordered, out)
-        self._checkpoint_if_due(current, now_s)
+        self._checkpoint_if_due(current, now_s, out)
 
     def _admit(self, fleet: str, now_s: float, out: Outcome) -> str | None:
         """Make room for a new session; return why it cannot be opened, or None."""
@@ -536,7 +559,7 @@ class SessionTable:
         if pending:
             self._decide(session, out)
 
-    def _checkpoint_if_due(self, session: RobotSession, now_s: float) -> None:
+    def _checkpoint_if_due(self, session: RobotSession, now_s: float, out: Outcome) -> None:
         key = (session.fleet, session.robot)
         if (
             self._store is not None
@@ -549,7 +572,7 @@ class SessionTable:
                 )
             )
         ):
-            self._checkpoint(session, "open", now_s)
+            self._checkpoint(session, "open", now_s, out)
 
     # -- catch-up (rule 6) -----------------------------------------------------------------
 
@@ -657,7 +680,7 @@ class SessionTable:
             session.recovered += 1
             out.frames_recovered += 1
         self._drain_hold(session, now_s, out)
-        self._checkpoint_if_due(session, now_s)
+        self._checkpoint_if_due(session, now_s, out)
         return out
 
     def catchup_done(self, key: RobotKey, session_id: str, now_s: float) -> Outcome:
@@ -666,7 +689,7 @@ class SessionTable:
         session = self._open.get(key)
         if session is not None and session.session == session_id:
             self._release(session, out, now_s)
-            self._checkpoint_if_due(session, now_s)
+            self._checkpoint_if_due(session, now_s, out)
         return out
 
     def release_overdue(self, now_s: float) -> Outcome:
@@ -678,7 +701,7 @@ class SessionTable:
                 self._holding.discard(key)
             elif session.hold_until_s is not None and now_s >= session.hold_until_s:
                 self._release(session, out, now_s)
-                self._checkpoint_if_due(session, now_s)
+                self._checkpoint_if_due(session, now_s, out)
         return out
 
     @property
@@ -725,9 +748,9 @@ class SessionTable:
         session.frames_since_checkpoint = int(phase * self._checkpoint_every_frames)
         session.checkpoint_s = now_s - phase * self._checkpoint_interval_s
 
-    def _checkpoint(self, session: RobotSession, status: str, now_s: float) -> None:
+    def _checkpoint(self, session: RobotSession, status: str, now_s: float, out: Outcome) -> None:
         assert self._store is not None
-        self._store.save(self._record(session, status, is_open=True))
+        out.checkpoints.append((session, self._record(session, status, is_open=True)))
         session.frames_since_checkpoint = 0
         session.checkpoint_s = now_s
 
@@ -735,8 +758,11 @@ class SessionTable:
         """Bring a robot's checkpointed session back into memory, if the store has one."""
         assert self._store is not None
         fleet, robot = key
+        # A record of this outcome is not saved yet (an eviction earlier in the same batch).
+        record = next((r for _s, r in reversed(out.checkpoints) if r.key == key), None)
         try:
-            record = self._store.load(key)
+            if record is None:
+                record = self._store.load(key)
         except sqlite3.Error as exc:
             out.reject(
                 fleet, robot, None, ErrorCode.INTERNAL, f"state store unreadable: {exc}", None
@@ -954,7 +980,7 @@ class SessionTable:
             self._instance, is_open=False, epoch=self._epoch_of(session.fleet, session.robot)
         )
         if self._store is not None:
-            self._store.save(self._record(session, "closed", is_open=False))
+            out.checkpoints.append((session, self._record(session, "closed", is_open=False)))
         self._final_states[key] = final
         self._final_states.move_to_end(key)
         while len(self._final_states) > self._max_sessions:
@@ -978,7 +1004,7 @@ class SessionTable:
         self._release(session, out, now_s)
         if self._open.get(key) is not session:
             return  # an end that waited for the catch-up closed it
-        self._checkpoint(session, "evicted", now_s)
+        self._checkpoint(session, "evicted", now_s, out)
         del self._open[key]
         self._set_edges(session, 0)
         out.evicted += 1
@@ -996,7 +1022,7 @@ class SessionTable:
                 continue  # an end that waited for the catch-up closed it
             if session.partitioner.pending_frames:
                 self._decide(session, out)
-            self._checkpoint(session, "open", session.last_activity_s)
+            self._checkpoint(session, "open", session.last_activity_s, out)
             epoch = self._epoch_of(session.fleet, session.robot)
             out.suspended.append(session.state(self._instance, is_open=True, epoch=epoch))
             del self._open[key]
@@ -1019,7 +1045,7 @@ class SessionTable:
             session.hold_until_s = None
             self._holding.discard(key)
             if self._store is not None:
-                self._checkpoint(session, "open", now_s)
+                self._checkpoint(session, "open", now_s, out)
             del self._open[key]
             self._set_edges(session, 0)
             out.evicted += 1

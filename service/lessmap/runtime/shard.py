@@ -20,7 +20,9 @@ CovGraph's edges, ``SessionTable.decision_cost``) and is served what its deficit
   waits a few rounds while the other robots are served).
 
 A robot's turn is one ``handle_batch`` call under the table's lock, so state queries are
-answered between turns. ``max_batch_frames = 1`` still decides at every frame.
+answered between turns. ``max_batch_frames = 1`` still decides at every frame. What a turn
+produced is published before the lock is let go (``_step``): a partition handed over in
+between would otherwise checkpoint a session whose transition the fence then held back.
 
 Catch-up: when the table holds frames beyond a gap it returns ``CatchupRequest``s; the worker
 hands them to ``request_catchup`` (the service sends a Zenoh query with callbacks and
@@ -36,7 +38,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from lessmap.runtime.budget import pairs_of
 from lessmap.runtime.sessions import FRAME_COST, Outcome, Rejection, SessionTable
@@ -283,14 +285,10 @@ class Shard:
                     log.exception("shard %d failed in a round", self.index)
             now = time.monotonic()
             if self.table.holds:
-                with self.lock:
-                    overdue = self.table.release_overdue(now)
-                self._publish(overdue, now)
+                self._step(now, self.table.release_overdue, now)
             if now - self._last_sweep_s >= _IDLE_SWEEP_S:
                 self._last_sweep_s = now
-                with self.lock:
-                    expired = self.table.expire_idle(now)
-                self._publish(expired, now)
+                self._step(now, self.table.expire_idle, now)
             with self._ready:
                 if self._abandon or (self._stopping and not self._queue and not self._lanes):
                     return
@@ -310,6 +308,16 @@ class Shard:
     def _publish(self, outcome: Outcome, now: float) -> None:
         """Publish an outcome, then send the catch-up queries it asks for."""
         self._outbox.publish(outcome, now)
+        self._ask_caches(outcome)
+
+    def _step(self, now: float, step: Callable[..., Outcome], *args: Any) -> None:
+        """Run one table method and publish its outcome under the table's lock (module doc)."""
+        with self.lock:
+            outcome = step(*args)
+            self._outbox.publish(outcome, now)
+        self._ask_caches(outcome)
+
+    def _ask_caches(self, outcome: Outcome) -> None:
         if self._request_catchup is not None:
             for request in outcome.catchups:
                 self._request_catchup(self, request)
@@ -471,9 +479,7 @@ class Shard:
     def _apply(
         self, live: list[tuple[str, str, Frame | SessionEnd]], now: float, decide_every: int | None
     ) -> None:
-        with self.lock:
-            outcome = self.table.handle_batch(live, now, decide_every)
-        self._publish(outcome, now)
+        self._step(now, self.table.handle_batch, live, now, decide_every)
 
     def _recover(self, items: list[Inbound], now: float) -> None:
         """Hand catch-up replies and ends to the table, in queue order.
@@ -488,13 +494,10 @@ class Shard:
             except WireError:
                 continue
             if item.kind == CATCHUP_DONE:
-                with self.lock:
-                    outcome = self.table.recover(
-                        (fleet, robot), item.payload.decode(), frames.pop((fleet, robot), []), now
-                    )
-                    ended = self.table.catchup_done((fleet, robot), item.payload.decode(), now)
-                self._publish(outcome, now)
-                self._publish(ended, now)
+                key, session_id = (fleet, robot), item.payload.decode()
+                got = frames.pop(key, [])
+                self._step(now, self.table.recover, key, session_id, got, now)
+                self._step(now, self.table.catchup_done, key, session_id, now)
                 continue
             try:
                 message = decode_inbound(item.payload, self._limits)
@@ -507,11 +510,5 @@ class Shard:
             # Replies whose query has not ended yet: fill the hold now, release at the end.
             sessions = {f.session for f in robot_frames}
             for session_id in sessions:
-                with self.lock:
-                    outcome = self.table.recover(
-                        (fleet, robot),
-                        session_id,
-                        [f for f in robot_frames if f.session == session_id],
-                        now,
-                    )
-                self._publish(outcome, now)
+                mine = [f for f in robot_frames if f.session == session_id]
+                self._step(now, self.table.recover, (fleet, robot), session_id, mine, now)
