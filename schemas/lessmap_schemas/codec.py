@@ -12,6 +12,12 @@ Decoding is the service's hot path and its attack surface, so the order of check
 6. limits tighter than the v1 format bounds, if the caller set any.
 
 Every failure is a `WireError` carrying an `ErrorCode`; nothing else escapes `decode`.
+
+`decode_inbound` first tries a shortcut for the message a service receives most, a plain
+`Frame` (`_plain_frame`): the same bounded unpack without the per-map Python hook, a repeated
+top-level key detected from the map header instead, then the model's validator directly.
+Anything it does not accept goes through `decode` from the bytes again, so every decision,
+error code and message is the full path's (the golden vectors and `tests/schemas` check it).
 """
 
 from __future__ import annotations
@@ -148,7 +154,66 @@ def decode_inbound(data: bytes, limits: WireLimits = DEFAULT_LIMITS) -> Frame | 
     Raises:
         WireError: As `decode`.
     """
+    frame = _plain_frame(data, limits)
+    if frame is not None:
+        return frame
     return cast("Frame | SessionEnd", decode(data, (Frame, SessionEnd), limits))
+
+
+# The fixmap headers of a Frame's 6 fields (no pose) and 7 fields (pose, possibly nil).
+_FRAME_HEADERS = {0x86: 6, 0x87: 7}
+_validate_frame = Frame.__pydantic_validator__.validate_python
+# [(limits, unpack options)] of the last limits seen, replaced whole (safe across threads): a
+# reader keeps one WireLimits, and hashing it for `_plan`'s cache costs a third of the shortcut.
+_shortcut: list[tuple[WireLimits | None, dict[str, Any] | None]] = [(None, None)]
+
+
+def _plain_frame(data: bytes, limits: WireLimits) -> Frame | None:
+    """Return the Frame `decode` would return, or None to let `decode` decide.
+
+    It accepts a subset of what `decode` accepts, with the same result: the payload bound
+    and the unpack bounds are `decode`'s; a top-level map of n entries that unpacks to n keys
+    repeats none, and a payload the Frame validator accepts holds no other map (every field
+    is a string, a number or a list of numbers). Limits that tighten the format bounds, and
+    everything unusual, go to `decode`.
+    """
+    entries = _FRAME_HEADERS.get(data[0]) if data else None
+    if entries is None or len(data) > limits.max_payload_bytes:
+        return None
+    cached, unpack = _shortcut[0]
+    if cached is not limits:
+        unpack = _shortcut_options(limits)
+    if unpack is None:
+        return None
+    try:
+        obj = msgpack.unpackb(data, **unpack)
+    except _UNPACK_ERRORS:
+        return None
+    if type(obj) is not dict or len(obj) != entries:
+        return None
+    version = obj.get("v")
+    features = obj.get("features")
+    if (
+        obj.get("type") != "Frame"
+        or type(version) is not int
+        or version != WIRE_VERSION
+        or (type(features) is list and len(features) > limits.max_features_per_frame)
+    ):
+        return None
+    try:
+        frame: Frame = _validate_frame(obj)
+    except ValidationError:
+        return None
+    return frame
+
+
+def _shortcut_options(limits: WireLimits) -> dict[str, Any] | None:
+    unpack: dict[str, Any] | None = None
+    if not limits.tightens_format:
+        unpack = dict(_plan((Frame, SessionEnd), limits).unpack)
+        del unpack["object_pairs_hook"]
+    _shortcut[0] = (limits, unpack)
+    return unpack
 
 
 def _short(value: object) -> str:
