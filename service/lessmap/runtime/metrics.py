@@ -1,8 +1,80 @@
-"""Prometheus metrics of one service instance (its own registry, so instances never mix)."""
+"""Prometheus metrics of one service instance (its own registry, so instances never mix).
+
+The per-frame histograms are ``BatchHistogram``s: the same exposition as prometheus_client's
+``Histogram`` (buckets, count, sum), but one lock and one bisection per value, and a batch of
+values per call (``observe_many``), since the worker observes two latencies per frame.
+"""
 
 from __future__ import annotations
 
-from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+import math
+import threading
+from bisect import bisect_left
+from typing import TYPE_CHECKING
+
+from prometheus_client import CollectorRegistry, Counter, Gauge
+from prometheus_client.metrics_core import HistogramMetricFamily
+from prometheus_client.registry import Collector
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Sequence
+
+
+class BatchHistogram(Collector):
+    """A cumulative histogram fed one value (``observe``) or a batch (``observe_many``)."""
+
+    def __init__(
+        self,
+        name: str,
+        documentation: str,
+        *,
+        buckets: Sequence[float],
+        registry: CollectorRegistry,
+    ) -> None:
+        bounds = sorted(float(b) for b in buckets)
+        if bounds[-1] != math.inf:
+            bounds.append(math.inf)
+        self._name = name
+        self._documentation = documentation
+        self._bounds = tuple(bounds)
+        self._counts = [0] * len(bounds)  # per bucket, not cumulative
+        self._sum = 0.0
+        self._lock = threading.Lock()
+        registry.register(self)
+
+    def observe(self, value: float) -> None:
+        """Count one value (seconds) into the first bucket whose bound is >= it."""
+        index = bisect_left(self._bounds, value)
+        with self._lock:
+            self._counts[index] += 1
+            self._sum += value
+
+    def observe_many(self, values: Sequence[float]) -> None:
+        """Count a batch of values, as ``observe`` each, under one lock."""
+        bounds = self._bounds
+        indices = [bisect_left(bounds, value) for value in values]
+        with self._lock:
+            counts = self._counts
+            for index in indices:
+                counts[index] += 1
+            total = self._sum
+            for value in values:  # one by one: the same float sum as ``observe`` each
+                total += value
+            self._sum = total
+
+    def collect(self) -> Iterator[HistogramMetricFamily]:
+        """Yield the histogram as Prometheus reads it (cumulative buckets, sum, count)."""
+        with self._lock:
+            counts = list(self._counts)
+            total = self._sum
+        cumulative = 0
+        buckets: list[tuple[str, float]] = []
+        for bound, count in zip(self._bounds, counts, strict=True):
+            cumulative += count
+            buckets.append(("+Inf" if bound == math.inf else repr(bound), cumulative))
+        yield HistogramMetricFamily(
+            self._name, self._documentation, buckets=buckets, sum_value=total
+        )
 
 
 class ServiceMetrics:
@@ -93,19 +165,19 @@ class ServiceMetrics:
         self.queue_depth = Gauge(
             "lessmap_queue_depth", "Messages waiting in the shard queues", registry=r
         )
-        self.decision_seconds = Histogram(
+        self.decision_seconds = BatchHistogram(
             "lessmap_decision_seconds",
             "Time of one spectral decision (apply excluded)",
             buckets=(0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
             registry=r,
         )
-        self.frame_latency_seconds = Histogram(
+        self.frame_latency_seconds = BatchHistogram(
             "lessmap_frame_latency_seconds",
             "Receipt of an inbound sample to the end of the decision covering it (published)",
             buckets=(0.001, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0),
             registry=r,
         )
-        self.queue_latency_seconds = Histogram(
+        self.queue_latency_seconds = BatchHistogram(
             "lessmap_queue_latency_seconds",
             "Time from receipt to processing of an inbound sample",
             buckets=(0.001, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0),

@@ -21,7 +21,6 @@ import logging
 import queue
 import threading
 import time
-import zlib
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -33,6 +32,7 @@ from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.ownership import Change, Ownership
+from lessmap.runtime.receiver import Receiver, shard_index
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, PROBE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
@@ -40,7 +40,7 @@ from lessmap.runtime.zenoh_config import service_config
 from lessmap.settings import EMBEDDED_ENDPOINT
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
-from lessmap_schemas.errors import ErrorCode, WireError
+from lessmap_schemas.errors import WireError
 from lessmap_schemas.messages import Health, SessionState, Submap
 from lessmap_schemas.partition import PARTITIONS, partition_of
 
@@ -83,10 +83,10 @@ class Service:
             max_bytes=settings.state_max_bytes,
         )
         self._started_s = time.monotonic()
-        self._last_sample_s = 0.0
         self.metrics_port: int | None = None
         self.ownership = Ownership(settings.instance, freeze_s=settings.fence_after_s)
-        self._frame_subs: dict[int, zenoh.Subscriber[None]] = {}
+        self._frame_subs: dict[int, zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]] = {}
+        self._receiver: Receiver | None = None
         self._standby_subs: dict[int, zenoh.Subscriber[None]] = {}
         self._liveliness_sub: zenoh.Subscriber[None] | None = None
         # Liveliness changes, freezes and shipped checkpoints, for the ownership thread.
@@ -173,8 +173,16 @@ class Service:
                     owns=self.ownership.owns,
                 )
             )
+        self._receiver = Receiver(
+            self._shards,
+            self.metrics,
+            max_payload_bytes=s.limits.max_payload_bytes,
+            queue_depth=s.queue_depth,
+            owned=lambda p: self.ownership.epoch_of(p) is not None,
+        )
         for shard in self._shards:
             shard.start()
+        self._receiver.start()
         self._query_thread.start()
         # Metrics before any declaration: frames can arrive as soon as a partition is taken.
         if s.metrics_port is not None:
@@ -276,10 +284,14 @@ class Service:
         if self._liveliness_sub is not None:
             self._liveliness_sub.undeclare()
             self._liveliness_sub = None
-        for subs in (self._frame_subs, self._standby_subs):
-            for sub in subs.values():
-                sub.undeclare()
-            subs.clear()
+        for frames_sub in self._frame_subs.values():
+            frames_sub.undeclare()
+        self._frame_subs.clear()
+        if self._receiver is not None:
+            self._receiver.stop()  # the last sweep takes what the channels still hold
+        for standby_sub in self._standby_subs.values():
+            standby_sub.undeclare()
+        self._standby_subs.clear()
         for declared in reversed(self._declared):
             declared.undeclare()  # type: ignore[no-untyped-call]
         self._declared.clear()
@@ -313,35 +325,14 @@ class Service:
         Frames a robot sent before the stop may still be on their way through Zenoh; taking
         them in before undeclaring the subscriber loses none that already arrived.
         """
+        receiver = self._receiver
+        if receiver is None:
+            return
         deadline = time.monotonic() + grace_s
-        while time.monotonic() < deadline and time.monotonic() - self._last_sample_s < _QUIET_S:
+        while time.monotonic() < deadline and time.monotonic() - receiver.last_sample_s < _QUIET_S:
             time.sleep(0.02)
 
-    # -- receive path (Zenoh callback: enqueue only) ----------------------------------------
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        chunk = key.rsplit("/", 1)[-1]
-        if chunk.isdigit() and self.ownership.epoch_of(int(chunk)) is None:
-            # In flight when the partition moved, or during a freeze: the owner has it.
-            self.metrics.frames_foreign.inc()
-            return
-        shard = self._shard_of(key)
-        self._last_sample_s = time.monotonic()
-        self.metrics.frames_received.inc()
-        payload = sample.payload
-        if len(payload) > self.settings.limits.max_payload_bytes:
-            # Decided here, before copying the bytes: a huge sample never reaches a queue.
-            limit = self.settings.limits.max_payload_bytes
-            self._reject_on_receipt(shard, key, f"payload of {len(payload)} bytes exceeds {limit=}")
-            return
-        if not shard.offer(Inbound(time.monotonic(), key, payload.to_bytes())):
-            if shard.stopping:
-                detail = "the service is stopping; frame not taken (a restart recovers it)"
-            else:
-                depth = self.settings.queue_depth
-                detail = f"shard {shard.index} queue full ({depth=}); frame dropped"
-            self._reject_on_receipt(shard, key, detail)
+    # -- receive path (``receiver.py``; catch-up replies: callbacks that enqueue only) ----
 
     def _request_catchup(self, shard: Shard, request: CatchupRequest) -> None:
         """Ask a robot's publication cache for its newest frames (worker thread, no wait).
@@ -387,13 +378,7 @@ class Service:
 
     def _shard_of(self, key: str) -> Shard:
         """Return the shard (worker) of a robot's key: always the same one for a robot."""
-        return self._shards[zlib.crc32(key.encode()) % len(self._shards)]
-
-    @staticmethod
-    def _reject_on_receipt(shard: Shard, key: str, detail: str) -> None:
-        # Runs on Zenoh's thread: no Zenoh calls here. Hand the note to the shard, whose
-        # worker publishes it as an Error on the robot's key.
-        shard.note_rejection(key, ErrorCode.LIMIT_EXCEEDED, detail)
+        return self._shards[shard_index(key, len(self._shards))]
 
     # -- queries -----------------------------------------------------------------------------
 
@@ -594,6 +579,8 @@ class Service:
             sub = self._frame_subs.pop(p, None)
             if sub is not None:
                 sub.undeclare()
+        if self._receiver is not None:
+            self._receiver.watch(self._frame_subs)
         now = time.monotonic()
         dropped = 0
         for shard in self._shards:
@@ -622,10 +609,12 @@ class Service:
         assert session is not None
         for p in partitions:
             self.ownership.acquire(p)
-            if p not in self._frame_subs:
+            if p not in self._frame_subs and self._receiver is not None:
                 self._frame_subs[p] = session.declare_subscriber(
-                    keys.frames_of_partition(p), self._on_sample
+                    keys.frames_of_partition(p), self._receiver.channel()
                 )
+        if self._receiver is not None:
+            self._receiver.watch(self._frame_subs)
         for p in partitions:
             self._probe_caches(p)
         self.metrics.partition_moves.labels(direction="in").inc(len(partitions))

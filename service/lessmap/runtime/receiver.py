@@ -1,0 +1,173 @@
+"""The receive path: the frames subscribers' channels, swept in batches into the shards.
+
+Each owned partition has one frames subscriber whose handler is a Zenoh ``FifoChannel``:
+Zenoh's thread only pushes the sample into the channel, and no Python runs per sample on
+Zenoh's side. One thread, ``lessmap-receive``, sweeps every channel once per tick and hands
+what it found to the shards: one ``Shard.offer_many`` (one lock, one wake-up of the worker)
+per shard and sweep.
+
+Why not a Python callback per sample: zenoh-python runs such a callback on a thread of its
+own per subscriber, so every frame cost a thread wake-up and two GIL hand-offs (to the
+callback and back to the shard worker), and woke the worker once more. A tick trades at most
+``_TICK_S`` of latency for one wake-up per sweep, whatever the rate (docs/BENCHMARKS.md,
+"Receive path and decode").
+
+Never blocking Zenoh: a full ``FifoChannel`` blocks Zenoh's thread (as zenoh-python's own
+per-callback channel of 256 samples did), so the channels are deep (the shard queue depth)
+and the sweep only moves samples on: the bounded shard queues decide what is refused, and
+the worker reports it. A sample's size is checked before its bytes are copied. Samples of a
+partition no longer owned (in flight when it moved, or during a freeze) are counted as
+foreign and dropped. ``receipt`` in the latency histograms is the sweep that took the sample.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import zlib
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from lessmap.runtime.shard import Inbound
+from lessmap_schemas.errors import ErrorCode
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping, Sequence
+
+    from lessmap.runtime.metrics import ServiceMetrics
+    from lessmap.runtime.shard import Shard
+
+log = logging.getLogger(__name__)
+
+_TICK_S = 0.005  # sweep period while samples arrive
+_IDLE_TICK_S = 0.02  # sweep period once nothing arrived for _IDLE_AFTER_S
+_IDLE_AFTER_S = 1.0
+_SWEEP_MAX = 8192  # samples taken from one channel per sweep: the others get their turn
+_CLOSING_SWEEPS = 200  # an undeclared channel is swept this often at most, then let go
+
+Channel = zenoh.Handler[zenoh.Sample]
+
+
+def shard_index(key: str, shards: int) -> int:
+    """Return the shard of a robot's key: always the same one for a robot."""
+    return zlib.crc32(key.encode()) % shards
+
+
+class Receiver:
+    """Sweeps the frames channels of the owned partitions into the shards."""
+
+    def __init__(
+        self,
+        shards: Sequence[Shard],
+        metrics: ServiceMetrics,
+        *,
+        max_payload_bytes: int,
+        queue_depth: int,
+        owned: Callable[[int], bool],
+    ) -> None:
+        self._shards = tuple(shards)
+        self._metrics = metrics
+        self._max_payload = max_payload_bytes
+        self._queue_depth = queue_depth
+        self._owned = owned
+        self._channels: tuple[tuple[int, Channel], ...] = ()  # replaced whole, never mutated
+        # Channels of undeclared subscribers: what they still hold is counted, then dropped.
+        self._closing: list[tuple[int, Channel, int]] = []
+        self._lock = threading.Lock()  # one sweep at a time (the thread's, or the last one)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="lessmap-receive", daemon=True)
+        self.last_sample_s = 0.0  # time.monotonic() of the last sweep that found a sample
+
+    def channel(self) -> zenoh.handlers.FifoChannel[zenoh.Sample]:
+        """Return a handler to declare a frames subscriber with."""
+        return zenoh.handlers.FifoChannel(self._queue_depth)
+
+    def watch(self, subscribers: Mapping[int, zenoh.Subscriber[Channel]]) -> None:
+        """Sweep these subscribers (partition -> subscriber) from now on."""
+        with self._lock:
+            gone = [(p, ch, 0) for p, ch in self._channels if p not in subscribers]
+            self._closing.extend(gone)
+            self._channels = tuple((p, sub.handler) for p, sub in sorted(subscribers.items()))
+
+    def start(self) -> None:
+        """Start the sweeping thread."""
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop sweeping, then sweep once more (undeclared channels keep what they hold)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        self.sweep()
+
+    def _run(self) -> None:
+        tick = _TICK_S
+        while not self._stop.wait(tick):
+            try:
+                self.sweep()
+            except Exception:
+                # A bug must not stop the receive path: log it, sweep again next tick.
+                log.exception("receive sweep failed")
+            idle = time.monotonic() - self.last_sample_s > _IDLE_AFTER_S
+            tick = _IDLE_TICK_S if idle else _TICK_S
+
+    def sweep(self) -> int:
+        """Move every waiting sample to its shard; return how many were found."""
+        found = 0
+        with self._lock:
+            for partition, channel in self._channels:
+                found += self._drain(partition, channel)[0]
+            closing, self._closing = self._closing, []
+            for partition, channel, sweeps in closing:
+                taken, closed = self._drain(partition, channel)
+                found += taken
+                if not closed and sweeps < _CLOSING_SWEEPS:
+                    self._closing.append((partition, channel, sweeps + 1))
+        return found
+
+    def _drain(self, partition: int, channel: Channel) -> tuple[int, bool]:
+        """Take what one channel holds: (samples taken, channel closed)."""
+        samples: list[zenoh.Sample] = []
+        closed = False
+        try:
+            while len(samples) < _SWEEP_MAX and (sample := channel.try_recv()) is not None:
+                samples.append(sample)
+        except zenoh.ZError:
+            closed = True  # undeclared, and empty now
+        if samples:
+            self._hand_on(partition, samples)
+        return len(samples), closed
+
+    def _hand_on(self, partition: int, samples: list[zenoh.Sample]) -> None:
+        now = time.monotonic()
+        self.last_sample_s = now
+        if not self._owned(partition):
+            # In flight when the partition moved, or during a freeze: the owner has it.
+            self._metrics.frames_foreign.inc(len(samples))
+            return
+        self._metrics.frames_received.inc(len(samples))
+        limit = self._max_payload
+        shards = self._shards
+        batches: list[list[Inbound]] = [[] for _ in shards]
+        for sample in samples:
+            key = str(sample.key_expr)
+            payload = sample.payload
+            index = 0 if len(shards) == 1 else shard_index(key, len(shards))
+            if len(payload) > limit:
+                # Decided before copying the bytes: a huge sample never reaches a queue.
+                detail = f"payload of {len(payload)} bytes exceeds {limit=}"
+                shards[index].note_rejection(key, ErrorCode.LIMIT_EXCEEDED, detail)
+                continue
+            batches[index].append(Inbound(now, key, payload.to_bytes()))
+        for shard, batch in zip(shards, batches, strict=True):
+            if not batch:
+                continue
+            for item in shard.offer_many(batch):
+                if shard.stopping:
+                    detail = "the service is stopping; frame not taken (a restart recovers it)"
+                else:
+                    depth = self._queue_depth
+                    detail = f"shard {shard.index} queue full ({depth=}); frame dropped"
+                shard.note_rejection(item.key, ErrorCode.LIMIT_EXCEEDED, detail)
