@@ -25,9 +25,11 @@ if TYPE_CHECKING:
     from tests.conftest import ServeProcess
 
 SUBPROTOCOL = "foxglove.sdk.v1"
-TOPICS = {"/lessmap/scene", "/lessmap/transitions", "/lessmap/state"}
+TOPICS = {"/lessmap/scene", "/lessmap/transitions", "/lessmap/state", "/lessmap/tf"}
 ROBOTS = ["amr1", "amr2"]
 FRAMES = FRAMES_PER_ROOM * ROOMS
+#: The doorway label of each robot's first transition (protobuf keeps strings verbatim).
+DOOR_LABEL = {robot: f"{robot} 0→1".encode() for robot in ROBOTS}
 
 
 def connect_ws(port: int) -> Any:
@@ -43,6 +45,38 @@ def connect_ws(port: int) -> Any:
         except OSError:
             assert time.monotonic() < deadline, "the view server never listened"
             time.sleep(0.1)
+
+
+def subscribe_all(ws: Any, topics: set[str]) -> tuple[dict[int, str], dict[str, dict[str, Any]]]:
+    """Wait until ``topics`` are advertised and subscribe to every channel.
+
+    Returns:
+        The topic of each subscription id, and each topic's advertised channel.
+    """
+    channels: dict[int, dict[str, Any]] = {}
+    deadline = time.monotonic() + 20
+    while not topics <= {c["topic"] for c in channels.values()}:
+        assert time.monotonic() < deadline, f"advertised: {channels}"
+        message = ws.recv(timeout=5)
+        if isinstance(message, str):
+            op = json.loads(message)
+            if op["op"] == "advertise":
+                channels.update({c["id"]: c for c in op["channels"]})
+    subscriptions = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+    by_topic = {c["topic"]: c for c in channels.values()}
+    return {i: channels[cid]["topic"] for i, cid in enumerate(channels)}, by_topic
+
+
+def receive(ws: Any, topic_of: dict[int, str], into: dict[str, list[bytes]]) -> None:
+    """Receive one message (1 s at most); keep it by topic if it is message data."""
+    try:
+        message = ws.recv(timeout=1)
+    except TimeoutError:
+        return
+    if isinstance(message, bytes) and message[0] == 0x01:  # MessageData
+        sub_id, _log_time = struct.unpack_from("<IQ", message, 1)
+        into.setdefault(topic_of[sub_id], []).append(message[13:])
 
 
 def test_view_serves_the_fleet_over_the_foxglove_websocket_protocol(
@@ -61,18 +95,7 @@ def test_view_serves_the_fleet_over_the_foxglove_websocket_protocol(
     try:
         with connect_ws(port) as ws:
             assert ws.subprotocol == SUBPROTOCOL
-            channels: dict[int, dict[str, Any]] = {}
-            deadline = time.monotonic() + 20
-            while set(c["topic"] for c in channels.values()) < TOPICS | {"/lessmap/covgraph"}:
-                assert time.monotonic() < deadline, f"advertised: {channels}"
-                message = ws.recv(timeout=5)
-                if isinstance(message, str):
-                    op = json.loads(message)
-                    if op["op"] == "advertise":
-                        channels.update({c["id"]: c for c in op["channels"]})
-            subscriptions = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-            topic_of = {i: channels[cid]["topic"] for i, cid in enumerate(channels)}
+            topic_of, by_topic = subscribe_all(ws, TOPICS | {"/lessmap/covgraph"})
             with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
                 assert conn.wait_for_service(20)
                 publish_walks(conn, fleet_name, ROBOTS)
@@ -92,21 +115,14 @@ def test_view_serves_the_fleet_over_the_foxglove_websocket_protocol(
                 while not (
                     applied_everywhere()
                     and len(received.get("/lessmap/transitions", [])) >= len(ROBOTS)
-                    and any(b"amr2/transitions" in p for p in received.get("/lessmap/scene", []))
+                    and any(DOOR_LABEL["amr2"] in p for p in received.get("/lessmap/scene", []))
                     and received.get("/lessmap/covgraph")
                 ):
                     assert time.monotonic() < deadline, {k: len(v) for k, v in received.items()}
-                    try:
-                        message = ws.recv(timeout=1)
-                    except TimeoutError:
-                        continue
-                    if isinstance(message, bytes) and message[0] == 0x01:  # MessageData
-                        sub_id, _log_time = struct.unpack_from("<IQ", message, 1)
-                        received.setdefault(topic_of[sub_id], []).append(message[13:])
+                    receive(ws, topic_of, received)
     finally:
         summary = stop_command(view)
 
-    by_topic = {c["topic"]: c for c in channels.values()}
     assert by_topic["/lessmap/state"]["encoding"] == "json"
     assert by_topic["/lessmap/transitions"]["schemaName"] == "foxglove.Log"
     assert by_topic["/lessmap/scene"]["schemaName"] == "foxglove.SceneUpdate"
@@ -119,6 +135,66 @@ def test_view_serves_the_fleet_over_the_foxglove_websocket_protocol(
     assert summary["port"] == port
     assert summary["transitions"] == len(ROBOTS)
     assert summary["frames"] == len(ROBOTS) * FRAMES
+
+
+def test_a_client_that_connects_after_the_run_gets_the_scene_and_recent_transitions(
+    serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
+) -> None:
+    import lessmap_client
+
+    service = serve("--memory-only", "--max-batch-frames", "1")
+    port = free_port()
+    view = start_command(
+        tmp_path,
+        "view",
+        *("view", "--fleet", fleet_name, "-e", service.endpoint, "--port", str(port)),
+    )
+    log = tmp_path / "view.log"
+    received: dict[str, list[bytes]] = {}
+    try:
+        wait_until(lambda: "following fleet" in log.read_text(), 30, "the view to subscribe")
+        with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
+            assert conn.wait_for_service(20)
+            publish_walks(conn, fleet_name, ROBOTS)
+
+            def applied() -> bool:
+                states = {s.robot: s.frames_applied for s in conn.states(fleet_name)}
+                return all(states.get(r) == FRAMES for r in ROBOTS)
+
+            wait_until(applied, 30, "every frame to be applied")
+        wait_until(
+            lambda: log.read_text().count("submap 0 -> 1") == len(ROBOTS),
+            30,
+            "the view to receive the transitions",
+        )
+        # The run is over: no client was connected while it produced anything.
+        with connect_ws(port) as ws:
+            topic_of, _ = subscribe_all(ws, TOPICS)
+            deadline = time.monotonic() + 20
+            while not (
+                received.get("/lessmap/scene")
+                and len(received.get("/lessmap/transitions", [])) >= len(ROBOTS)
+                and received.get("/lessmap/tf")
+                and any(b"amr2" in p for p in received.get("/lessmap/state", []))
+            ):
+                assert time.monotonic() < deadline, {k: len(v) for k, v in received.items()}
+                receive(ws, topic_of, received)
+    finally:
+        summary = stop_command(view)
+
+    first = received["/lessmap/scene"][0]
+    for robot in ROBOTS:
+        assert f"{robot}/trajectory".encode() in first
+        assert DOOR_LABEL[robot] in first
+    logs = b"".join(received["/lessmap/transitions"])
+    for robot in ROBOTS:
+        assert f"{robot}: submap 0 → 1 from seq {FRAMES_PER_ROOM}".encode() in logs
+    assert b"map" in received["/lessmap/tf"][0]
+    rows = json.loads(received["/lessmap/state"][-1])["robots"]  # the table comes every second
+    assert [r["robot"] for r in rows] == ROBOTS
+    assert summary["scene re-sends"] >= 1
+    assert summary["transitions re-sent"] == len(ROBOTS)
+    assert summary["transitions"] == len(ROBOTS)
 
 
 def test_record_writes_the_same_channels_to_mcap(
@@ -180,7 +256,7 @@ def test_record_writes_the_same_channels_to_mcap(
     assert {r["submap"] for r in final["robots"]} == {1}
     scenes = b"".join(payloads["/lessmap/scene"])
     assert b"amr1/trajectory" in scenes
-    assert b"amr2/transitions" in scenes
+    assert DOOR_LABEL["amr2"] in scenes
 
 
 def test_record_refuses_to_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -20,6 +20,8 @@ if TYPE_CHECKING:
     import foxglove
     from foxglove.mcap import MCAPWriter
 
+    from lessmap.viz.feed import Channels, LateJoiners
+
 log = logging.getLogger(__name__)
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -82,10 +84,20 @@ def run_view(args: argparse.Namespace) -> int:
 def _run_view(args: argparse.Namespace, stop: StopSignal) -> int:
     import foxglove
 
-    context = foxglove.Context()
+    from lessmap.viz.feed import Channels, LateJoiners
+
+    # Two contexts: what is re-sent to a client that subscribes late goes to the server only,
+    # not into the MCAP file of --mcap. The channels exist before the server starts.
+    with_graph = args.covgraph is not None
+    live = Channels(foxglove.Context(), covgraph=with_graph)
+    joiners = LateJoiners()
     try:
         server = foxglove.start_server(
-            name=f"lessmap {args.fleet}", host=args.host, port=args.port, context=context
+            name=f"lessmap {args.fleet}",
+            host=args.host,
+            port=args.port,
+            context=live.context,
+            server_listener=joiners,
         )
     except Exception as exc:  # foxglove raises its own error kinds for a taken port
         msg = f"cannot serve on {args.host}:{args.port}: {exc}"
@@ -96,9 +108,10 @@ def _run_view(args: argparse.Namespace, stop: StopSignal) -> int:
         args.host,
         port,
     )
-    writer = _open_mcap(args.mcap, context, overwrite=False) if args.mcap else None
+    record = Channels(foxglove.Context(), covgraph=with_graph) if args.mcap else None
+    writer = None if record is None else _open_mcap(args.mcap, record.context, overwrite=False)
     try:
-        counts = _follow(args, context, stop)
+        counts = _follow(args, stop, live=live, record=record, joiners=joiners)
     finally:
         if writer is not None:
             writer.close()
@@ -116,10 +129,12 @@ def run_record(args: argparse.Namespace) -> int:
 def _run_record(args: argparse.Namespace, stop: StopSignal) -> int:
     import foxglove
 
-    context = foxglove.Context()
-    writer = _open_mcap(args.mcap, context, overwrite=args.overwrite)
+    from lessmap.viz.feed import Channels
+
+    record = Channels(foxglove.Context(), covgraph=args.covgraph is not None)
+    writer = _open_mcap(args.mcap, record.context, overwrite=args.overwrite)
     try:
-        counts = _follow(args, context, stop)
+        counts = _follow(args, stop, record=record)
     finally:
         writer.close()
     print(json.dumps({"fleet": args.fleet, "mcap": str(args.mcap), **counts}))
@@ -140,7 +155,12 @@ def _open_mcap(path: Path, context: foxglove.Context, *, overwrite: bool) -> MCA
 
 
 def _follow(
-    args: argparse.Namespace, context: foxglove.Context, stop: StopSignal
+    args: argparse.Namespace,
+    stop: StopSignal,
+    *,
+    live: Channels | None = None,
+    record: Channels | None = None,
+    joiners: LateJoiners | None = None,
 ) -> dict[str, int]:
     from lessmap.viz.feed import FleetFeed
     from lessmap_client.connection import Connection
@@ -149,7 +169,15 @@ def _follow(
     session = open_session(args.connect or [DEFAULT_ENDPOINT], timeout_s=args.connect_timeout)
     try:
         with Connection.from_session(session) as conn:
-            feed = FleetFeed(session, conn, args.fleet, context, covgraph=args.covgraph).start()
+            feed = FleetFeed(
+                session,
+                conn,
+                args.fleet,
+                live=live,
+                record=record,
+                joiners=joiners,
+                covgraph=args.covgraph,
+            ).start()
             try:
                 stop.wait(args.duration)
             finally:

@@ -6,6 +6,17 @@ fleet's frames keys, which no SDK call offers, hence Zenoh here), the service's 
 ``state_period_s``). Zenoh's and the SDK's threads only queue what arrives; the feed's own
 thread updates the model and logs scene updates at most every ``scene_period_s``, only for
 robots that changed.
+
+Late joiners. Live messages reach only the clients subscribed when they are logged, so a
+client that connects (or subscribes) later would see an empty scene and log. The Foxglove
+SDK calls a server listener's ``on_subscribe`` after the new subscription is in place;
+``LateJoiners`` notes the topic and the feed's thread re-sends that channel's current
+picture: the whole scene, the ``map`` transform, the last state table, the CovGraph, and the
+recent transitions (``RECENT_TRANSITIONS_PER_ROBOT`` per robot). The Python SDK (0.30) cannot
+send to one client (its ``Client`` has no sink id), so a re-send goes to every client
+subscribed to that channel: harmless for the scene, transform and table, which replace what a
+client shows, but a client already following the log sees those recent entries once more.
+Re-sends go only to the live server's context, never into an MCAP file.
 """
 
 from __future__ import annotations
@@ -14,12 +25,13 @@ import logging
 import queue
 import threading
 import time
-from collections import Counter
-from typing import TYPE_CHECKING
+from collections import Counter, deque
+from typing import TYPE_CHECKING, Any
 
 import foxglove
 import zenoh
-from foxglove.channels import LogChannel, SceneUpdateChannel
+from foxglove.channels import FrameTransformChannel, LogChannel, SceneUpdateChannel
+from foxglove.websocket import ServerListener
 
 from lessmap.viz.model import FleetModel
 from lessmap.viz.scene import (
@@ -27,8 +39,14 @@ from lessmap.viz.scene import (
     SCENE_TOPIC,
     STATE_SCHEMA,
     STATE_TOPIC,
+    TF_TOPIC,
     TRANSITIONS_TOPIC,
     covgraph_entity,
+    doorway_entity,
+    doorways,
+    fleet_entities,
+    map_transform,
+    previous_entity,
     scene,
     state_table,
     track_entities,
@@ -40,21 +58,77 @@ from lessmap_schemas.errors import WireError
 from lessmap_schemas.messages import Frame, Transition
 
 if TYPE_CHECKING:
+    from foxglove.messages import Log, SceneEntity, SceneUpdate
+    from foxglove.websocket import ChannelView, Client
+
     from lessmap_client.connection import Connection
     from lessmap_client.subscription import Subscription
 
 log = logging.getLogger(__name__)
 
+#: Transitions re-sent per robot to a client that subscribes late: about what the Log panel
+#: of the shipped layout shows, and each robot's last few areas (a sim robot makes 14-18
+#: transitions in 600 frames). Older ones stay in the state table's counts and in recordings.
+RECENT_TRANSITIONS_PER_ROBOT = 10
+#: At most this many in one re-send (the newest): the SDK queues up to 1024 messages per
+#: client and drops the oldest beyond that, which must not be the scene sent alongside.
+RECENT_TRANSITIONS_MAX = 500
+
+
+class LateJoiners(ServerListener):
+    """A Foxglove server listener that notes the topics clients subscribe to.
+
+    Called on the SDK's threads: it only records the topic; the feed's thread re-sends.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._topics: set[str] = set()
+
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        """Note that a client subscribed to ``channel``."""
+        with self._lock:
+            self._topics.add(channel.topic)
+
+    def take(self) -> set[str]:
+        """Return the topics subscribed to since the last call."""
+        with self._lock:
+            topics, self._topics = self._topics, set()
+        return topics
+
+
+class Channels:
+    """The feed's channels in one Foxglove context (the live server's or the MCAP file's).
+
+    Create them before the server starts: a channel created while a client is connected is
+    advertised to it a moment before the server accepts subscriptions to it (foxglove-sdk
+    0.30 answers "Unknown channel ID" in that window), while the channels that exist when a
+    client connects are in the first advertisement.
+    """
+
+    def __init__(self, context: foxglove.Context, *, covgraph: bool) -> None:
+        self.context = context
+        self.scene = SceneUpdateChannel(SCENE_TOPIC, context=context)
+        self.log = LogChannel(TRANSITIONS_TOPIC, context=context)
+        self.state = foxglove.Channel(STATE_TOPIC, schema=STATE_SCHEMA, context=context)
+        self.tf = FrameTransformChannel(TF_TOPIC, context=context)
+        self.graph = SceneUpdateChannel(COVGRAPH_TOPIC, context=context) if covgraph else None
+
 
 class FleetFeed:
-    """Log a fleet to the channels of a Foxglove context.
+    """Log a fleet to the channels of a live server's context, an MCAP file's, or both.
 
     Args:
         session: a Zenoh session on the lessmap network (for the frames).
         conn: the SDK connection on it (transitions, states).
         fleet: the fleet to follow.
-        context: the Foxglove context whose sinks (server, MCAP writer) get the messages.
-        covgraph: a robot whose current submap's CovGraph is also shown, or None.
+        live: the channels of a Foxglove WebSocket server's context, or None.
+        record: the channels of an MCAP writer's context, or None (every message is logged
+            to both).
+        joiners: the listener the live server was started with: channels clients subscribe
+            to get their current picture again, on ``live`` only.
+        covgraph: a robot whose current submap's CovGraph is also shown (its channels need
+            ``covgraph=True``), or None.
         scene_period_s: least time between two scene updates of one robot.
         state_period_s: how often the state table is queried and logged.
     """
@@ -64,12 +138,17 @@ class FleetFeed:
         session: zenoh.Session,
         conn: Connection,
         fleet: str,
-        context: foxglove.Context,
         *,
+        live: Channels | None = None,
+        record: Channels | None = None,
+        joiners: LateJoiners | None = None,
         covgraph: str | None = None,
         scene_period_s: float = 0.5,
         state_period_s: float = 1.0,
     ) -> None:
+        if live is None and record is None:
+            msg = "a feed needs live channels, record channels or both"
+            raise ValueError(msg)
         self.fleet = keys.validate_name(fleet, "fleet")
         self.covgraph_robot = None if covgraph is None else keys.validate_name(covgraph, "robot")
         self.model = FleetModel(self.fleet)
@@ -79,19 +158,23 @@ class FleetFeed:
         self._session = session
         self._conn = conn
         self._queue: queue.Queue[tuple[str, bytes] | Transition | None] = queue.Queue(100000)
-        self._scene = SceneUpdateChannel(SCENE_TOPIC, context=context)
-        self._log = LogChannel(TRANSITIONS_TOPIC, context=context)
-        self._state = foxglove.Channel(STATE_TOPIC, schema=STATE_SCHEMA, context=context)
-        self._graph = (
-            SceneUpdateChannel(COVGRAPH_TOPIC, context=context) if self.covgraph_robot else None
-        )
+        self._live = live
+        self._sinks = [c for c in (live, record) if c is not None]
+        self._joiners = joiners
         self._frames: zenoh.Subscriber[None] | None = None
         self._transitions: Subscription[Transition] | None = None
         self._thread = threading.Thread(target=self._run, name="lessmap-viz", daemon=True)
         self._dirty: set[str] = set()
+        self._previous_sent: dict[str, str] = {}  # robot -> session of its dimmed line, as sent
+        self._marks_sent = 0  # the model's marks_version the doorways were last sent for
+        self._recent: dict[str, deque[tuple[int, Log]]] = {}
+        self._logged = 0
+        self._state_message: dict[str, Any] | None = None
 
     def start(self) -> FleetFeed:
-        """Subscribe and start the feed's thread."""
+        """Log the ``map`` transform, subscribe and start the feed's thread."""
+        for sink in self._sinks:
+            sink.tf.log(map_transform())
         self._thread.start()
         key = f"{keys.KEY_PREFIX}/{self.fleet}/*/frames/*"
         self._frames = self._session.declare_subscriber(
@@ -145,6 +228,12 @@ class FleetFeed:
                     self._apply(item)
                 except Exception:  # the view must survive a bad event
                     log.exception("cannot show an event")
+            if self._joiners is not None:
+                for topic in sorted(self._joiners.take()):
+                    try:
+                        self._resend(topic)
+                    except Exception:
+                        log.exception("cannot re-send %s", topic)
             now = time.monotonic()
             if now >= next_scene:
                 self._log_scene()
@@ -167,7 +256,14 @@ class FleetFeed:
                     mark.opened,
                     mark.boundary_seq,
                 )
-                self._log.log(transition_log(item.robot, mark))
+                entry = transition_log(item.robot, mark)
+                for sink in self._sinks:
+                    sink.log.log(entry)
+                self._logged += 1
+                recent = self._recent.setdefault(
+                    item.robot, deque(maxlen=RECENT_TRANSITIONS_PER_ROBOT)
+                )
+                recent.append((self._logged, entry))
                 self.counts["transitions"] += 1
                 self._dirty.add(item.robot)
             return
@@ -179,25 +275,51 @@ class FleetFeed:
             self.counts["undecodable frames"] += 1
             return
         if isinstance(message, Frame):
-            self.model.on_frame(robot, message)
             self.counts["frames"] += 1
-            self._dirty.add(robot)
+            if self.model.on_frame(robot, message) is not None:
+                self._dirty.add(robot)
 
     def _log_scene(self) -> None:
-        entities = []
+        entities: list[SceneEntity] = []
         for robot in sorted(self._dirty):
-            entities += track_entities(self.model.tracks[robot])
+            if robot in self.model.tracks:
+                entities += self._changed_entities(robot)
+        if self.model.marks_version != self._marks_sent:
+            entities.append(doorway_entity(doorways(self.model.tracks.values())))
+            self._marks_sent = self.model.marks_version
         if entities:
-            self._scene.log(scene(entities))
+            update = scene(entities)
+            for sink in self._sinks:
+                sink.scene.log(update)
             self.counts["scene updates"] += 1
-        if self._graph is not None and self.covgraph_robot in self._dirty:
-            graph = self.model.covgraph(self.covgraph_robot)
-            track = self.model.tracks[self.covgraph_robot]
+        if self.covgraph_robot is not None and self.covgraph_robot in self._dirty:
+            graph = self._covgraph()
             if graph is not None:
-                last = track.points[-1].stamp_s if track.points else 0.0
-                self._graph.log(scene([covgraph_entity(self.covgraph_robot, graph, last)]))
+                for sink in self._sinks:
+                    if sink.graph is not None:
+                        sink.graph.log(graph)
                 self.counts["covgraph updates"] += 1
         self._dirty.clear()
+
+    def _changed_entities(self, robot: str) -> list[SceneEntity]:
+        """Return a robot's trajectory, and its previous session's line if not sent yet."""
+        entities = track_entities(self.model.tracks[robot])
+        left = self.model.previous.get(robot)
+        if left is not None and self._previous_sent.get(robot) != left.session:
+            entities.append(previous_entity(left))
+            self._previous_sent[robot] = left.session
+        return entities
+
+    def _covgraph(self) -> SceneUpdate | None:
+        robot = self.covgraph_robot
+        if robot is None:
+            return None
+        graph = self.model.covgraph(robot)
+        if graph is None:
+            return None
+        track = self.model.tracks[robot]
+        last = track.points[-1].stamp_s if track.points else 0.0
+        return scene([covgraph_entity(robot, graph, last)])
 
     def _log_state(self) -> None:
         try:
@@ -205,5 +327,33 @@ class FleetFeed:
         except Exception:  # a closing connection: the next period tries again
             log.debug("state query failed", exc_info=True)
             return
-        self._state.log(state_table(self.fleet, states))
+        self._state_message = state_table(self.fleet, states)
+        for sink in self._sinks:
+            sink.state.log(self._state_message)
         self.counts["state tables"] += 1
+
+    def _resend(self, topic: str) -> None:
+        """Log a channel's current picture again, to the live server only."""
+        live = self._live
+        if live is None:
+            return
+        if topic == SCENE_TOPIC:
+            live.scene.log(scene(fleet_entities(self.model)))
+            self.counts["scene re-sends"] += 1
+        elif topic == TF_TOPIC:
+            live.tf.log(map_transform())
+        elif topic == STATE_TOPIC and self._state_message is not None:
+            live.state.log(self._state_message)
+        elif topic == COVGRAPH_TOPIC and live.graph is not None:
+            graph = self._covgraph()
+            if graph is not None:
+                live.graph.log(graph)
+        elif topic == TRANSITIONS_TOPIC:
+            entries = sorted(
+                (item for recent in self._recent.values() for item in recent),
+                key=lambda item: item[0],
+            )[-RECENT_TRANSITIONS_MAX:]
+            for _, entry in entries:
+                live.log.log(entry)
+            self.counts["transitions re-sent"] += len(entries)
+        log.debug("->> %s again (a client subscribed)", topic)

@@ -4,6 +4,12 @@ Built only from what is on the bus: the robots' frames (seq, stamp, pose, featur
 service's transitions. A frame's submap is the number of transitions of its session whose
 ``boundary_seq`` is at or before the frame's seq, so a trajectory is coloured exactly where
 the service put each boundary. No I/O, no clock: the feed calls it from one thread.
+
+A track is one robot *session*, not one robot name: a robot that starts a new session (a
+restart, a second run under the same name, a session the service closed) gets a new track,
+with submaps numbered from 0 again. The track it leaves is kept as ``previous`` (one per
+robot, so restarts do not pile up), for the scene to draw dimmed; frames that still arrive
+for it are dropped.
 """
 
 from __future__ import annotations
@@ -48,11 +54,12 @@ class Mark:
     ncut: float | None
     lambda2: float | None
     at: Point | None
+    order: int  # arrival order among the fleet's marks (robots' clocks are not comparable)
 
 
 @dataclass
 class Track:
-    """One robot's current session as the viewer saw it."""
+    """One robot session as the viewer saw it."""
 
     robot: str
     session: str
@@ -96,14 +103,27 @@ class FleetModel:
     def __init__(self, fleet: str) -> None:
         self.fleet = fleet
         self.tracks: dict[str, Track] = {}
+        #: Per robot, the session it had before its current one (if that one had poses).
+        self.previous: dict[str, Track] = {}
+        #: Changes whenever the fleet's set of marks changes (a mark, a track replaced).
+        self.marks_version = 0
+        self._marks_seen = 0
 
-    def on_frame(self, robot: str, frame: Frame) -> Track:
-        """Add a frame; a new session starts a new track. Return the robot's track."""
+    def on_frame(self, robot: str, frame: Frame) -> Track | None:
+        """Add a frame; a new session starts a new track.
+
+        Returns:
+            The robot's track, or None if the frame was not applied: a repeat (a cache's
+            redelivery) or a late frame of the session the robot left.
+        """
         track = self.tracks.get(robot)
         if track is None or track.session != frame.session:
-            track = self.tracks[robot] = Track(robot, frame.session)
+            left = self.previous.get(robot)
+            if left is not None and left.session == frame.session:
+                return None
+            track = self._new_track(robot, frame.session)
         if frame.seq <= track.last_seq:
-            return track  # a repeat (a cache's redelivery): seen already
+            return None
         track.last_seq = frame.seq
         where = None
         if frame.pose is not None:
@@ -118,10 +138,14 @@ class FleetModel:
         track = self.tracks.get(t.robot)
         if track is not None and track.session != t.session and track.last_seq >= 0:
             return None  # an older session's (history): the robot's frames are of another
+        left = self.previous.get(t.robot)
+        if left is not None and left.session == t.session:
+            return None  # the session the robot left: its track is drawn without marks
         if track is None or track.session != t.session:
-            track = self.tracks[t.robot] = Track(t.robot, t.session)
+            track = self._new_track(t.robot, t.session)
         if any(mark.opened == t.opened.id for mark in track.marks):
             return None
+        self._marks_seen += 1
         mark = Mark(
             seq=t.seq,
             boundary_seq=t.boundary_seq,
@@ -132,10 +156,22 @@ class FleetModel:
             ncut=t.ncut,
             lambda2=t.lambda2,
             at=track.pose_at(t.boundary_seq),
+            order=self._marks_seen,
         )
         track.marks.append(mark)
         track.marks.sort(key=lambda m: m.boundary_seq)
+        self.marks_version += 1
         return mark
+
+    def _new_track(self, robot: str, session: str) -> Track:
+        old = self.tracks.get(robot)
+        if old is not None:
+            if old.points:
+                self.previous[robot] = old
+            if old.marks:
+                self.marks_version += 1
+        track = self.tracks[robot] = Track(robot, session)
+        return track
 
     def covgraph(self, robot: str, max_nodes: int = 400) -> CovGraph | None:
         """Return the CovGraph of the robot's current submap (its most seen features)."""

@@ -1,7 +1,10 @@
 """The fleet as Foxglove messages, on fixed channels (the same live and in an MCAP file).
 
-- ``/lessmap/scene`` (``foxglove.SceneUpdate``): per robot, its trajectory coloured by submap
-  (where frames carry poses), its current pose, a sphere and a label at every transition.
+- ``/lessmap/scene`` (``foxglove.SceneUpdate``): per robot, its current session's trajectory
+  coloured by submap (where frames carry poses), its current pose and label, and the line of
+  the session it had before, dimmed; for the fleet, one sphere and one label per doorway
+  (transitions within ``DOORWAY_RADIUS_M`` of each other, any robot: the latest one, and how
+  many others happened there), so that robots crossing one door many times share one label.
 - ``/lessmap/transitions`` (``foxglove.Log``): one entry per transition: robot, submaps, seq,
   reason, Ncut, λ2.
 - ``/lessmap/state`` (JSON): the per-robot state table: session, frames applied / missing /
@@ -9,6 +12,8 @@
 - ``/lessmap/covgraph`` (``foxglove.SceneUpdate``, optional): the CovGraph of one robot's
   current submap (features at the mean pose of the frames that saw them; edges shaded by
   CovRate).
+- ``/lessmap/tf`` (``foxglove.FrameTransform``): a fixed transform ``map`` → ``lessmap``,
+  so that the 3D panel has its display frame ``map`` before the first scene message.
 
 Everything is in the frame ``map`` (the robots' odometry frames, as the frames give them).
 """
@@ -16,10 +21,13 @@ Everything is in the frame ``map`` (the robots' odometry frames, as the frames g
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from foxglove.messages import (
     Color,
+    FrameTransform,
+    KeyValuePair,
     LinePrimitive,
     LinePrimitiveLineType,
     Log,
@@ -36,7 +44,9 @@ from foxglove.messages import (
 )
 
 if TYPE_CHECKING:
-    from lessmap.viz.model import CovGraph, Mark, Track
+    from collections.abc import Iterable
+
+    from lessmap.viz.model import CovGraph, FleetModel, Mark, Track
     from lessmap_schemas.messages import SessionState
 
 FRAME_ID = "map"
@@ -44,6 +54,17 @@ SCENE_TOPIC = "/lessmap/scene"
 TRANSITIONS_TOPIC = "/lessmap/transitions"
 STATE_TOPIC = "/lessmap/state"
 COVGRAPH_TOPIC = "/lessmap/covgraph"
+TF_TOPIC = "/lessmap/tf"
+#: The child of the fixed ``map`` transform (nothing is drawn in it).
+ROOT_CHILD_FRAME = "lessmap"
+
+#: Transitions this close to each other are one doorway (one label). In the sim's 8-room
+#: building, doors are 1 m wide and at least 3.6 m apart, and robots crossing one door put
+#: their transitions within 0.3 m of each other.
+DOORWAY_RADIUS_M = 1.0
+#: How far doorway labels are mixed toward white (see ``label_color``).
+LABEL_LIGHTEN = 0.65
+PREVIOUS_SESSION_COLOR = Color(r=0.6, g=0.6, b=0.6, a=0.35)
 
 #: Submap colours (matplotlib's tab10), cycled by submap id.
 PALETTE = [
@@ -110,18 +131,22 @@ def _pose(x: float, y: float, theta: float = 0.0) -> Pose:
 
 
 def track_entities(track: Track) -> list[SceneEntity]:
-    """Return a robot's trajectory, current pose and transition marks (empty without poses)."""
+    """Return a robot's trajectory, current pose and label (one entity, ``ROBOT/trajectory``).
+
+    A track without poses gives the entity with no primitives: it replaces, and so clears,
+    the line of the robot's earlier session until the new session's first pose.
+    """
     points = list(track.points)
     if not points:
-        return []
+        return [SceneEntity(frame_id=FRAME_ID, id=f"{track.robot}/trajectory")]
     colours = [color(track.submap_of(p.seq)) for p in points]
     last = points[-1]
-    entities = [
+    return [
         SceneEntity(
             timestamp=stamp(last.stamp_s),
             frame_id=FRAME_ID,
             id=f"{track.robot}/trajectory",
-            metadata=None,
+            metadata=[KeyValuePair(key="session", value=track.session)],
             lines=[
                 LinePrimitive(
                     type=LinePrimitiveLineType.LineStrip,
@@ -140,7 +165,7 @@ def track_entities(track: Track) -> list[SceneEntity]:
                 TextPrimitive(
                     pose=_pose(last.x, last.y + 0.4),
                     billboard=True,
-                    font_size=14.0,
+                    font_size=13.0,
                     scale_invariant=True,
                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0),
                     text=f"{track.robot} · submap {track.submap_of(last.seq)}",
@@ -148,37 +173,159 @@ def track_entities(track: Track) -> list[SceneEntity]:
             ],
         )
     ]
-    # A mark's pose is looked up again: its frame may have arrived after the transition.
-    marks = [(m, m.at or track.pose_at(m.boundary_seq)) for m in track.marks]
-    placed = [(m, at) for m, at in marks if at is not None]
-    if placed:
-        entities.append(
-            SceneEntity(
-                timestamp=stamp(last.stamp_s),
-                frame_id=FRAME_ID,
-                id=f"{track.robot}/transitions",
-                spheres=[
-                    SpherePrimitive(
-                        pose=_pose(at.x, at.y),
-                        size=Vector3(x=0.5, y=0.5, z=0.5),
-                        color=color(m.opened, 0.8),
-                    )
-                    for m, at in placed
-                ],
-                texts=[
-                    TextPrimitive(
-                        pose=_pose(at.x, at.y - 0.5),
-                        billboard=True,
-                        font_size=12.0,
-                        scale_invariant=True,
-                        color=color(m.opened),
-                        text=f"{m.closed}→{m.opened} @{m.boundary_seq}",
-                    )
-                    for m, at in placed
-                ],
+
+
+def previous_entity(track: Track) -> SceneEntity:
+    """Return the dimmed line of the session a robot left (``ROBOT/previous``).
+
+    Grey, thin and unlabelled: it shows where the robot went before, but its submaps are not
+    the current session's (ids restart at 0, so submap colours would clash), and its
+    transitions are not drawn.
+    """
+    points = list(track.points)
+    return SceneEntity(
+        timestamp=stamp(points[-1].stamp_s if points else 0.0),
+        frame_id=FRAME_ID,
+        id=f"{track.robot}/previous",
+        metadata=[KeyValuePair(key="session", value=track.session)],
+        lines=[
+            LinePrimitive(
+                type=LinePrimitiveLineType.LineStrip,
+                pose=_pose(0.0, 0.0),
+                thickness=0.03,
+                points=[Point3(x=p.x, y=p.y, z=0.0) for p in points],
+                color=PREVIOUS_SESSION_COLOR,
             )
-        )
+        ]
+        if len(points) >= 2
+        else [],
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Doorway:
+    """Transitions that happened at one place (a doorway, usually), whatever the robot."""
+
+    x: float
+    y: float
+    robot: str  # of the latest transition here
+    latest: Mark
+    count: int
+
+
+def doorways(tracks: Iterable[Track], radius_m: float = DOORWAY_RADIUS_M) -> list[Doorway]:
+    """Group the current sessions' transitions by place: one doorway per ``radius_m``.
+
+    In arrival order, a transition joins the nearest doorway whose first transition is
+    within ``radius_m`` of it, or starts a new one. A grid of ``radius_m`` cells keeps this
+    linear in the number of transitions.
+    """
+    placed: list[tuple[Mark, str, float, float]] = []
+    for track in tracks:
+        for mark in track.marks:
+            # Looked up again: the boundary frame may have arrived after the transition.
+            at = mark.at or track.pose_at(mark.boundary_seq)
+            if at is not None:
+                placed.append((mark, track.robot, at.x, at.y))
+    placed.sort(key=lambda item: item[0].order)
+    found: list[Doorway] = []
+    grid: dict[tuple[int, int], list[int]] = {}
+    for mark, robot, x, y in placed:
+        cx, cy = math.floor(x / radius_m), math.floor(y / radius_m)
+        near = [
+            (distance, i)
+            for dx in (-1, 0, 1)
+            for dy in (-1, 0, 1)
+            for i in grid.get((cx + dx, cy + dy), [])
+            if (distance := math.hypot(found[i].x - x, found[i].y - y)) <= radius_m
+        ]
+        if near:
+            door = found[min(near)[1]]
+            found[min(near)[1]] = Doorway(door.x, door.y, robot, mark, door.count + 1)
+        else:
+            grid.setdefault((cx, cy), []).append(len(found))
+            found.append(Doorway(x, y, robot, mark, 1))
+    return found
+
+
+def doorway_label(door: Doorway) -> str:
+    """Return a doorway's label: its latest transition, and how many others happened there."""
+    text = f"{door.robot} {door.latest.closed}→{door.latest.opened}"
+    return text if door.count == 1 else f"{text} (+{door.count - 1})"
+
+
+def label_color(submap: int) -> Color:
+    """Return a submap's colour lightened for text.
+
+    Lichtblick draws a label's box white behind dark text and black behind light text; the
+    submap colours are dark by its measure, so their text sat on a white box, hard to read.
+    Mixed 65 % toward white they are light: the box is black and the hue still tells the
+    submap.
+    """
+    r, g, b = PALETTE[submap % len(PALETTE)]
+    mix = LABEL_LIGHTEN
+    return Color(r=r + (1 - r) * mix, g=g + (1 - g) * mix, b=b + (1 - b) * mix, a=1.0)
+
+
+def doorway_entity(found: list[Doorway]) -> SceneEntity:
+    """Return every doorway as one sphere and one label (the entity ``doorways``)."""
+    return SceneEntity(
+        timestamp=stamp(max((d.latest.stamp_s for d in found), default=0.0)),
+        frame_id=FRAME_ID,
+        id="doorways",
+        spheres=[
+            SpherePrimitive(
+                pose=_pose(d.x, d.y),
+                size=Vector3(x=0.4, y=0.4, z=0.4),
+                color=color(d.latest.opened, 0.8),
+            )
+            for d in found
+        ],
+        texts=[
+            TextPrimitive(
+                pose=_pose(d.x, d.y - 0.45),
+                billboard=True,
+                font_size=11.0,
+                scale_invariant=True,
+                color=label_color(d.latest.opened),
+                text=doorway_label(d),
+            )
+            for d in found
+        ],
+    )
+
+
+def robot_entities(model: FleetModel, robot: str) -> list[SceneEntity]:
+    """Return a robot's entities: its current track and, if it had one, its previous one."""
+    entities = track_entities(model.tracks[robot])
+    left = model.previous.get(robot)
+    if left is not None:
+        entities.append(previous_entity(left))
     return entities
+
+
+def fleet_entities(model: FleetModel) -> list[SceneEntity]:
+    """Return the whole scene: every robot's entities and the doorways."""
+    entities: list[SceneEntity] = []
+    for robot in sorted(model.tracks):
+        entities += robot_entities(model, robot)
+    entities.append(doorway_entity(doorways(model.tracks.values())))
+    return entities
+
+
+def map_transform() -> FrameTransform:
+    """Return a fixed transform from ``map`` to a child frame, so that ``map`` exists.
+
+    The 3D panel only knows frames from transforms and from messages it has received: without
+    this it shows "Display frame map not found" until the first scene message.
+    """
+    return FrameTransform(
+        timestamp=Timestamp(sec=0, nsec=0),
+        parent_frame_id=FRAME_ID,
+        child_frame_id=ROOT_CHILD_FRAME,
+        translation=Vector3(x=0.0, y=0.0, z=0.0),
+        rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+    )
 
 
 def transition_log(robot: str, mark: Mark) -> Log:
