@@ -41,8 +41,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-_TICK_S = 0.005  # sweep period while samples arrive
-_IDLE_TICK_S = 0.02  # sweep period once nothing arrived for _IDLE_AFTER_S
+# A sweep asks every channel (~0.2 us each, 256 channels for a lone instance): at 10 ms that
+# is ~0.5 % of a core, and a frame waits 5 ms more on average than with a callback.
+_TICK_S = 0.01  # sweep period while samples arrive
+_IDLE_TICK_S = 0.05  # sweep period once nothing arrived for _IDLE_AFTER_S
 _IDLE_AFTER_S = 1.0
 _SWEEP_MAX = 8192  # samples taken from one channel per sweep: the others get their turn
 _CLOSING_SWEEPS = 200  # an undeclared channel is swept this often at most, then let go
@@ -118,7 +120,13 @@ class Receiver:
         found = 0
         with self._lock:
             for partition, channel in self._channels:
-                found += self._drain(partition, channel)[0]
+                # Most channels are empty: ask once here, call ``_drain`` only for samples.
+                try:
+                    first = channel.try_recv()
+                except zenoh.ZError:
+                    continue  # undeclared (a hand-over under way): ``watch`` moves it
+                if first is not None:
+                    found += self._drain(partition, channel, first)[0]
             closing, self._closing = self._closing, []
             for partition, channel, sweeps in closing:
                 taken, closed = self._drain(partition, channel)
@@ -127,9 +135,11 @@ class Receiver:
                     self._closing.append((partition, channel, sweeps + 1))
         return found
 
-    def _drain(self, partition: int, channel: Channel) -> tuple[int, bool]:
-        """Take what one channel holds: (samples taken, channel closed)."""
-        samples: list[zenoh.Sample] = []
+    def _drain(
+        self, partition: int, channel: Channel, first: zenoh.Sample | None = None
+    ) -> tuple[int, bool]:
+        """Take what one channel holds (after ``first``): (samples taken, channel closed)."""
+        samples: list[zenoh.Sample] = [] if first is None else [first]
         closed = False
         try:
             while len(samples) < _SWEEP_MAX and (sample := channel.try_recv()) is not None:
