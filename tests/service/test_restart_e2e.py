@@ -88,21 +88,46 @@ FRAMES_PER_S = 120.0  # paced: a 1000-frame cache spans ~8 s of it, the test's 3
 
 
 class PacedRobot:
-    """Publishes frames at a steady rate from its own thread, whatever the service does."""
+    """Publishes frames at a steady rate from its own thread, whatever the service does.
 
-    def __init__(self, robot: RobotPublisher, frames: list[FrameRow]) -> None:
+    ``pause`` / ``resume`` hold it between two frames (the pace resumes from there), and it
+    pauses by itself before frame ``hold_at``: a loaded machine may apply frames or start the
+    next instance more slowly than the walk goes, and the test needs frames left for later.
+    """
+
+    def __init__(
+        self, robot: RobotPublisher, frames: list[FrameRow], hold_at: int | None = None
+    ) -> None:
         self.robot = robot
         self.frames = frames
+        self.hold_at = hold_at
         self.sent = 0
         self._stop = threading.Event()
+        self._running = threading.Event()
+        self._running.set()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     def start(self) -> None:
         self._thread.start()
 
+    def pause(self) -> None:
+        self._running.clear()
+
+    def resume(self) -> None:
+        self.hold_at = None  # held once at most: a resume before it lifts the hold too
+        self._running.set()
+
     def _run(self) -> None:
         started = time.monotonic()
         for index, frame in enumerate(self.frames):
+            if index == self.hold_at:
+                self._running.clear()
+            if not self._running.is_set():
+                paused = time.monotonic()
+                while not self._running.wait(0.05):
+                    if self._stop.is_set():
+                        return
+                started += time.monotonic() - paused
             delay = started + index / FRAMES_PER_S - time.monotonic()
             if self._stop.wait(max(0.0, delay)):
                 return
@@ -160,7 +185,7 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
         robot = RobotPublisher(fleet_name, "dlr", session=session, cache=3000)
         first = serve(*options)
         assert robot.wait_for_service(20.0), first.log()
-        paced = PacedRobot(robot, frames)
+        paced = PacedRobot(robot, frames, hold_at=2000)
         paced.start()
         try:
             applied_before = [0]
@@ -175,10 +200,13 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
             code = first.process.wait(15)
             assert code == (-signal.SIGKILL if how == signal.SIGKILL else 0), first.log()
             stopped_at = paced.sent
+            paced.resume()  # if it waited at hold_at for the service to catch up
             time.sleep(2.0)  # no instance runs; the robot goes on publishing
+            paced.pause()  # frames are left for after the restart, however long it takes
             second = serve(*options)
-            wait_until(lambda: "serving as" in second.log(), 30.0, "the second instance")
+            wait_until(lambda: "serving as" in second.log(), 60.0, "the second instance")
             assert paced.sent < len(frames), "the robot finished before the restart"
+            paced.resume()
             paced.join(120.0)
         finally:
             paced.stop()
