@@ -329,8 +329,12 @@ class Service:
         if receiver is None:
             return
         deadline = time.monotonic() + grace_s
+        # Sweep here rather than wait for the receiver's tick (up to 50 ms when idle): a
+        # sample already in a channel has arrived, and counts as arrived now.
+        receiver.sweep()
         while time.monotonic() < deadline and time.monotonic() - receiver.last_sample_s < _QUIET_S:
             time.sleep(0.02)
+            receiver.sweep()
 
     # -- receive path (``receiver.py``; catch-up replies: callbacks that enqueue only) ----
 
