@@ -2,7 +2,9 @@
 
 The per-frame histograms are ``BatchHistogram``s: the same exposition as prometheus_client's
 ``Histogram`` (buckets, count, sum), but one lock and one bisection per value, and a batch of
-values per call (``observe_many``), since the worker observes two latencies per frame.
+values per call (``observe_many``), since the worker observes two latencies per frame. The
+counters are ``Counter``s that skip ``inc(0)``: the outbox counts every turn's outcome, and
+most of its counts are zero (prometheus' ``inc`` takes a lock and checks even for nothing).
 """
 
 from __future__ import annotations
@@ -12,12 +14,21 @@ import threading
 from bisect import bisect_left
 from typing import TYPE_CHECKING
 
-from prometheus_client import CollectorRegistry, Counter, Gauge
+from prometheus_client import CollectorRegistry, Counter as _PrometheusCounter, Gauge
 from prometheus_client.metrics_core import HistogramMetricFamily
 from prometheus_client.registry import Collector
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
+
+
+class Counter(_PrometheusCounter):
+    """A prometheus_client Counter whose ``inc(0)`` returns at once (labelled children too)."""
+
+    def inc(self, amount: float = 1, exemplar: dict[str, str] | None = None) -> None:
+        """Increment by ``amount`` (>= 0); nothing to do for 0."""
+        if amount or exemplar:
+            super().inc(amount, exemplar)
 
 
 class BatchHistogram(Collector):
