@@ -89,6 +89,7 @@ def area_record(robot: str, change: AreaTransition) -> dict[str, Any]:
         "left_area": change.left_area,
         "revisit_of": change.revisit_of,
         "overlap": round(change.overlap, 4),
+        "rule": str(change.rule),
     }
 
 
@@ -228,6 +229,11 @@ def run(args: argparse.Namespace) -> int:
             "pool_max_frames": areas.pool_max_frames,
             "min_area_features": areas.min_area_features,
             "revisit_overlap": areas.revisit_overlap,
+            "blind_frames": areas.blind_frames,
+            "stay_share": areas.stay_share,
+            "recognise_frames": areas.recognise_frames,
+            "recognise_llr": areas.recognise_llr,
+            "merge_overlap": areas.merge_overlap,
         }
     out.write(json.dumps(record) + "\n")
     out.flush()

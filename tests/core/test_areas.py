@@ -90,9 +90,13 @@ def test_sparse_frames_never_close_a_fragment() -> None:
 
 def test_pooling_feeds_the_proposer_fewer_frames() -> None:
     tracker, _ = track([[1], [2], [3], [4], [5], [6, 7, 8, 9, 10, 11], []])
-    # pools: [1..4] (four frames), [5, 6..11] (six features), and one frame pending
+    # pools: [1..4] (four features in four frames), [5, 6..11] (seven), one frame pending
+    assert (tracker.params.pool_min_features, tracker.params.pool_max_frames) == (4, 4)
     assert tracker.proposer.frames_applied == 2
     assert tracker.pool_frames == 1
+    wide, _ = track([[1], [2], [3], [4], [5]], AreaParams(pool_min_features=3, pool_max_frames=9))
+    assert wide.proposer.frames_applied == 1  # [1, 2, 3] closed on features
+    assert wide.pool == {4, 5}
 
 
 def test_stale_and_malformed_frames_change_nothing() -> None:
@@ -120,6 +124,6 @@ def test_garbage_and_other_versions_are_graph_errors() -> None:
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(b"garbage")
     data = to_bytes(AreaTracker())
-    assert AREAS_SNAPSHOT_VERSION == 1
+    assert AREAS_SNAPSHOT_VERSION == 2
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(data[: len(data) // 2])

@@ -9,8 +9,15 @@ from typing import TYPE_CHECKING
 import pytest
 
 from lessmap.cli import main
-from lessmap.evaluation.areabench import Tally, dlr_loss, rows
-from lessmap.evaluation.areas import AreaEvent, area_of_frames, revisit_score, run_method
+from lessmap.core.areas import AreaParams
+from lessmap.evaluation.areabench import Tally, dlr_loss, revisits_met, rows
+from lessmap.evaluation.areas import (
+    AreaEvent,
+    RevisitScore,
+    area_of_frames,
+    revisit_score,
+    run_method,
+)
 from lessmap.frames_file import FrameRow
 from lessmap.sim.simulator import TruthRow, simulate
 from tests.core.helpers import room_walk
@@ -70,6 +77,13 @@ def test_areas_name_the_rooms_a_simulated_robot_returns_to() -> None:
     assert score.false_share <= 0.1
 
 
+def test_the_revisit_target_counts_no_false_name_as_met() -> None:
+    assert revisits_met(RevisitScore(visits=10, revisits=5, recognised=5, false=0))
+    assert not revisits_met(RevisitScore(visits=10, revisits=5, recognised=4, false=0))
+    assert not revisits_met(RevisitScore(visits=100, revisits=50, recognised=50, false=3))
+    assert not revisits_met(RevisitScore(visits=0, revisits=0, recognised=0, false=0))
+
+
 def test_unknown_method_is_named() -> None:
     with pytest.raises(ValueError, match="unknown method 'x'"):
         run_method([], "x")
@@ -114,9 +128,12 @@ def test_segment_method_areas_prints_areas(
     *changes, summary = records
     assert [c["area"] for c in changes] == [1, 2, 1, 0]
     assert [c["revisit_of"] for c in changes] == [None, None, 1, 0]
+    assert {c["rule"] for c in changes} <= {"split", "recognised"}
+    assert changes[0]["rule"] == "split"  # a first visit is always the proposer's
     assert summary["method"] == "areas"
     assert summary["areas_per_robot"] == {"r1": 3}
     assert summary["params"]["ncut_min"] == 0.4
+    assert summary["params"]["merge_overlap"] == AreaParams().merge_overlap
     assert main(["segment", str(path), "--summary-only"]) == 0
     paper = json.loads(capsys.readouterr().out)
     assert "method" not in paper

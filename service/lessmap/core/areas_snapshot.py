@@ -2,8 +2,10 @@
 
 Format: an uncompressed NumPy ``.npz`` archive (``allow_pickle=False``), like the paper
 partitioner's (``lessmap.core.snapshot``): ``proposer`` holds that snapshot's bytes, ragged
-int64 arrays hold the areas' counts and the kept frames, and ``meta`` is a UTF-8 JSON
-document of the scalars. The version number changes whenever the layout does.
+int64 arrays hold the areas' counts (in their dicts' order, which the likelihoods of rule 5
+are summed in) and the kept frames, and ``meta`` is a UTF-8 JSON document of the scalars,
+the areas' frame counts and the merged areas. The version number changes whenever the layout
+does (2: frame counts per area and merges, for recognition and merging).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from lessmap.core.areas import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.submaps import Reason
 
-AREAS_SNAPSHOT_VERSION = 1
+AREAS_SNAPSHOT_VERSION = 2
 
 _INT_FIELDS = (
     "pool_first_seq",
@@ -61,6 +63,8 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         "pool": sorted(tracker.pool),
         "pool_starts": [list(pair) for pair in tracker.pool_starts],
         "frame_seqs": [seq for seq, _ in tracker.frames],
+        "area_frames": list(tracker.area_frames),
+        "merged": [[gone, into] for gone, into in tracker.merged.items()],
         "last_stamp_s": tracker.last_stamp_s.hex(),  # hex keeps the float exact
         "candidate": None
         if candidate is None
@@ -134,6 +138,8 @@ def from_bytes(data: bytes) -> AreaTracker:
                 strict=True,
             )
         )
+        tracker.area_frames = [int(n) for n in meta["area_frames"]]
+        tracker.merged = {int(gone): int(into) for gone, into in meta["merged"]}
         for name in _INT_FIELDS:
             setattr(tracker, name, meta[name])
         tracker.last_stamp_s = float.fromhex(meta["last_stamp_s"])

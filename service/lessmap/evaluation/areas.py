@@ -2,10 +2,10 @@
 
 ``paper`` is one ``Partitioner`` per robot (LESS-mapping as published: every transition opens
 a new submap); ``areas`` is one ``AreaTracker`` per robot (``lessmap.core.areas``: pooled
-evidence, confirmed splits, revisits named). Both give, per robot, a list of ``AreaEvent``:
-the detection frame, the estimated first frame in the new area, the area entered and the
-size of the segment closed. For ``paper`` the area is the new submap's id, so a revisit is
-never recognised.
+evidence, confirmed splits, known areas recognised and merged). Both give, per robot, a list
+of ``AreaEvent``: the detection frame, the estimated first frame in the new area, the area
+entered and the size of the segment closed. For ``paper`` the area is the new submap's id, so
+a revisit is never recognised.
 
 Revisit scoring (``revisit_score``), on a simulated run: a *visit* is a maximal run of a
 robot's frames in one true room; each frame carries the area of the last event whose
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from lessmap.core import Partitioner, PartitionParams
-from lessmap.core.areas import AreaParams, AreaTracker
+from lessmap.core.areas import AreaParams, AreaTracker, Rule
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -46,7 +46,7 @@ class AreaEvent:
     left_area: int
     revisit: bool  # the method named an area it had seen before
     closed_features: int  # distinct features of the segment closed
-    reason: str
+    reason: str  # SPECTRAL or DISCONNECTED; RECOGNISED for an area recognised (areas' rule 5)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -140,7 +140,7 @@ def run_method(
                     left_area=change.left_area,
                     revisit=change.revisit_of is not None,
                     closed_features=len(t.closed.features),
-                    reason=str(t.reason),
+                    reason="RECOGNISED" if change.rule is Rule.RECOGNISED else str(t.reason),
                 )
             )
     return found

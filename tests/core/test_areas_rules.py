@@ -1,0 +1,291 @@
+"""AreaTracker's rules, each pinned on a small hand-made stream that it decides.
+
+Every stream is a few "rooms" of landmark IDs seen with a fixed probability per frame
+(seeded). Each test runs the stream with the defaults and with the one rule turned off or
+changed, and asserts the difference, so a test fails when its rule stops working.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+
+from lessmap.core import GraphError, Reason
+from lessmap.core.areas import (
+    AreaParams,
+    AreaTracker,
+    AreaTransition,
+    Rule,
+    profile,
+    rate_overlap,
+)
+from lessmap.core.areas_snapshot import from_bytes, to_bytes
+from tests.core.helpers import room_walk
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from tests.core.helpers import Frames
+
+A = frozenset(range(10))  # a room; also H1, one half of an open room
+B = frozenset(range(100, 110))  # another room behind a door
+H2 = frozenset(range(10, 20))  # the other half of the open room
+
+
+def seen(rng: np.random.Generator, room: Iterable[int], p: float) -> list[int]:
+    """The landmarks of ``room`` one frame sees, each with probability ``p``."""
+    ids = np.asarray(sorted(room))
+    return [int(i) for i in ids[rng.random(ids.size) < p]]
+
+
+def stay(rng: np.random.Generator, room: Iterable[int], frames: int, p: float = 0.8) -> Frames:
+    return [seen(rng, room, p) for _ in range(frames)]
+
+
+def wide_door(rng: np.random.Generator, into: Iterable[int], left: Iterable[int]) -> Frames:
+    """Ten frames in ``into`` that still see ``left`` behind, fading (a 360° sensor)."""
+    return [seen(rng, into, 0.8) + seen(rng, left, 0.6 * (1 - k / 10)) for k in range(10)]
+
+
+def track(
+    frames: Frames, params: AreaParams | None = None
+) -> tuple[AreaTracker, list[AreaTransition]]:
+    tracker = AreaTracker(params)
+    found = []
+    for seq, frame in enumerate(frames):
+        change = tracker.observe(seq, seq * 0.5, frame)
+        if change is not None:
+            found.append(change)
+    return tracker, found
+
+
+def moves(found: list[AreaTransition]) -> list[tuple[int, int]]:
+    return [(change.left_area, change.area) for change in found]
+
+
+# -- rule 3b: no boundary is seen blind ----------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_room_reached_blind_is_no_transition(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    frames = [*stay(rng, A, 30), [], [], [], *stay(rng, B, 30)]
+    tracker, found = track(frames)
+    assert found == []
+    assert set(tracker.area_features(0)) == A | B  # one area, both sides
+    _, blind_allowed = track(frames, AreaParams(blind_frames=0))
+    assert [c.transition.reason for c in blind_allowed] == [Reason.DISCONNECTED]
+    assert 30 <= blind_allowed[0].transition.boundary_seq <= 33
+    # the same rooms without the empty frames: a door, and a transition
+    rng = np.random.default_rng(seed)
+    _, door = track([*stay(rng, A, 30), *stay(rng, B, 30)])
+    assert moves(door) == [(0, 1)]
+
+
+# -- rule 3c: a proposal inside the current area is dropped --------------------------------
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_split_into_features_the_area_knows_is_dropped(seed: int) -> None:
+    # An open room (A and H2 seen together), a room B, back to the open room's half A,
+    # then its other half H2: the proposer splits H2 from A (it forgot H2 when it left for
+    # B), but the area has seen H2 in a third of its frames.
+    rng = np.random.default_rng(seed)
+    frames = [
+        *stay(rng, A | H2, 30),
+        *stay(rng, B, 30),
+        *stay(rng, A, 30),
+        *stay(rng, H2, 30),
+    ]
+    tracker, found = track(frames)
+    assert moves(found) == [(0, 1), (1, 0)]
+    assert tracker.area_count == 2
+    _, without = track(frames, AreaParams(stay_share=2.0))
+    assert moves(without) == [(0, 1), (1, 0), (0, 2)]  # H2 taken for a new area
+    assert without[-1].transition.boundary_seq == 90
+
+
+def test_the_doorway_before_a_boundary_is_not_the_area_s_own() -> None:
+    # A short first stay whose last three frames see the next room through the door: with
+    # those frames counted, B looks familiar to area 0 and the door is missed.
+    found, found_without_margin = 0, 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        frames = [
+            *stay(rng, A, 12),
+            *[seen(rng, A, 0.8) + seen(rng, B, 0.6) for _ in range(3)],
+            *stay(rng, B, 30),
+        ]
+        _, changes = track(frames)
+        assert moves(changes) == [(0, 1)]
+        assert 12 <= changes[0].transition.boundary_seq <= 16
+        found += len(changes)
+        found_without_margin += len(track(frames, AreaParams(familiar_margin_frames=0))[1])
+    assert found == 10
+    assert found_without_margin <= 5
+
+
+# -- rule 4: a proposal names the area it re-enters ----------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_proposals_alone_name_revisits(seed: int) -> None:
+    walk = room_walk(seed, rooms=4, back=True, stay=(20, 30), door_frames=2, door_share=0.2)
+    _, found = track(walk.frames, AreaParams(recognise_frames=0))
+    assert [0] + [change.area for change in found] == [0, 1, 2, 3, 2, 1, 0]
+    assert {change.rule for change in found} == {Rule.SPLIT}
+    assert [change.revisit_of for change in found] == [None, None, None, 2, 1, 0]
+
+
+# -- rule 5: recognition -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_known_room_is_recognised_through_a_wide_door(seed: int) -> None:
+    # A, a wide door into B, B, a wide door back into A: the room left behind stays in view,
+    # so the paper's test cannot split; the frames fit area 0's profile far better.
+    rng = np.random.default_rng(seed)
+    frames = [
+        *stay(rng, A, 30),
+        *wide_door(rng, B, A),
+        *stay(rng, B, 20),
+        *wide_door(rng, A, B),
+        *stay(rng, A, 20),
+    ]
+    _, found = track(frames)
+    assert moves(found) == [(0, 1), (1, 0)]
+    back = found[1]
+    assert back.rule is Rule.RECOGNISED
+    assert back.revisit_of == 0
+    assert 60 <= back.transition.boundary_seq <= back.transition.seq <= 70
+    assert back.transition.reason is Reason.SPECTRAL
+    assert back.transition.ncut is None
+    assert len(back.transition.closed.features) >= 5
+    _, unrecognised = track(frames, AreaParams(recognise_frames=0))
+    assert all(change.transition.seq > 70 for change in unrecognised[1:])
+
+
+def test_a_profile_scores_a_frame_by_its_sightings() -> None:
+    counts = {1: 9, 2: 1}  # ten frames: feature 1 in nine, feature 2 in one
+    fit = profile(counts, 10)
+    assert fit is not None
+    # p(1) = 9.5 / 11, p(2) = 1.5 / 11, never-seen features 0.5 / 11
+    expected = np.log(9.5 / 11) + np.log(1 - 1.5 / 11) + np.log(0.5 / 11)
+    assert fit.loglik([1, 3]) == pytest.approx(expected)
+    assert fit.loglik([1]) > fit.loglik([2]) > fit.loglik([3])
+    left_out = profile(counts, 10, leave={1: 9, 2: 1}, left=10)
+    assert left_out is None  # every frame left out: nothing to fit
+
+
+# -- rule 6: merging -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_two_halves_of_one_room_merge(seed: int) -> None:
+    # Half A, then half H2 (a split: H2 was never seen), then the middle of the room (both
+    # halves), then half A again: its frames fit area 0, but areas 0 and 1 share their
+    # sightings, so they are one area and the return is no transition.
+    rng = np.random.default_rng(seed)
+    frames = [
+        *stay(rng, A, 30),
+        *stay(rng, H2, 30),
+        *stay(rng, A | H2, 30, p=0.6),
+        *stay(rng, A, 30),
+    ]
+    tracker, found = track(frames)
+    assert moves(found) == [(0, 1)]
+    assert tracker.merged == {1: 0}
+    assert (tracker.area_count, tracker.current, tracker.area_of(1)) == (1, 0, 0)
+    assert set(tracker.area_features(1)) == A | H2
+    _, unmerged = track(frames, AreaParams(merge_overlap=2.0))
+    assert moves(unmerged) == [(0, 1), (1, 0)]
+    assert unmerged[1].rule is Rule.RECOGNISED
+
+
+def test_rate_overlap_by_hand() -> None:
+    a = {1: 8, 2: 8}  # ten frames: 0.8 and 0.8
+    b = {2: 2, 3: 4}  # four frames: 0.5 and 1.0
+    # shared min(0.8, 0.5) = 0.5 over min(1.6, 1.5)
+    assert rate_overlap(a, 10, b, 4) == pytest.approx(0.5 / 1.5)
+    assert rate_overlap(a, 10, a, 10) == pytest.approx(1.0)
+    assert rate_overlap(a, 10, {}, 0) == 0.0
+
+
+# -- rule 7: the area model accounts for every frame ---------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_every_sighting_belongs_to_exactly_one_area(seed: int) -> None:
+    walk = room_walk(seed, rooms=5, back=True, stay=(15, 30), door_frames=3, door_share=0.3)
+    rng = np.random.default_rng(seed)
+    frames = [[] if rng.random() < 0.05 else frame for frame in walk.frames]
+    tracker = AreaTracker()
+    sightings: Counter[int] = Counter()
+    nonempty = 0
+    for seq, frame in enumerate(frames):
+        change = tracker.observe(seq, float(seq), frame)
+        sightings.update(set(frame))
+        nonempty += bool(frame)
+        assert sum(tracker.area_frames) == nonempty
+        total: Counter[int] = Counter()
+        for counts in tracker.areas:
+            total.update(counts)
+        assert total == sightings
+        assert tracker.current not in tracker.merged
+        assert all(not tracker.areas[gone] for gone in tracker.merged)
+        if change is not None:
+            assert len(change.transition.closed.features) >= 5
+            assert change.area == tracker.current != change.left_area
+
+
+# -- rule 8: snapshots ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_restoring_at_every_frame_keeps_recognition_and_merges(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    frames = [
+        *stay(rng, A, 30),
+        *wide_door(rng, B, A),
+        *stay(rng, B, 20),
+        *wide_door(rng, A, B),
+        *stay(rng, H2, 20),
+        *stay(rng, A | H2, 30, p=0.6),
+        *stay(rng, A, 20),
+    ]
+    expected = track(frames)
+    tracker = AreaTracker()
+    found = []
+    for seq, frame in enumerate(frames):
+        data = to_bytes(tracker)
+        tracker = from_bytes(data)
+        assert to_bytes(tracker) == data
+        change = tracker.observe(seq, seq * 0.5, frame)
+        if change is not None:
+            found.append(change)
+    assert found == expected[1]
+    assert {Rule.SPLIT, Rule.RECOGNISED} <= {change.rule for change in found}
+    assert tracker.merged == expected[0].merged != {}
+    assert tracker.area_frames == expected[0].area_frames
+    assert to_bytes(tracker) == to_bytes(expected[0])
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("blind_frames", -1),
+        ("stay_share", 0.0),
+        ("familiar_rate", 0.0),
+        ("familiar_rate", 1.5),
+        ("familiar_margin_frames", -1),
+        ("recognise_frames", -1),
+        ("recognise_llr", -1.0),
+        ("merge_overlap", 0.0),
+    ],
+)
+def test_invalid_rule_params_are_named(field: str, value: float) -> None:
+    with pytest.raises(GraphError, match=field):
+        AreaParams(**{field: value})  # type: ignore[arg-type]
