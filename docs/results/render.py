@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from why import why_lines
 
+from lessmap.core.areas import AreaParams
 from lessmap.evaluation.diagnosis import Loss
 from lessmap.evaluation.markdown import (
     consistency_lines,
@@ -317,19 +318,32 @@ def _loss(result: MethodResult) -> Loss:
 
 def areas_lines(tables: str) -> list[str]:
     """The comparison of the paper's method with ``lessmap.core.areas`` (issue 18)."""
+    p = AreaParams()
     return [
         "## Beyond the paper: areas",
         "",
-        "`lessmap segment --method areas` (`lessmap.core.areas`) drives the paper's "
-        "partitioner as a proposer (Ncut ≤ 0.4, λ2 ≤ 0.4) on frames pooled to 6 features or 4 "
-        "frames, confirms a split only when both sides hold 5 features or more, and names the "
-        "area entered when a known area has seen half of its features (a revisit). The "
-        "default stays `paper`: the tables say where areas win and where they lose. "
-        "Transitions are counted per robot over its stamps; the simulated open room is "
-        "`simulate(seed, rooms=1, room_size_m=...)`: one room, no doors, wall landmarks, a "
-        "5 m sensor.",
+        "`lessmap segment --method areas` (`lessmap.core.areas`, rules in its module "
+        "docstring) drives the paper's partitioner as a proposer of new areas "
+        f"(Ncut ≤ {p.proposal.ncut_min:g}, λ2 ≤ {p.proposal.lambda2_min:g}) on frames pooled "
+        f"to {p.pool_min_features} features or {p.pool_max_frames} frames. A proposal "
+        f"becomes a transition when both sides hold {p.min_area_features} features or more, "
+        "the robot did not reach the new side blind (through "
+        f"{p.blind_frames} or more empty frames), and less than {p.stay_share:.0%} of the new "
+        "frames' sightings are of features the current area sees in "
+        f"{p.familiar_rate:.0%} of its frames (else the robot moved within its area); the "
+        f"area entered is a known one when it has seen {p.revisit_overlap:.0%} of the new "
+        "features. A known area is also recognised without "
+        f"a proposal, when each of the last {p.recognise_frames} frames fits its sighting "
+        f"profile better than the current area's, by {p.recognise_llr:g} nats per frame on "
+        "average; this is what finds a 360° sensor's doors in time. Two areas whose "
+        f"sighting rates overlap by {p.merge_overlap:g} or more are one area seen in two "
+        "parts and merge instead of making a transition. The default stays `paper`: the "
+        "tables say where areas win and where they lose. Transitions are counted per robot "
+        "over its stamps; the simulated open room is `simulate(seed, rooms=1, "
+        "room_size_m=...)`: one room, no doors, wall landmarks, a 5 m sensor.",
         "",
-        "`python -m lessmap.evaluation.areabench --seeds 5` (about 40 s) prints these tables; "
+        "`python -m lessmap.evaluation.areabench --seeds 5` (1-2 minutes) prints these tables; "
+        "`--first-seed 5` runs held-out seeds, on which no parameter was tuned. "
         "`lessmap segment --method areas FILE` and `lessmap eval FILE --no-sweep` (areas rows "
         "in both tables) give the per-file figures.",
         "",
