@@ -59,13 +59,21 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
         features = [robot * 10 + k for k in range(8)]
         return encode(Frame(session="s1", seq=seq, stamp_s=float(seq), features=features))
 
+    def scraped(name: str) -> float:
+        # A scrape may time out while the flood keeps the service busy (seen at load 9):
+        # that is "not yet" for a wait, not a failure.
+        try:
+            return metric_value(service.metrics(), name)
+        except OSError:
+            return -1.0
+
     # Warm the interpreter with a first wave (allocator arenas, codec caches), then measure.
     for robot in range(200):
         session.put(
             keys.frames(fleet_name, f"warm{robot}"), frame_of(robot, 0), congestion_control=BLOCK
         )
     wait_until(
-        lambda: metric_value(service.metrics(), "lessmap_sessions_evicted_total") >= 200,
+        lambda: scraped("lessmap_sessions_evicted_total") >= 200,
         60.0,
         "the warm-up sessions evicted",
     )
@@ -95,13 +103,13 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
                 congestion_control=BLOCK,
             )
         wait_until(
-            lambda: metric_value(service.metrics(), "lessmap_sessions_opened_total") >= opened,
+            lambda: scraped("lessmap_sessions_opened_total") >= opened,
             120.0,
             f"{ROBOTS} sessions opened",
         )
         peak = service.rss_kib()
         wait_until(
-            lambda: metric_value(service.metrics(), "lessmap_sessions_evicted_total") >= opened,
+            lambda: scraped("lessmap_sessions_evicted_total") >= opened,
             120.0,
             f"{ROBOTS} sessions evicted",
         )
@@ -126,7 +134,7 @@ def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     # An evicted robot speaks again: its session resumes where it stopped.
     session.put(keys.frames(fleet_name, "r7"), frame_of(7, 1), congestion_control=BLOCK)
     wait_until(
-        lambda: metric_value(service.metrics(), "lessmap_sessions_resumed_total") >= 1,
+        lambda: scraped("lessmap_sessions_resumed_total") >= 1,
         30.0,
         "the evicted session resumed",
     )
