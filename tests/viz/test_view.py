@@ -137,7 +137,17 @@ def test_view_serves_the_fleet_over_the_foxglove_websocket_protocol(
     assert summary["frames"] == len(ROBOTS) * FRAMES
 
 
-def test_a_client_that_connects_after_the_run_gets_the_scene_and_recent_transitions(
+def receive_until(
+    ws: Any, topic_of: dict[int, str], into: dict[str, list[bytes]], done: Callable[[], bool]
+) -> None:
+    """Receive on ``ws`` until ``done()`` (20 s at most)."""
+    deadline = time.monotonic() + 20
+    while not done():
+        assert time.monotonic() < deadline, {k: len(v) for k, v in into.items()}
+        receive(ws, topic_of, into)
+
+
+def test_late_clients_get_the_picture_and_no_client_sees_a_log_entry_twice(
     serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
 ) -> None:
     import lessmap_client
@@ -150,51 +160,125 @@ def test_a_client_that_connects_after_the_run_gets_the_scene_and_recent_transiti
         *("view", "--fleet", fleet_name, "-e", service.endpoint, "--port", str(port)),
     )
     log = tmp_path / "view.log"
-    received: dict[str, list[bytes]] = {}
+    early: dict[str, list[bytes]] = {}
+    joined: dict[str, list[bytes]] = {}
+    alone: dict[str, list[bytes]] = {}
     try:
         wait_until(lambda: "following fleet" in log.read_text(), 30, "the view to subscribe")
-        with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
-            assert conn.wait_for_service(20)
-            publish_walks(conn, fleet_name, ROBOTS)
-
-            def applied() -> bool:
-                states = {s.robot: s.frames_applied for s in conn.states(fleet_name)}
-                return all(states.get(r) == FRAMES for r in ROBOTS)
-
-            wait_until(applied, 30, "every frame to be applied")
-        wait_until(
-            lambda: log.read_text().count("submap 0 -> 1") == len(ROBOTS),
-            30,
-            "the view to receive the transitions",
-        )
-        # The run is over: no client was connected while it produced anything.
-        with connect_ws(port) as ws:
-            topic_of, _ = subscribe_all(ws, TOPICS)
-            deadline = time.monotonic() + 20
-            while not (
-                received.get("/lessmap/scene")
-                and len(received.get("/lessmap/transitions", [])) >= len(ROBOTS)
-                and received.get("/lessmap/tf")
-                and any(b"amr2" in p for p in received.get("/lessmap/state", []))
-            ):
-                assert time.monotonic() < deadline, {k: len(v) for k, v in received.items()}
-                receive(ws, topic_of, received)
+        with connect_ws(port) as first:
+            first_topics, _ = subscribe_all(first, TOPICS)
+            with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
+                assert conn.wait_for_service(20)
+                publish_walks(conn, fleet_name, ROBOTS)
+                receive_until(
+                    first,
+                    first_topics,
+                    early,
+                    lambda: len(early.get("/lessmap/transitions", [])) >= len(ROBOTS),
+                )
+            # A second client joins while the first one follows the log: it gets the scene,
+            # and the first one must not get the recent entries again.
+            with connect_ws(port) as second:
+                second_topics, _ = subscribe_all(second, TOPICS)
+                receive_until(second, second_topics, joined, lambda: "/lessmap/tf" in joined)
+                quiet = time.monotonic() + 2  # a re-send would arrive within milliseconds
+                while time.monotonic() < quiet:
+                    receive(first, first_topics, early)
+                    receive(second, second_topics, joined)
+        # The run is over and nobody is connected: a client alone gets the recent entries.
+        with connect_ws(port) as third:
+            third_topics, _ = subscribe_all(third, TOPICS)
+            receive_until(
+                third,
+                third_topics,
+                alone,
+                lambda: bool(
+                    alone.get("/lessmap/scene")
+                    and len(alone.get("/lessmap/transitions", [])) >= len(ROBOTS)
+                    and alone.get("/lessmap/tf")
+                    and any(b"amr2" in p for p in alone.get("/lessmap/state", []))
+                ),
+            )
     finally:
         summary = stop_command(view)
 
-    first = received["/lessmap/scene"][0]
+    assert len(early["/lessmap/transitions"]) == len(ROBOTS)  # each entry once
+    assert "/lessmap/transitions" not in joined
     for robot in ROBOTS:
-        assert f"{robot}/trajectory".encode() in first
-        assert DOOR_LABEL[robot] in first
-    logs = b"".join(received["/lessmap/transitions"])
+        assert f"{robot}/trajectory".encode() in joined["/lessmap/scene"][0]
+        assert f"{robot}/trajectory".encode() in alone["/lessmap/scene"][0]
+        assert DOOR_LABEL[robot] in alone["/lessmap/scene"][0]
+    logs = b"".join(alone["/lessmap/transitions"])
     for robot in ROBOTS:
         assert f"{robot}: submap 0 → 1 from seq {FRAMES_PER_ROOM}".encode() in logs
-    assert b"map" in received["/lessmap/tf"][0]
-    rows = json.loads(received["/lessmap/state"][-1])["robots"]  # the table comes every second
+    assert b"map" in alone["/lessmap/tf"][0]
+    rows = json.loads(alone["/lessmap/state"][-1])["robots"]  # the table comes every second
     assert [r["robot"] for r in rows] == ROBOTS
-    assert summary["scene re-sends"] >= 1
-    assert summary["transitions re-sent"] == len(ROBOTS)
+    assert summary["scene re-sends"] >= 3
+    assert summary["log re-sends withheld"] == 1  # the second client's
+    assert summary["transitions re-sent"] == len(ROBOTS)  # the third client's
     assert summary["transitions"] == len(ROBOTS)
+    assert "no frames readable" not in summary
+
+
+def test_a_view_that_cannot_read_frames_says_so(
+    serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
+) -> None:
+    import zenoh
+
+    from lessmap_client.session import open_session
+    from lessmap_schemas import codec, keys
+    from lessmap_schemas.messages import SubmapSummary, Transition
+
+    service = serve("--memory-only")
+    view = start_command(
+        tmp_path,
+        "view",
+        *("view", "--fleet", fleet_name, "-e", service.endpoint, "--port", "0"),
+    )
+    log = tmp_path / "view.log"
+    transition = Transition(
+        fleet=fleet_name,
+        robot="amr1",
+        session="s1",
+        seq=20,
+        boundary_seq=15,
+        stamp_s=1.0,
+        reason="DISCONNECTED",
+        ncut=None,
+        lambda2=None,
+        closed=SubmapSummary(id=0, first_seq=0, last_seq=14, frame_count=15, features=[1]),
+        opened=SubmapSummary(id=1, first_seq=15, last_seq=20, frame_count=6, features=[2]),
+        boundary_features=[],
+        batch_frames=1,
+        instance="i",
+        partition=0,
+        epoch=1,
+    )
+    try:
+        wait_until(lambda: "following fleet" in log.read_text(), 30, "the view to subscribe")
+        # A transition on the bus but no frame: what a view sees when the site's access
+        # control lets it read the transitions and not the frames.
+        session = open_session([service.endpoint], timeout_s=20)
+        try:
+            session.put(
+                keys.transitions(fleet_name, "amr1"),
+                codec.encode(transition),
+                encoding=zenoh.Encoding(codec.encoding(transition)),
+            )
+            wait_until(
+                lambda: "no frame reached the view" in log.read_text(), 30, "the view to say it"
+            )
+        finally:
+            session.close()
+    finally:
+        summary = stop_command(view)
+
+    (line,) = [x for x in log.read_text().splitlines() if "no frame reached the view" in x]
+    assert f"cannot read {keys.KEY_PREFIX}/{fleet_name}/*/frames/*" in line
+    assert summary["transitions"] == 1
+    assert summary["no frames readable"] == 1
+    assert "frames" not in summary
 
 
 def test_record_writes_the_same_channels_to_mcap(

@@ -10,13 +10,25 @@ robots that changed.
 Late joiners. Live messages reach only the clients subscribed when they are logged, so a
 client that connects (or subscribes) later would see an empty scene and log. The Foxglove
 SDK calls a server listener's ``on_subscribe`` after the new subscription is in place;
-``LateJoiners`` notes the topic and the feed's thread re-sends that channel's current
-picture: the whole scene, the ``map`` transform, the last state table, the CovGraph, and the
-recent transitions (``RECENT_TRANSITIONS_PER_ROBOT`` per robot). The Python SDK (0.30) cannot
-send to one client (its ``Client`` has no sink id), so a re-send goes to every client
-subscribed to that channel: harmless for the scene, transform and table, which replace what a
-client shows, but a client already following the log sees those recent entries once more.
-Re-sends go only to the live server's context, never into an MCAP file.
+``LateJoiners`` notes the topic and the client, and the feed's thread re-sends that channel's
+current picture: the whole scene, the ``map`` transform, the last state table, the CovGraph,
+and the recent transitions (``RECENT_TRANSITIONS_PER_ROBOT`` per robot).
+
+A re-send reaches every client subscribed to the channel: the Python SDK (0.30) cannot log
+to one client. ``Channel.log`` takes a ``sink_id`` and each WebSocket client is a sink, but
+the ``Client`` its listener receives carries only the server's client id, not the sink id
+(Rust's ``Client::sink_id`` is not bound), and the two differ once another sink exists (an
+MCAP file of ``view --mcap``). That is harmless for the scene, transform, table and CovGraph,
+whose messages replace what a panel shows, but a Log panel appends: so the recent
+transitions are re-sent only when every client subscribed to the log is new since the last
+re-send (the usual case: one viewer that reconnects). A client that joins while another one
+follows the log gets the scene (a label per doorway) and the table (transitions per robot)
+but no log history, and the one already following sees no entry twice. Re-sends go only to
+the live server's context, never into an MCAP file.
+
+Poses. The trajectories come from the robots' frames keys; a site's access control lets a
+fleet app (``app.<fleet>``) read the transitions but not the frames. When transitions arrive
+and no frame has reached the view ``NO_FRAMES_WARNING_S`` later, the feed says so once.
 """
 
 from __future__ import annotations
@@ -73,28 +85,48 @@ RECENT_TRANSITIONS_PER_ROBOT = 10
 #: At most this many in one re-send (the newest): the SDK queues up to 1024 messages per
 #: client and drops the oldest beyond that, which must not be the scene sent alongside.
 RECENT_TRANSITIONS_MAX = 500
+#: How long after the first transition a view with no frame at all says that it cannot read
+#: the robots' frames (their poses).
+NO_FRAMES_WARNING_S = 5.0
 
 
 class LateJoiners(ServerListener):
-    """A Foxglove server listener that notes the topics clients subscribe to.
+    """A Foxglove server listener that notes which clients subscribe to which topics.
 
-    Called on the SDK's threads: it only records the topic; the feed's thread re-sends.
+    Called on the SDK's threads: it only records; the feed's thread re-sends.
     """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._topics: set[str] = set()
+        self._following: dict[str, set[int]] = {}  # topic -> ids of the clients subscribed
+        self._new: dict[str, set[int]] = {}  # topic -> those subscribed since the last take
 
     def on_subscribe(self, client: Client, channel: ChannelView) -> None:
         """Note that a client subscribed to ``channel``."""
         with self._lock:
-            self._topics.add(channel.topic)
+            self._following.setdefault(channel.topic, set()).add(client.id)
+            self._new.setdefault(channel.topic, set()).add(client.id)
 
-    def take(self) -> set[str]:
-        """Return the topics subscribed to since the last call."""
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+        """Note that a client unsubscribed from ``channel`` (or disconnected)."""
         with self._lock:
-            topics, self._topics = self._topics, set()
-        return topics
+            self._following.get(channel.topic, set()).discard(client.id)
+            self._new.get(channel.topic, set()).discard(client.id)
+
+    def take(self) -> dict[str, bool]:
+        """Return the topics subscribed to since the last call.
+
+        Returns:
+            For each topic, whether every client subscribed to it is new since the last call,
+            i.e. whether a message logged now reaches no client twice.
+        """
+        with self._lock:
+            new, self._new = self._new, {}
+            return {
+                topic: self._following.get(topic, set()) <= clients
+                for topic, clients in new.items()
+                if clients
+            }
 
 
 class Channels:
@@ -170,6 +202,8 @@ class FleetFeed:
         self._recent: dict[str, deque[tuple[int, Log]]] = {}
         self._logged = 0
         self._state_message: dict[str, Any] | None = None
+        self._first_transition_at: float | None = None
+        self._warned_no_frames = False
 
     def start(self) -> FleetFeed:
         """Log the ``map`` transform, subscribe and start the feed's thread."""
@@ -229,11 +263,12 @@ class FleetFeed:
                 except Exception:  # the view must survive a bad event
                     log.exception("cannot show an event")
             if self._joiners is not None:
-                for topic in sorted(self._joiners.take()):
+                for topic, only_new in sorted(self._joiners.take().items()):
                     try:
-                        self._resend(topic)
+                        self._resend(topic, only_new=only_new)
                     except Exception:
                         log.exception("cannot re-send %s", topic)
+            self._check_frames()
             now = time.monotonic()
             if now >= next_scene:
                 self._log_scene()
@@ -246,6 +281,8 @@ class FleetFeed:
 
     def _apply(self, item: tuple[str, bytes] | Transition) -> None:
         if isinstance(item, Transition):
+            if self._first_transition_at is None:
+                self._first_transition_at = time.monotonic()
             mark = self.model.on_transition(item)
             if mark is not None:
                 log.info(
@@ -332,8 +369,34 @@ class FleetFeed:
             sink.state.log(self._state_message)
         self.counts["state tables"] += 1
 
-    def _resend(self, topic: str) -> None:
-        """Log a channel's current picture again, to the live server only."""
+    def _check_frames(self) -> None:
+        """Say once that no frame is readable if transitions came and frames did not."""
+        if self._first_transition_at is None or self._warned_no_frames:
+            return
+        if self.counts["frames"]:
+            self._warned_no_frames = True  # frames are readable: nothing to say
+        elif time.monotonic() - self._first_transition_at >= NO_FRAMES_WARNING_S:
+            self._warned_no_frames = True
+            self.counts["no frames readable"] = 1
+            log.warning(
+                "fleet %s: transitions arrive but no frame reached the view in %g s, so the "
+                "trajectories stay empty: this identity cannot read %s/%s/*/frames/* (under a "
+                "site's access control, app.%s may read the transitions but not the frames)",
+                self.fleet,
+                NO_FRAMES_WARNING_S,
+                keys.KEY_PREFIX,
+                self.fleet,
+                self.fleet,
+            )
+
+    def _resend(self, topic: str, *, only_new: bool) -> None:
+        """Log a channel's current picture again, to the live server only.
+
+        Args:
+            topic: the channel a client subscribed to.
+            only_new: no client subscribed to it has had its messages so far (a Log panel
+                would show a re-sent entry twice).
+        """
         live = self._live
         if live is None:
             return
@@ -348,6 +411,8 @@ class FleetFeed:
             graph = self._covgraph()
             if graph is not None:
                 live.graph.log(graph)
+        elif topic == TRANSITIONS_TOPIC and not only_new:
+            self.counts["log re-sends withheld"] += 1
         elif topic == TRANSITIONS_TOPIC:
             entries = sorted(
                 (item for recent in self._recent.values() for item in recent),
