@@ -281,6 +281,52 @@ def test_a_view_that_cannot_read_frames_says_so(
     assert "frames" not in summary
 
 
+def test_a_view_started_before_the_service_waits_for_it(
+    serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
+) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    view = start_command(
+        tmp_path, "view", *("view", "--fleet", fleet_name, "-e", endpoint, "--port", "0")
+    )
+    log = tmp_path / "view.log"
+    try:
+        wait_until(
+            lambda: f"waiting for the lessmap service on {endpoint} (up to 60 s" in log.read_text(),
+            30,
+            "the view to say it waits",
+        )
+        time.sleep(2)  # longer than any retry interval: the view keeps waiting
+        assert view.poll() is None
+        serve("--memory-only", "-l", endpoint)
+        wait_until(lambda: "following fleet" in log.read_text(), 45, "the view to connect")
+    finally:
+        summary = stop_command(view)
+    assert summary["fleet"] == fleet_name
+    assert log.read_text().count("waiting for the lessmap service") == 1
+
+
+def test_a_view_with_no_service_gives_up_in_one_line(fleet_name: str, tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    view = start_command(
+        tmp_path,
+        "view",
+        *("view", "--fleet", fleet_name, "-e", endpoint, "--port", "0"),
+        *("--connect-timeout", "1"),
+    )
+    try:
+        out, _ = view.communicate(timeout=30)
+    finally:
+        if view.poll() is None:
+            view.kill()
+            view.wait(5)
+    assert view.returncode == 1
+    assert out == ""
+    lines = (tmp_path / "view.log").read_text().strip().splitlines()
+    assert lines[-1].startswith(
+        f"lessmap view: no Zenoh router reachable at {endpoint} within 1 s (is `lessmap serve`"
+    )
+
+
 def test_record_writes_the_same_channels_to_mcap(
     serve: Callable[..., ServeProcess], fleet_name: str, tmp_path: Path
 ) -> None:

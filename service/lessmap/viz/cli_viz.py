@@ -25,6 +25,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: How long view and record wait for the lessmap router by default: they are often started
+#: together with ``lessmap serve``, which can take tens of seconds to listen on a loaded
+#: machine (the other foreground commands keep ``lessmap.foreground``'s default).
+CONNECT_TIMEOUT_S = 60.0
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -42,6 +46,13 @@ def _common(parser: argparse.ArgumentParser) -> None:
         help="also show this robot's CovGraph (its current submap, from its frames)",
     )
     add_run_options(parser)
+    parser.set_defaults(connect_timeout=CONNECT_TIMEOUT_S)
+    for action in parser._actions:  # argparse has no public way to reword an option's help
+        if action.dest == "connect_timeout":
+            action.help = (
+                "how long to wait for the lessmap router, saying so once while waiting "
+                f"(default {CONNECT_TIMEOUT_S:g})"
+            )
 
 
 def configure_view(parser: argparse.ArgumentParser) -> None:
@@ -166,7 +177,16 @@ def _follow(
     from lessmap_client.connection import Connection
     from lessmap_client.session import open_session
 
-    session = open_session(args.connect or [DEFAULT_ENDPOINT], timeout_s=args.connect_timeout)
+    endpoints = args.connect or [DEFAULT_ENDPOINT]
+    try:
+        session = open_session(endpoints, timeout_s=0)  # one attempt
+    except ConnectionError:
+        log.info(
+            "waiting for the lessmap service on %s (up to %g s, --connect-timeout)",
+            ", ".join(endpoints),
+            args.connect_timeout,
+        )
+        session = open_session(endpoints, timeout_s=args.connect_timeout)
     try:
         with Connection.from_session(session) as conn:
             feed = FleetFeed(
