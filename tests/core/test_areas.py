@@ -93,10 +93,10 @@ def test_pooling_feeds_the_proposer_fewer_frames() -> None:
     # pools: [1..4] (four features in four frames), [5, 6..11] (seven), one frame pending
     assert (tracker.params.pool_min_features, tracker.params.pool_max_frames) == (4, 4)
     assert tracker.proposer.frames_applied == 2
-    assert tracker.pool_frames == 1
+    assert tracker.pool.frames == 1
     wide, _ = track([[1], [2], [3], [4], [5]], AreaParams(pool_min_features=3, pool_max_frames=9))
     assert wide.proposer.frames_applied == 1  # [1, 2, 3] closed on features
-    assert wide.pool == {4, 5}
+    assert wide.pool.features == {4, 5}
 
 
 def test_stale_and_malformed_frames_change_nothing() -> None:

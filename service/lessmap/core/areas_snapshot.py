@@ -24,10 +24,8 @@ from lessmap.core.submaps import Reason
 
 AREAS_SNAPSHOT_VERSION = 2
 
+_POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
 _INT_FIELDS = (
-    "pool_first_seq",
-    "pool_frames",
-    "pool_index",
     "segment_id",
     "segment_first_seq",
     "segment_frame_count",
@@ -60,8 +58,8 @@ def to_bytes(tracker: AreaTracker) -> bytes:
     meta: dict[str, Any] = {
         "version": AREAS_SNAPSHOT_VERSION,
         "params": params,
-        "pool": sorted(tracker.pool),
-        "pool_starts": [list(pair) for pair in tracker.pool_starts],
+        "pool": sorted(tracker.pool.features),
+        "pool_starts": [list(pair) for pair in tracker.pool.starts],
         "frame_seqs": [seq for seq, _ in tracker.frames],
         "area_frames": list(tracker.area_frames),
         "merged": [[gone, into] for gone, into in tracker.merged.items()],
@@ -76,6 +74,7 @@ def to_bytes(tracker: AreaTracker) -> bytes:
             "lambda2": None if candidate.lambda2 is None else candidate.lambda2.hex(),
             "boundary_features": list(candidate.boundary_features),
         },
+        **{name: getattr(tracker.pool, field) for name, field in _POOL_FIELDS.items()},
         **{name: getattr(tracker, name) for name in _INT_FIELDS},
     }
     frame_offsets, frame_values = _pack([list(features) for _, features in tracker.frames])
@@ -116,8 +115,8 @@ def from_bytes(data: bytes) -> AreaTracker:
         fields["proposal"] = proposer.params
         tracker = AreaTracker(AreaParams(**fields))
         tracker.proposer = proposer
-        tracker.pool = set(meta["pool"])
-        tracker.pool_starts.extend((int(i), int(s)) for i, s in meta["pool_starts"])
+        tracker.pool.features = set(meta["pool"])
+        tracker.pool.starts.extend((int(i), int(s)) for i, s in meta["pool_starts"])
         frames = _unpack(arrays["frame_offsets"], arrays["frame_values"])
         tracker.frames.extend(
             (int(seq), tuple(features))
@@ -140,6 +139,8 @@ def from_bytes(data: bytes) -> AreaTracker:
         )
         tracker.area_frames = [int(n) for n in meta["area_frames"]]
         tracker.merged = {int(gone): int(into) for gone, into in meta["merged"]}
+        for name, field in _POOL_FIELDS.items():
+            setattr(tracker.pool, field, meta[name])
         for name in _INT_FIELDS:
             setattr(tracker, name, meta[name])
         tracker.last_stamp_s = float.fromhex(meta["last_stamp_s"])

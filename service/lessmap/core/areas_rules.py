@@ -1,0 +1,176 @@
+"""The tests of rules 3-5 (``lessmap.core.areas``) over an ``AreaTracker``'s kept frames.
+
+Pure functions of the frames of the current segment (oldest first) and the areas' counts;
+the tracker decides what to do with their answers.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from lessmap.core.areas_profile import tally, without
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Sequence
+
+    from lessmap.core.areas_profile import Frame, Profile
+
+
+def sides(
+    frames: Iterable[Frame], segment_counts: dict[int, int], boundary: int
+) -> tuple[dict[int, int], dict[int, int], int]:
+    """Split the segment at the boundary.
+
+    Returns:
+        Sightings per feature from the boundary on, the features seen before it, and
+        the number of non-empty frames from the boundary on.
+    """
+    after, moved = tally(frame for frame in frames if frame[0] >= boundary)
+    return after, without(segment_counts, after), moved
+
+
+def blind_before(frames: Iterable[Frame], boundary: int, blind_frames: int) -> bool:
+    """Whether the first sighting from the boundary on follows ``blind_frames`` empty frames.
+
+    Rule 3b. A pool may start on an empty frame, so the empty frames right after the
+    boundary count too.
+    """
+    if not blind_frames:
+        return False
+    empty = 0
+    for frame_seq, features in frames:
+        if features:
+            if frame_seq >= boundary:
+                break
+            empty = 0
+        else:
+            empty += 1
+    return empty >= blind_frames
+
+
+def familiar_share(
+    frames: Sequence[Frame],
+    counts: dict[int, int],
+    area_frames: int,
+    boundary: int,
+    after: dict[int, int],
+    *,
+    rate: float,
+    margin: int,
+) -> float:
+    """Share of the new frames' sightings the current area knows well (rule 3c).
+
+    Args:
+        frames: the kept frames of the current segment.
+        counts: the current area's sightings per feature (the segment's included).
+        area_frames: the current area's non-empty frames (the segment's included).
+        boundary: the first frame of the new side.
+        after: sightings per feature from the boundary on.
+        rate: ``familiar_rate``.
+        margin: ``familiar_margin_frames``.
+    """
+    start = boundary
+    if margin:
+        earlier = [s for s, features in frames if features and s < boundary]
+        if earlier:
+            start = earlier[-min(margin, len(earlier))]
+    left_out, left_frames = tally(frame for frame in frames if frame[0] >= start)
+    remaining = area_frames - left_frames
+    if remaining <= 0:
+        return 0.0
+    least = rate * remaining
+    familiar = 0
+    for feature, n in after.items():
+        seen = counts.get(feature, 0) - left_out.get(feature, 0)
+        if seen > 0 and seen >= least:
+            familiar += n
+    return familiar / sum(after.values())
+
+
+def seen_share(counts: dict[int, int], after: dict[int, int]) -> float:
+    """Share of the features in ``after`` that an area's ``counts`` hold (rule 4)."""
+    return sum(1 for feature in after if feature in counts) / len(after)
+
+
+def known_area(
+    areas: Sequence[dict[int, int]],
+    live: Iterable[int],
+    current: int,
+    after: dict[int, int],
+    least: float,
+) -> tuple[int | None, float]:
+    """The known area (not the current one) that has seen most of ``after`` (rule 4).
+
+    None, 0 when no area has seen a share ``least`` of its features.
+    """
+    best: int | None = None
+    share = 0.0
+    for area in live:
+        counts = areas[area]
+        if area == current or not counts:
+            continue
+        seen = seen_share(counts, after)
+        if seen > share:
+            best, share = area, seen
+    if best is None or share < least:
+        return None, 0.0
+    return best, share
+
+
+def last_nonempty(frames: Sequence[Frame], count: int) -> Sequence[Frame] | None:
+    """The last ``count`` non-empty frames, oldest first (None if fewer)."""
+    found: list[Frame] = []
+    for frame in reversed(frames):
+        if frame[1]:
+            found.append(frame)
+            if len(found) == count:
+                return found[::-1]
+    return None
+
+
+def best_fit(
+    window: Sequence[Frame],
+    here: Profile,
+    live: Iterable[int],
+    profile_of: Callable[[int], Profile | None],
+    least_llr: float,
+) -> int | None:
+    """The area whose profile fits every frame of ``window`` better than ``here`` (rule 5).
+
+    Of the areas that fit each frame better, by ``least_llr`` nats per frame on average,
+    the one with the largest average; None when there is none. ``profile_of`` gives None
+    for the current area and for areas without frames.
+    """
+    fits_here = [here.loglik(features) for _, features in window]
+    best: int | None = None
+    best_gain = 0.0
+    for area in live:
+        there = profile_of(area)
+        if there is None:
+            continue
+        gains = [there.loglik(f) - h for (_, f), h in zip(window, fits_here, strict=True)]
+        gain = sum(gains) / len(gains)
+        if min(gains) > 0 and gain >= least_llr and gain > best_gain:
+            best, best_gain = area, gain
+    return best
+
+
+def walk_back(
+    frames: Sequence[Frame], boundary: int, first: int, there: Profile, here: Profile
+) -> int:
+    """Move a recognised boundary back over the earlier frames that fit ``there`` better.
+
+    Stops at the first non-empty frame that does not, and never reaches the segment's first
+    frame ``first``.
+    """
+    for frame_seq, features in reversed(frames):
+        if frame_seq >= boundary:
+            continue
+        if frame_seq <= first:
+            break
+        if not features:
+            continue
+        if there.loglik(features) <= here.loglik(features):
+            break
+        boundary = frame_seq
+    return boundary
