@@ -131,6 +131,16 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     new_sessions_burst: int = Field(
         2000, ge=1, description="new sessions a fleet may open in a burst"
     )
+    # Deciding at every frame is the paper's loop and the default; a shard that falls behind
+    # (a frame waited this long) decides once per robot turn instead, for all the frames the
+    # robot has pending (up to max_batch_frames, ``Transition.batch_frames``): a decision
+    # costs 1.5-3 x a frame's counting, so deciding per frame under a backlog only deepens it.
+    coalesce_after_ms: float = Field(
+        50.0,
+        ge=0.0,
+        description="a frame that waited this long in the queue makes its robot's pending "
+        "frames share one decision (ms)",
+    )
     fair_quantum: int = Field(
         5_000_000,
         ge=1000,

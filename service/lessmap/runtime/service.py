@@ -170,6 +170,7 @@ class Service:
                     linger_s=s.batch_linger_ms / 1000.0,
                     request_catchup=self._request_catchup,
                     quantum=s.fair_quantum,
+                    coalesce_after_s=s.coalesce_after_ms / 1000.0,
                     owns=self.ownership.owns,
                 )
             )

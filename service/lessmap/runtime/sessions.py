@@ -429,6 +429,29 @@ class SessionTable:
         finally:
             self._decide_every = limit
 
+    def handle_turns(
+        self,
+        turns: Iterable[tuple[RobotKey, list[Frame | SessionEnd], int | None]],
+        now_s: float,
+    ) -> Outcome:
+        """Apply several robots' turns, each as ``handle_batch`` of its messages, one outcome.
+
+        A turn is (robot, its messages in arrival order, its ``decide_every``). The shard
+        hands a whole round's plain turns at once: one call, one outcome and one publish for
+        many robots instead of one each (the runtime's cost per frame, not the core's).
+        """
+        outcome = Outcome()
+        limit = self._max_batch_frames
+        try:
+            for key, robot_messages, decide_every in turns:
+                self._decide_every = (
+                    limit if decide_every is None else max(1, min(decide_every, limit))
+                )
+                self._handle_robot_safely(key, robot_messages, now_s, outcome)
+        finally:
+            self._decide_every = limit
+        return outcome
+
     def _handle_batch(
         self, messages: Iterable[tuple[str, str, Frame | SessionEnd]], now_s: float
     ) -> Outcome:
@@ -437,25 +460,30 @@ class SessionTable:
         for fleet, robot, message in messages:
             per_robot.setdefault((fleet, robot), []).append(message)
         for key, robot_messages in per_robot.items():
-            try:
-                self._handle_robot(key, robot_messages, now_s, outcome)
-            except Exception as exc:
-                # A bug in one session must not stop the others: drop that session (its
-                # state is suspect), report it, go on. The shard logs the traceback.
-                outcome.failures.append((key, exc))
-                broken = self._open.pop(key, None)
-                if broken is not None:
-                    self._set_edges(broken, 0)
-                self._holding.discard(key)
-                outcome.reject(
-                    key[0],
-                    key[1],
-                    broken.session if broken else None,
-                    ErrorCode.INTERNAL,
-                    f"session reset after an internal error: {type(exc).__name__}",
-                    None,
-                )
+            self._handle_robot_safely(key, robot_messages, now_s, outcome)
         return outcome
+
+    def _handle_robot_safely(
+        self, key: RobotKey, messages: list[Frame | SessionEnd], now_s: float, out: Outcome
+    ) -> None:
+        try:
+            self._handle_robot(key, messages, now_s, out)
+        except Exception as exc:
+            # A bug in one session must not stop the others: drop that session (its
+            # state is suspect), report it, go on. The shard logs the traceback.
+            out.failures.append((key, exc))
+            broken = self._open.pop(key, None)
+            if broken is not None:
+                self._set_edges(broken, 0)
+            self._holding.discard(key)
+            out.reject(
+                key[0],
+                key[1],
+                broken.session if broken else None,
+                ErrorCode.INTERNAL,
+                f"session reset after an internal error: {type(exc).__name__}",
+                None,
+            )
 
     def _handle_robot(
         self, key: RobotKey, messages: list[Frame | SessionEnd], now_s: float, out: Outcome

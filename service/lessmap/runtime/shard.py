@@ -16,14 +16,22 @@ CovGraph's edges, ``SessionTable.decision_cost``) and is served what its deficit
 - all of its pending frames with a decision after each, when that fits (a robot that keeps
   up on its own is never coalesced because another robot was expensive);
 - else as many frames as fit with one decision per ``max_batch_frames`` (the robot's own
-  load coalesces its own frames);
+  load coalesces its own frames); the same when the shard is behind, i.e. the robot's
+  oldest pending frame waited longer than ``coalesce_after_s`` (deciding at every frame
+  under a backlog would only deepen it: a decision costs 1.5-3 x a frame's counting);
 - else nothing this round (the deficit carries over, so a frame larger than the quantum
   waits a few rounds while the other robots are served).
 
-A robot's turn is one ``handle_batch`` call under the table's lock, so state queries are
-answered between turns. ``max_batch_frames = 1`` still decides at every frame. What a turn
-produced is published before the lock is let go (``_step``): a partition handed over in
-between would otherwise checkpoint a session whose transition the fence then held back.
+Turns of plain frames are planned robot by robot but handed to the table together, up to
+``_FLUSH_FRAMES`` frames at a time (``SessionTable.handle_turns``: one call, one lock, one
+outcome and one publish for a chunk of robots: at fleet rates most robots have one frame a
+round, and a call, an outcome and a publish per frame cost a third of the core's own work).
+Each robot keeps its own ``decide_every``; its frames stay in order (a robot has one turn a
+round, and anything else of its turn, a catch-up reply or a probe, flushes the chunk first).
+State queries are answered between chunks. ``max_batch_frames = 1`` still decides at every
+frame. What a chunk produced is published before the lock is let go (``_step``): a
+partition handed over in between would otherwise checkpoint a session whose transition the
+fence then held back; ownership is checked again under that lock.
 
 Catch-up: when the table holds frames beyond a gap it returns ``CatchupRequest``s; the worker
 hands them to ``request_catchup`` (the service sends a Zenoh query with callbacks and
@@ -61,6 +69,7 @@ _BATCH_MAX = 4096  # messages moved from the queue to the lanes per round
 _ROBOT_SHARE = 4  # one robot may hold at most 1/_ROBOT_SHARE of the queue (messages, bytes)
 _LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
+_FLUSH_FRAMES = 64  # plain frames of several robots' turns handed to the table at once
 _KEYS_REMEMBERED = 65_536  # parsed robot keys kept (``_parse_key``)
 
 LIVE = 0  # a sample of the frames subscriber
@@ -103,6 +112,7 @@ class Shard:
         linger_s: float = 0.0,
         request_catchup: Callable[[Shard, CatchupRequest], None] | None = None,
         quantum: int = 5_000_000,
+        coalesce_after_s: float = 0.05,
         owns: Callable[[str, str], bool] | None = None,
     ) -> None:
         self.index = index
@@ -124,11 +134,15 @@ class Shard:
         self._linger_s = linger_s
         self._request_catchup = request_catchup
         self._quantum = quantum
+        self._coalesce_after_s = coalesce_after_s
         self._lanes: dict[tuple[str, str], _Lane] = {}  # insertion order = round order
         self._robot_of: dict[str, tuple[str, str]] = {}  # valid keys seen: (fleet, robot)
         # Seconds waited by the round's frames, for the latency histograms (``_round``).
         self._queue_waits: list[float] = []
         self._frame_waits: list[float] = []
+        # Planned turns of plain frames not yet handed to the table (``_flush``).
+        self._deferred: list[tuple[tuple[str, str], list[Frame | SessionEnd], int | None]] = []
+        self._deferred_items: list[Inbound] = []
         self._ready = threading.Condition()
         self._stopping = False
         self._abandon = False  # stop overran its time: leave the rest to the robots' caches
@@ -375,7 +389,11 @@ class Shard:
                 self._turn(key, lane)
                 if not lane.items:
                     del self._lanes[key]  # an empty lane keeps no credit (DRR)
+                if len(self._deferred_items) >= _FLUSH_FRAMES:
+                    self._flush()
         finally:
+            # Planned turns are applied even when a turn failed: their bounds are held.
+            self._flush()
             # The round's latencies, counted once (a histogram takes a lock per call).
             if self._queue_waits:
                 metrics.queue_latency_seconds.observe_many(self._queue_waits)
@@ -420,7 +438,10 @@ class Shard:
         # Plan: (item, decoded message or None, its cost without a decision).
         plan: list[tuple[Inbound, Frame | SessionEnd | None, int]] = []
         total = 0  # cost of the planned messages, decisions left out
-        fits_per_frame = True  # the plan affords a decision after every message
+        # The plan affords a decision after every message, unless the robot's oldest frame
+        # waited too long: a shard behind its robots shares decisions (module doc).
+        head_received = lane.items[0].received_s if lane.items else 0.0
+        fits_per_frame = head_received <= 0.0 or now - head_received <= self._coalesce_after_s
         while lane.items and len(plan) < len(lane.items):
             index = len(plan)
             if index == 0 and not self._decoded_head(key, lane, rejected):
@@ -466,6 +487,23 @@ class Shard:
         fleet, robot = key
         queue_waits = self._queue_waits
         debug = log.isEnabledFor(logging.DEBUG)
+        if all(item.kind == LIVE and message is not None for item, message, _ in plan):
+            # The common case: plain frames, handed to the table with other robots' turns.
+            messages: list[Frame | SessionEnd] = []
+            for item, message, _cost in plan:
+                queue_waits.append(now - item.received_s)
+                messages.append(message)  # type: ignore[arg-type]  # checked just above
+                if debug:
+                    log.debug(
+                        "<<- %s %s seq=%s",
+                        item.key,
+                        type(message).__name__,
+                        getattr(message, "seq", None),
+                    )
+            self._deferred.append((key, messages, decide_every))
+            self._deferred_items += [item for item, _message, _cost in plan]
+            return
+        self._flush()  # anything else of this robot comes after its earlier turns
         live: list[tuple[str, str, Frame | SessionEnd]] = []
         recovered: list[Inbound] = []
         items = [item for item, _message, _cost in plan]
@@ -510,6 +548,36 @@ class Shard:
                 self._give_back(items)
         done = time.monotonic()
         self._frame_waits += [done - item.received_s for item in items if item.kind == LIVE]
+
+    def _flush(self) -> None:
+        """Hand the deferred turns to the table in one step, then release their bounds."""
+        turns, items = self._deferred, self._deferred_items
+        if not turns:
+            return
+        self._deferred, self._deferred_items = [], []
+        now = time.monotonic()
+        try:
+            self._step(now, self._handle_owned_turns, turns, now)
+        finally:
+            with self._ready:
+                self._give_back(items)
+        done = time.monotonic()
+        self._frame_waits += [done - item.received_s for item in items]
+
+    def _handle_owned_turns(
+        self,
+        turns: list[tuple[tuple[str, str], list[Frame | SessionEnd], int | None]],
+        now: float,
+    ) -> Outcome:
+        """``handle_turns`` for the robots still owned (called under the lock, ``_step``)."""
+        owns = self._owns
+        if owns is not None:
+            kept = [turn for turn in turns if owns(*turn[0])]
+            if len(kept) < len(turns):
+                foreign = sum(len(turn[1]) for turn in turns) - sum(len(t[1]) for t in kept)
+                self._outbox.metrics.frames_foreign.inc(foreign)
+                turns = kept
+        return self.table.handle_turns(turns, now)
 
     def _news(self, fleet: str, robot: str, item: Inbound) -> Frame | SessionEnd | None:
         """A probed message, if it decodes and the table does not know it yet."""
