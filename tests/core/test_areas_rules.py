@@ -16,6 +16,7 @@ import pytest
 from lessmap.core import GraphError, Reason
 from lessmap.core.areas import (
     AreaParams,
+    AreaReason,
     AreaTracker,
     AreaTransition,
     Rule,
@@ -78,6 +79,7 @@ def test_a_room_reached_blind_is_no_transition(seed: int) -> None:
     assert set(tracker.area_features(0)) == A | B  # one area, both sides
     _, blind_allowed = track(frames, AreaParams(blind_frames=0))
     assert [c.transition.reason for c in blind_allowed] == [Reason.DISCONNECTED]
+    assert [c.reason for c in blind_allowed] == [AreaReason.DISCONNECTED]
     assert 30 <= blind_allowed[0].transition.boundary_seq <= 33
     # the same rooms without the empty frames: a door, and a transition
     rng = np.random.default_rng(seed)
@@ -161,8 +163,11 @@ def test_a_known_room_is_recognised_through_a_wide_door(seed: int) -> None:
     assert back.rule is Rule.RECOGNISED
     assert back.revisit_of == 0
     assert 60 <= back.transition.boundary_seq <= back.transition.seq <= 70
-    assert back.transition.reason is Reason.SPECTRAL
+    assert back.reason is AreaReason.RECOGNISED  # no Eq. 4 test ran
     assert back.transition.ncut is None
+    assert back.transition.lambda2 is None
+    assert found[0].rule is Rule.SPLIT
+    assert str(found[0].reason) == str(found[0].transition.reason)  # a split: the paper's
     assert len(back.transition.closed.features) >= 5
     _, unrecognised = track(frames, AreaParams(recognise_frames=0))
     assert all(change.transition.seq > 70 for change in unrecognised[1:])

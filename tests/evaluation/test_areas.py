@@ -75,6 +75,11 @@ def test_areas_name_the_rooms_a_simulated_robot_returns_to() -> None:
     assert score.recognised_share >= 0.8
     assert score.false_share is not None
     assert score.false_share <= 0.1
+    events = [e for mine in found.values() for e in mine]
+    recognised = [e for e in events if e.reason == "RECOGNISED"]
+    assert recognised  # rule 5 found some of them, and says so
+    assert all(e.revisit for e in recognised)
+    assert {e.reason for e in events} <= {"SPECTRAL", "DISCONNECTED", "RECOGNISED"}
 
 
 def test_the_revisit_target_counts_no_false_name_as_met() -> None:

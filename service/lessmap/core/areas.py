@@ -68,7 +68,13 @@ from collections import deque
 from typing import TYPE_CHECKING
 
 from lessmap.core import areas_rules as rules
-from lessmap.core.areas_events import AreaTransition, Candidate, Rule, segment_transition
+from lessmap.core.areas_events import (
+    AreaReason,
+    AreaTransition,
+    Candidate,
+    Rule,
+    segment_transition,
+)
 from lessmap.core.areas_model import merge, move
 from lessmap.core.areas_params import AreaParams
 from lessmap.core.areas_pool import Pool
@@ -91,6 +97,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AreaParams",
+    "AreaReason",
     "AreaTracker",
     "AreaTransition",
     "Candidate",

@@ -19,15 +19,26 @@ class Rule(StrEnum):
     RECOGNISED = "recognised"  # the last frames fit a known area better (rule 5)
 
 
+class AreaReason(StrEnum):
+    """Why an area change was declared: the paper's two reasons, and recognition."""
+
+    SPECTRAL = "SPECTRAL"  # a proposal passed Eq. 4 (the proposer's thresholds)
+    DISCONNECTED = "DISCONNECTED"  # the proposer's CovGraph fell apart
+    RECOGNISED = "RECOGNISED"  # the last frames fit a known area (rule 5): no Eq. 4 test
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class AreaTransition:
     """The robot left one area for another; ``transition`` in the paper's terms.
 
     ``transition.closed`` and ``transition.opened`` are the segments of frames on either
     side of the boundary (their ids count segments, from 0 per tracker); ``area`` and
-    ``left_area`` name the areas those segments belong to. A ``RECOGNISED`` change ran no
-    Eq. 4 test: its ``transition.reason`` is ``SPECTRAL`` with ``ncut`` and ``lambda2``
-    None, and ``rule`` says so.
+    ``left_area`` name the areas those segments belong to.
+
+    ``reason`` is why the change was declared. Read it rather than ``transition.reason``:
+    the paper's ``Reason`` has no value for a recognised change, so such a change's
+    ``transition`` says ``SPECTRAL``, with ``ncut`` and ``lambda2`` None because no Eq. 4
+    test ran.
     """
 
     transition: Transition
@@ -36,6 +47,13 @@ class AreaTransition:
     revisit_of: int | None  # == area when the area was known before, else None
     overlap: float  # share of the new frames' features the entered area had seen (0: new)
     rule: Rule = Rule.SPLIT
+
+    @property
+    def reason(self) -> AreaReason:
+        """Why the change was declared (``RECOGNISED`` for rule 5)."""
+        if self.rule is Rule.RECOGNISED:
+            return AreaReason.RECOGNISED
+        return AreaReason(self.transition.reason.value)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from lessmap.core import Partitioner, PartitionParams
-from lessmap.core.areas import AreaParams, AreaTracker, Rule
+from lessmap.core.areas import AreaParams, AreaTracker
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -140,7 +140,7 @@ def run_method(
                     left_area=change.left_area,
                     revisit=change.revisit_of is not None,
                     closed_features=len(t.closed.features),
-                    reason="RECOGNISED" if change.rule is Rule.RECOGNISED else str(t.reason),
+                    reason=str(change.reason),
                 )
             )
     return found
