@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from lessmap.core import CovGraph, Partitioner, PartitionParams, drift
-from lessmap.core.counts import Changes
+from lessmap.core.counts import BlockChanges, Changes
 from lessmap.core.drift import Floor, carry, cross_norm
 from lessmap.core.snapshot import from_bytes, to_bytes
 from lessmap.core.spectral import fiedler_pair
@@ -31,7 +31,17 @@ def changes_between(before: NDArray[np.float64], after: NDArray[np.float64]) -> 
     padded[:m, :m] = before
     delta = np.triu(after - padded, k=1)
     rows, cols = np.nonzero(delta)
-    return Changes(rows, cols, delta[rows, cols], after[rows, cols])
+    return Changes(rows, cols, delta[rows, cols])
+
+
+def blocks_between(
+    before: NDArray[np.float64], after: NDArray[np.float64], extra: NDArray[np.int64]
+) -> BlockChanges:
+    """Brute force in the dense store's form: the old rows that moved, plus ``extra`` ones."""
+    m = before.shape[0]
+    delta = after[:m, :m] - before
+    rows = np.union1d(np.flatnonzero((delta != 0.0).any(axis=1)), extra).astype(np.int64)
+    return BlockChanges(m, rows, delta[rows], after[m:])
 
 
 def perturbed(
@@ -67,12 +77,18 @@ def test_the_carried_floor_never_exceeds_lambda2(
     lambda2_then, _ = fiedler_pair(w0)
     w1 = perturbed(rng, w0, share, scale, added)
     degrees = w1.sum(axis=1)
-    lower = carry(Floor(lambda2_then, w0.sum(axis=1)), degrees, changes_between(w0, w1))
+    floor = Floor(lambda2_then, w0.sum(axis=1))
+    lower = carry(floor, degrees, changes_between(w0, w1))
+    extra = rng.choice(n, size=int(rng.integers(0, n)), replace=False)
+    from_blocks = carry(floor, degrees, blocks_between(w0, w1, extra))
     if degrees.min() > 0.0:
         lambda2_now, _ = fiedler_pair(w1)
         assert lower <= lambda2_now + 1e-12  # LAPACK's own error, not the margin
+        assert from_blocks <= lambda2_now + 1e-12
+        # The same sums; only the allowance differs (blocks count more terms).
+        assert abs(from_blocks - lower) <= 1e-10 * (1.0 + abs(lower))
     else:
-        assert lower == -np.inf
+        assert lower == from_blocks == -np.inf
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -124,6 +140,9 @@ def test_both_stores_report_the_changes_since_the_mark(dense_max_nodes: int) -> 
     graph.mark()
     found = graph.changes()
     assert found is not None
+    if isinstance(found, BlockChanges):
+        assert not found.moved.any()
+        found = found.entries()
     assert found.rows.size == 0
     for seq, frame in enumerate(frames[20:], start=20):
         graph.add_frame(seq, [*frame, 100 + seq])  # a new node in every frame
@@ -131,17 +150,13 @@ def test_both_stores_report_the_changes_since_the_mark(dense_max_nodes: int) -> 
     found = graph.changes()
     expected = changes_between(before, after)
     assert found is not None
-    got = sorted(zip(found.rows.tolist(), found.cols.tolist(), found.delta, found.now, strict=True))
-    want = sorted(
-        zip(
-            expected.rows.tolist(),
-            expected.cols.tolist(),
-            expected.delta,
-            expected.now,
-            strict=True,
-        )
-    )
+    assert isinstance(found, BlockChanges) == (dense_max_nodes == 400)
+    if isinstance(found, BlockChanges):
+        found = found.entries()
+    got = sorted(zip(found.rows.tolist(), found.cols.tolist(), found.delta, strict=True))
+    want = sorted(zip(expected.rows.tolist(), expected.cols.tolist(), expected.delta, strict=True))
     assert got == want
+    assert len(want) > 100
     assert np.allclose(graph.degrees(), after.sum(axis=1), rtol=1e-14, atol=0.0)  # sum order
 
 

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
     from scipy import sparse
 
-    from lessmap.core.counts import Changes, CountStore
+    from lessmap.core.counts import BlockChanges, Changes, CountStore
     from lessmap.core.spectral import Similarity
 
 
@@ -212,8 +212,11 @@ class CovGraph:
         self._refresh()
         self._store.mark()
 
-    def changes(self) -> Changes | None:
-        """Return the entries of W that moved since the last ``mark`` (None: no mark).
+    def changes(self) -> Changes | BlockChanges | None:
+        """Return what of W moved since the last ``mark`` (None: no mark).
+
+        The sparse form lists the changed entries (``Changes``), the dense form hands over
+        the rows that may have moved (``BlockChanges``).
 
         A mark lasts until the graph is reshaped (``keep_only``, a load) or changes storage
         form (growing past ``dense_max_nodes``); node indices never change in between, so

@@ -33,7 +33,8 @@ Every norm is bounded from above by a Frobenius norm, so the result is a proof i
 arithmetic. In floating point, each sum of K squares or products is within g_K = Kε/(1 - Kε)
 of its value relative to the sum of its terms' magnitudes (Higham, Accuracy and Stability,
 §3.1), and each entry carries a few more ε. ``carry`` subtracts that allowance explicitly
-(``_rounding``), with K = changed entries + nodes; ||B||_F² is a difference of sums and can
+(``_rounding``), with K = changed entries (or the dense store's block entries) + nodes;
+||B||_F² is a difference of sums and can
 cancel (a nearly complete bipartite block), so its allowance is added before the square
 root, never left to the margin. The allowance is ~1e-12 at thousands of changes, far below
 what a frame moves the floor. The floor itself comes from a proof that keeps
@@ -50,6 +51,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lessmap.core.counts import BlockChanges
 from lessmap.core.spectral import CERTIFICATE_MARGIN, lambda2_exceeds
 
 if TYPE_CHECKING:
@@ -96,13 +98,14 @@ class Floor:
     degrees: NDArray[np.float64]
 
 
-def carry(floor: Floor, degrees: NDArray[np.float64], changes: Changes) -> float:
+def carry(floor: Floor, degrees: NDArray[np.float64], changes: Changes | BlockChanges) -> float:
     """Return a proven lower bound of λ2 now, from the floor at the mark (see the module).
 
     Args:
         floor: the proven floor and the degrees at the mark, shape (m,).
         degrees: the row sums of W now, shape (n,), n >= m.
-        changes: the entries of W that moved since the mark.
+        changes: what of W moved since the mark: its entries (sparse store) or its rows
+            (dense store); both give the same sums up to rounding.
 
     Returns:
         The bound; -inf when it cannot be carried (an isolated node, fewer nodes).
@@ -110,35 +113,92 @@ def carry(floor: Floor, degrees: NDArray[np.float64], changes: Changes) -> float
     old, n = floor.degrees.size, degrees.size
     if n < old or old < 2 or not degrees.min() > 0.0:
         return -np.inf
-    slack = _rounding(changes.rows.size + n)
-    inv_sqrt = 1.0 / np.sqrt(degrees)
-    scaled = changes.delta * inv_sqrt[changes.rows] * inv_sqrt[changes.cols]
-    touches_new = changes.cols >= old  # cols > rows: a new endpoint is always cols
-    both_new = changes.rows >= old
-    moved = float(np.sqrt(2.0 * np.sum(np.square(scaled[~touches_new]))))
+    total = float(degrees.sum())
+    if isinstance(changes, BlockChanges):
+        if changes.old != old:
+            return -np.inf  # not the floor's mark: nothing to carry from
+        sums = _block_sums(changes, degrees, total)
+    else:
+        sums = _entry_sums(changes, degrees, old, total)
+    slack = _rounding(sums.terms + n)
     ratio = np.sqrt(floor.degrees / degrees[:old])
     rescaled = float(np.max(np.abs(ratio - 1.0))) * (1.0 + float(ratio.max()))
-    u_now = np.sqrt(degrees / degrees.sum())
+    u_now = np.sqrt(degrees / total)
     u_then = np.sqrt(floor.degrees / floor.degrees.sum())
     u_old = u_now[:old]
     norm_old = float(np.linalg.norm(u_old))
     turned = 2.0 * float(np.linalg.norm(u_old - u_then)) * (norm_old + 1.0)
-    drift = moved + rescaled + turned
+    drift = float(np.sqrt(sums.old)) + rescaled + turned
     a = floor.lower - drift - slack * (abs(floor.lower) + drift + 1.0)
     if n == old:
         return a
-    within = float(np.sqrt(2.0 * np.sum(np.square(scaled[both_new]))))
+    within = float(np.sqrt(sums.new))
     c = 1.0 - within - slack * (within + 1.0)
-    cross = touches_new & ~both_new
     beta = cross_norm(
-        float(np.sum(np.square(scaled[cross]))),
+        sums.cross,
         4.0 * norm_old**2 * float(np.sum(np.square(u_now[old:]))),
-        4.0
-        * float(np.sum(scaled[cross] * u_now[changes.rows[cross]] * u_now[changes.cols[cross]])),
+        4.0 * sums.overlap,
         slack,
     )
     lowest = 0.5 * (a + c) - float(np.hypot(0.5 * (a - c), beta))
     return lowest - slack * (abs(a) + abs(c) + beta)
+
+
+@dataclass(frozen=True, slots=True)
+class _Sums:
+    """The sums ``carry`` needs, with s_ij = (W'_ij - W0_ij) / √(d'_i d'_j), u = √(d'/Σd')."""
+
+    old: float  # Σ s² over the old x old block, both triangles: ||S'_OO - R S0 R||_F²
+    new: float  # Σ s² over the new x new block, both triangles: ||S'_NN||_F²
+    cross: float  # Σ s² over the new x old block, each pair once: ||S'_ON||_F²
+    overlap: float  # Σ s_ij u_i u_j over the same block (= Σ W'_ij / Σd')
+    terms: int  # products summed, for the rounding allowance
+
+
+def _entry_sums(changes: Changes, degrees: NDArray[np.float64], old: int, total: float) -> _Sums:
+    """The sums from the changed entries (i < j), each pair listed once."""
+    inv_sqrt = 1.0 / np.sqrt(degrees)
+    rows, cols = changes.rows, changes.cols
+    scaled = changes.delta * inv_sqrt[rows] * inv_sqrt[cols]
+    touches_new = cols >= old  # cols > rows: a new endpoint is always cols
+    both_new = rows >= old
+    cross = touches_new & ~both_new
+    u_now = np.sqrt(degrees / total)
+    return _Sums(
+        old=2.0 * float(np.sum(np.square(scaled[~touches_new]))),
+        new=2.0 * float(np.sum(np.square(scaled[both_new]))),
+        cross=float(np.sum(np.square(scaled[cross]))),
+        overlap=float(np.sum(scaled[cross] * u_now[rows[cross]] * u_now[cols[cross]])),
+        terms=int(rows.size),
+    )
+
+
+def _block_sums(changes: BlockChanges, degrees: NDArray[np.float64], total: float) -> _Sums:
+    """The same sums from the dense store's row blocks, by matrix-vector products.
+
+    Old block: a changed pair (i, j) of old nodes has i or j among the moved rows R (only
+    those were recomputed). The rows of R hold each pair with one end outside R once and
+    each pair inside R twice (both rows), so the symmetric sum is
+    Σ_{i in R} (1/d_i) Σ_j Δ_ij² w_j with w_j = 2/d_j outside R and 1/d_j inside: every
+    term is non-negative, so nothing cancels. Entries that did not move are 0 in the block.
+    New rows hold W' itself (0 at the mark); s_ij u_i u_j = W'_ij / Σd' exactly in exact
+    arithmetic. Each term carries a handful of roundings (the difference, the square, the
+    reciprocals and products) on top of the sums' own g_K, K <= the block sizes + n: inside
+    ``_rounding``'s (K + 16)ε, as for the entry sums.
+    """
+    old, rows, moved, new = changes.old, changes.rows, changes.moved, changes.new
+    inverse = 1.0 / degrees
+    weights = 2.0 * inverse[:old]
+    weights[rows] = inverse[rows]
+    old_sum = float(inverse[rows] @ (np.square(moved) @ weights)) if rows.size else 0.0
+    new_sum = cross_sum = overlap = 0.0
+    if new.shape[0]:
+        fresh = inverse[old:]
+        new_sum = float(fresh @ (np.square(new[:, old:]) @ fresh))
+        to_old = new[:, :old]
+        cross_sum = float(fresh @ (np.square(to_old) @ inverse[:old]))
+        overlap = float(to_old.sum()) / total
+    return _Sums(old_sum, new_sum, cross_sum, overlap, int(moved.size + new.size))
 
 
 def cross_norm(square_sum: float, rank_one: float, overlap: float, slack: float) -> float:
