@@ -1,8 +1,9 @@
 """``lessmap certs``: a test site's CA, certificates and Zenoh configs (mTLS + access control).
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
-session presents: ``robot.<fleet>``, ``app.<fleet>``, the service names (``service`` by
-default) and, for a mesh of routers (``--mesh NAME=ENDPOINT``), ``router.<name>``.
+session presents: ``robot.<fleet>``, ``app.<fleet>``, ``viewer.<fleet>`` (``lessmap view``:
+an app's reads and the robots' frames), the service names (``service`` by default) and, for a
+mesh of routers (``--mesh NAME=ENDPOINT``), ``router.<name>``.
 ``lessmap.siteconfig.access_rules`` is the one place that maps those roles to Zenoh
 ``access_control`` rules; the router configs this command writes and the templates in ``deploy/``
 (``--templates``) are both rendered from it, so they cannot drift apart.
@@ -36,6 +37,7 @@ from lessmap.siteconfig import (
     router_name,
     usrpwd_client_config,
     usrpwd_router_config,
+    viewer_name,
 )
 from lessmap_schemas import keys
 
@@ -64,6 +66,7 @@ class Site:
     robots: dict[str, Path]
     apps: dict[str, Path]
     routers: dict[str, Path] = field(default_factory=dict)
+    viewers: dict[str, Path] = field(default_factory=dict)
 
 
 def _check_names(
@@ -190,7 +193,7 @@ def make_site(
         _issue(folder, "router", ca_key, ca_cert, now, days, hosts)
     identities = [*service_names]
     for fleet in fleets:
-        identities += [robot_name(fleet), app_name(fleet)]
+        identities += [robot_name(fleet), app_name(fleet), viewer_name(fleet)]
     for identity in identities:
         _issue(folder, identity, ca_key, ca_cert, now, days, ())
 
@@ -215,13 +218,15 @@ def make_site(
     for name in service_names:
         services[name] = folder / f"zenoh-{name}-mtls.json5"
         services[name].write_text(render(client_config(d, name, connect), header))
-    robots, apps = {}, {}
+    robots, apps, viewers = {}, {}, {}
     for fleet in fleets:
         robots[fleet] = folder / f"zenoh-robot-{fleet}-mtls.json5"
         robots[fleet].write_text(render(client_config(d, robot_name(fleet), connect), header))
         apps[fleet] = folder / f"zenoh-app-{fleet}-mtls.json5"
         apps[fleet].write_text(render(client_config(d, app_name(fleet), connect), header))
-    return Site(folder, router, services, robots, apps, routers)
+        viewers[fleet] = folder / f"zenoh-viewer-{fleet}-mtls.json5"
+        viewers[fleet].write_text(render(client_config(d, viewer_name(fleet), connect), header))
+    return Site(folder, router, services, robots, apps, routers, viewers)
 
 
 def _load_ca(folder: Path) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
@@ -539,6 +544,7 @@ def run(args: argparse.Namespace) -> int:
         "services": {k: str(v) for k, v in site.services.items()},
         "robots": {k: str(v) for k, v in site.robots.items()},
         "apps": {k: str(v) for k, v in site.apps.items()},
+        "viewers": {k: str(v) for k, v in site.viewers.items()},
     }
     if site.routers:
         files["routers"] = {k: str(v) for k, v in site.routers.items()}

@@ -1,11 +1,11 @@
 """Who may do what on a lessmap site, as Zenoh configs: access rules, router and client files.
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
-session presents (``robot.<fleet>``, ``app.<fleet>``, the service names, and in a mesh the
-other routers' ``router.<name>``) or from the user name (usrpwd). ``access_rules`` is the one
-place that maps those roles to Zenoh ``access_control`` rules; ``lessmap certs`` writes a
-site's configs from it and renders the templates in ``deploy/`` from it, so they cannot drift
-apart. Pure data: no cryptography.
+session presents (``robot.<fleet>``, ``app.<fleet>``, ``viewer.<fleet>``, the service names,
+and in a mesh the other routers' ``router.<name>``) or from the user name (usrpwd).
+``access_rules`` is the one place that maps those roles to Zenoh ``access_control`` rules;
+``lessmap certs`` writes a site's configs from it and renders the templates in ``deploy/``
+from it, so they cannot drift apart. Pure data: no cryptography.
 """
 
 from __future__ import annotations
@@ -36,6 +36,8 @@ ALL_MESSAGES = [
     "declare_liveliness_subscriber",
     "liveliness_query",
 ]
+#: What a reader (fleet app, viewer) may send: declarations of interest and queries.
+READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 
 
 def robot_name(fleet: str) -> str:
@@ -46,6 +48,15 @@ def robot_name(fleet: str) -> str:
 def app_name(fleet: str) -> str:
     """Return the certificate CN (or user name) of the fleet apps of ``fleet``."""
     return f"app.{fleet}"
+
+
+def viewer_name(fleet: str) -> str:
+    """Return the certificate CN (or user name) of the viewers of ``fleet`` (``lessmap view``).
+
+    A viewer reads what a fleet app reads and the robots' frames (their poses, for the
+    trajectories): it sees where the robots are, which an app does not.
+    """
+    return f"viewer.{fleet}"
 
 
 def router_name(name: str) -> str:
@@ -189,6 +200,15 @@ def access_rules(
     for fleet in fleets:
         robots = f"{P}/{fleet}/*"
         frames = f"{robots}/frames/*"  # any partition chunk, this fleet only
+        app_keys = [
+            f"{robots}/transitions",
+            f"{robots}/transitions/@adv/**",
+            f"{robots}/errors",
+            f"{robots}/state",
+            f"{robots}/submaps/*",
+            f"{P}/@/health/*",
+            f"{P}/@/instances/*",
+        ]
         rules += [
             # Frames and session ends, and what the robot's AdvancedPublisher declares: the
             # cache queryable and its replies, the publisher's liveliness token.
@@ -225,44 +245,17 @@ def access_rules(
                 ],
             ),
             # Fleet apps read their fleet's outputs (with the transitions' history and
-            # recovery under @adv) and the service's liveliness and health.
-            _rule(
-                f"app-{fleet}-read",
-                "ingress",
-                [
-                    "declare_subscriber",
-                    "query",
-                    "liveliness_query",
-                    "declare_liveliness_subscriber",
-                ],
-                [
-                    f"{robots}/transitions",
-                    f"{robots}/transitions/@adv/**",
-                    f"{robots}/errors",
-                    f"{robots}/state",
-                    f"{robots}/submaps/*",
-                    f"{P}/@/health/*",
-                    f"{P}/@/instances/*",
-                ],
-            ),
-            _rule(
-                f"app-{fleet}-out",
-                "egress",
-                ALL_MESSAGES,
-                [
-                    f"{robots}/transitions",
-                    f"{robots}/transitions/@adv/**",
-                    f"{robots}/errors",
-                    f"{robots}/state",
-                    f"{robots}/submaps/*",
-                    f"{P}/@/health/*",
-                    f"{P}/@/instances/*",
-                ],
-            ),
+            # recovery under @adv) and the service's liveliness and health; viewers read
+            # the robots' frames as well (lessmap view draws their poses).
+            _rule(f"app-{fleet}-read", "ingress", READ_MESSAGES, app_keys),
+            _rule(f"app-{fleet}-out", "egress", ALL_MESSAGES, app_keys),
+            _rule(f"viewer-{fleet}-read", "ingress", READ_MESSAGES, [frames, *app_keys]),
+            _rule(f"viewer-{fleet}-out", "egress", ALL_MESSAGES, [frames, *app_keys]),
         ]
         subjects += [
             {"id": f"robot-{fleet}", subject_kind: [robot_name(fleet)]},
             {"id": f"app-{fleet}", subject_kind: [app_name(fleet)]},
+            {"id": f"viewer-{fleet}", subject_kind: [viewer_name(fleet)]},
         ]
         policies += [
             {
@@ -278,6 +271,10 @@ def access_rules(
             {
                 "rules": [f"app-{fleet}-read", f"app-{fleet}-out", "see-service"],
                 "subjects": [f"app-{fleet}"],
+            },
+            {
+                "rules": [f"viewer-{fleet}-read", f"viewer-{fleet}-out", "see-service"],
+                "subjects": [f"viewer-{fleet}"],
             },
         ]
     return {

@@ -37,11 +37,11 @@ class SecureSite:
     other: str  # G: another fleet of the same site
 
     def config(self, role: str, fleet: str | None = None) -> str:
-        """Return the Zenoh config file of ``role`` (robot, app, service)."""
+        """Return the Zenoh config file of ``role`` (robot, app, viewer, service)."""
         if role == "service":
             return str(self.site.services["service"])
-        table = self.site.robots if role == "robot" else self.site.apps
-        return str(table[fleet or self.fleet])
+        table = {"robot": self.site.robots, "app": self.site.apps, "viewer": self.site.viewers}
+        return str(table[role][fleet or self.fleet])
 
 
 @pytest.fixture

@@ -41,6 +41,15 @@ def _common(parser: argparse.ArgumentParser) -> None:
         help=f"the lessmap router (default {DEFAULT_ENDPOINT}); repeatable",
     )
     parser.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help=(
+            "a Zenoh client config (JSON5), e.g. a secured site's zenoh-viewer-FLEET-mtls.json5 "
+            "from lessmap certs: the viewer.FLEET identity may read the robots' frames (their "
+            "poses), app.FLEET may not; its endpoints are used unless -e is given"
+        ),
+    )
+    parser.add_argument(
         "--covgraph",
         metavar="ROBOT",
         help="also show this robot's CovGraph (its current submap, from its frames)",
@@ -177,16 +186,20 @@ def _follow(
     from lessmap_client.connection import Connection
     from lessmap_client.session import open_session
 
-    endpoints = args.connect or [DEFAULT_ENDPOINT]
+    config = args.zenoh_config
+    if config is not None and not Path(config).is_file():
+        msg = f"--zenoh-config {config}: no such file"
+        raise ConfigError(msg)
+    endpoints = args.connect or ([] if config else [DEFAULT_ENDPOINT])
     try:
-        session = open_session(endpoints, timeout_s=0)  # one attempt
+        session = open_session(endpoints, timeout_s=0, config_file=config)  # one attempt
     except ConnectionError:
         log.info(
             "waiting for the lessmap service on %s (up to %g s, --connect-timeout)",
-            ", ".join(endpoints),
+            ", ".join(endpoints) or f"the endpoints of {config}",
             args.connect_timeout,
         )
-        session = open_session(endpoints, timeout_s=args.connect_timeout)
+        session = open_session(endpoints, timeout_s=args.connect_timeout, config_file=config)
     try:
         with Connection.from_session(session) as conn:
             feed = FleetFeed(

@@ -26,9 +26,10 @@ follows the log gets the scene (a label per doorway) and the table (transitions 
 but no log history, and the one already following sees no entry twice. Re-sends go only to
 the live server's context, never into an MCAP file.
 
-Poses. The trajectories come from the robots' frames keys; a site's access control lets a
-fleet app (``app.<fleet>``) read the transitions but not the frames. When transitions arrive
-and no frame has reached the view ``NO_FRAMES_WARNING_S`` later, the feed says so once.
+Poses. The trajectories come from the robots' frames keys; a secured site's access control
+lets a fleet app (``app.<fleet>``) read the transitions but not the frames, a viewer
+(``viewer.<fleet>``, ``lessmap.siteconfig``) both. When transitions arrive and no frame has
+reached the view ``NO_FRAMES_WARNING_S`` later, the feed says so once.
 """
 
 from __future__ import annotations
@@ -380,11 +381,14 @@ class FleetFeed:
             self.counts["no frames readable"] = 1
             log.warning(
                 "fleet %s: transitions arrive but no frame reached the view in %g s, so the "
-                "trajectories stay empty: this identity cannot read %s/%s/*/frames/* (under a "
-                "site's access control, app.%s may read the transitions but not the frames)",
+                "trajectories stay empty: this identity cannot read %s/%s/*/frames/* (on a "
+                "secured site app.%s may not; connect as viewer.%s: --zenoh-config "
+                "zenoh-viewer-%s-mtls.json5 from lessmap certs)",
                 self.fleet,
                 NO_FRAMES_WARNING_S,
                 keys.KEY_PREFIX,
+                self.fleet,
+                self.fleet,
                 self.fleet,
                 self.fleet,
             )
