@@ -333,6 +333,7 @@ class SparseCounts:
         self._pending_rows: list[NDArray[np.int64]] = []
         self._pending_cols: list[NDArray[np.int64]] = []
         self._all_stale = True  # W is computed in full on the first refresh
+        self._cols: NDArray[np.int64] | None = None  # j of each key, until the keys change
 
     def resize(self, nodes: int) -> None:
         """Record the node count (new nodes have no entries)."""
@@ -368,13 +369,21 @@ class SparseCounts:
             # New pairs have a touched endpoint, so the next refresh computes their W.
             where = at[fresh]
             self._keys = np.insert(self._keys, where, distinct[fresh])
+            self._cols = None
             self._counts = np.insert(self._counts, where, repeats[fresh])
             self._rates = np.insert(self._rates, where, 0.0)
             if self._marked is not None:
                 self._marked = np.insert(self._marked, where, 0.0)
 
     def _rows_cols(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        return self._keys >> _KEY_SHIFT, self._keys & _COL_MASK
+        return self._keys >> _KEY_SHIFT, self._columns()
+
+    def _columns(self) -> NDArray[np.int64]:
+        # Kept between a decision's refresh and its degrees (8 B per edge while the keys
+        # stand): each pass over the keys costs as much as the rest of a carried decision.
+        if self._cols is None:
+            self._cols = self._keys & _COL_MASK
+        return self._cols
 
     def _indptr(self) -> NDArray[np.int64]:
         bounds = np.arange(self._nodes + 1, dtype=np.int64) << _KEY_SHIFT
@@ -384,20 +393,26 @@ class SparseCounts:
     def refresh(self, counts: NDArray[np.int64], touched: NDArray[np.bool_]) -> None:
         """Merge the pending pairs and recompute the entries with a touched endpoint."""
         self._merge()
-        rows, cols = self._rows_cols()
         if self._all_stale:
             self._all_stale = False
+            rows, cols = self._rows_cols()
             self._rates = self._counts / np.minimum(counts[rows], counts[cols])
             return
-        mask = touched[rows] | touched[cols]
-        if 4 * int(np.count_nonzero(mask)) > mask.size:
+        cols = self._columns()
+        # Entries of a touched row are its CSR segment: repeat the row's flag over it
+        # instead of shifting every key to find its row.
+        moved = np.repeat(touched, np.diff(self._indptr()))
+        moved |= touched[cols]
+        at = np.flatnonzero(moved)
+        if 4 * at.size > moved.size:
             # Most entries moved (a frame of hundreds of features): one pass over all of
-            # them beats gathering and scattering through the mask. Same integers, same
-            # division, so the entries that did not move keep their exact values.
+            # them beats gathering and scattering. Same integers, same division, so the
+            # entries that did not move keep their exact values.
+            rows = self._keys >> _KEY_SHIFT
             np.divide(self._counts, np.minimum(counts[rows], counts[cols]), out=self._rates)
             return
-        r, c = rows[mask], cols[mask]
-        self._rates[mask] = self._counts[mask] / np.minimum(counts[r], counts[c])
+        r, c = self._keys[at] >> _KEY_SHIFT, cols[at]
+        self._rates[at] = self._counts[at] / np.minimum(counts[r], counts[c])
 
     def similarity(self) -> sparse.csr_array:
         """W as a symmetric CSR float64 matrix."""
@@ -408,7 +423,7 @@ class SparseCounts:
         self._merge()
         n = self._nodes
         upper = sparse.csr_array(
-            (self._rates.copy(), self._keys & _COL_MASK, self._indptr()), shape=(n, n)
+            (self._rates.copy(), self._columns().copy(), self._indptr()), shape=(n, n)
         )
         symmetric: sparse.csr_array = (upper + upper.T).tocsr()
         return symmetric
@@ -420,9 +435,14 @@ class SparseCounts:
 
     def degrees(self) -> NDArray[np.float64]:
         """Row sums of W as of the last ``refresh``, shape (n,)."""
-        rows, cols = self._rows_cols()
         n = self._nodes
-        both = np.bincount(rows, self._rates, n) + np.bincount(cols, self._rates, n)
+        both = np.bincount(self._columns(), self._rates, n)  # the lower triangle's row sums
+        # The upper triangle's row sums, one CSR segment each (empty rows add nothing):
+        # reduceat instead of a bincount over every key's row.
+        starts = self._indptr()
+        filled = np.flatnonzero(starts[1:] > starts[:-1])
+        if filled.size:
+            both[filled] += np.add.reduceat(self._rates, starts[filled])
         return np.asarray(both, dtype=np.float64)
 
     def mark(self) -> None:
