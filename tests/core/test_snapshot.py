@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import io
 import json
+import struct
 import zipfile
+import zlib
+from pathlib import Path
+from typing import Any
 
+import msgpack
 import numpy as np
 import pytest
 
 from lessmap.core import GraphError, Partitioner, PartitionParams, SeedMode, Transition
 from lessmap.core.snapshot import SNAPSHOT_VERSION, from_bytes, to_bytes
 from tests.core.helpers import assert_same_state, observe_all, room_walk, two_room_frames
+
+V1_FIXTURE = Path(__file__).parent / "data" / "snapshot_v1.npz"
 
 PARAMS = [
     PartitionParams(),
@@ -79,37 +86,98 @@ def test_fresh_partitioner_round_trips() -> None:
     assert observe_all(restored, two_room_frames()) == observe_all(Partitioner(), two_room_frames())
 
 
-def snapshot_arrays() -> dict[str, np.ndarray]:
+def snapshot_parts() -> tuple[dict[str, Any], dict[str, Any]]:
+    """(meta, packed arrays) of a version-2 snapshot, to build damaged ones from."""
     partitioner = Partitioner()
     observe_all(partitioner, two_room_frames()[:40])
-    with np.load(io.BytesIO(to_bytes(partitioner)), allow_pickle=False) as archive:
-        return {name: archive[name] for name in archive.files}
+    data = to_bytes(partitioner)
+    assert data[:8] == b"LMSNAP2\n"
+    doc = msgpack.unpackb(data[12:], raw=False)
+    return doc["meta"], doc["arrays"]
 
 
-def npz(arrays: dict[str, np.ndarray]) -> bytes:
+def container(meta: object, arrays: object) -> bytes:
+    """A version-2 snapshot of these parts, with a correct CRC (so the content is judged)."""
+    body = msgpack.packb({"meta": meta, "arrays": arrays}, use_bin_type=True)
+    return b"LMSNAP2\n" + struct.pack("<I", zlib.crc32(body)) + body
+
+
+def with_meta(**changes: object) -> bytes:
+    meta, arrays = snapshot_parts()
+    meta.update(changes)
+    return container(meta, arrays)
+
+
+def without(name: str) -> bytes:
+    meta, arrays = snapshot_parts()
+    del arrays[name]
+    return container(meta, arrays)
+
+
+def replaced(name: str, value: np.ndarray | list[object]) -> bytes:
+    meta, arrays = snapshot_parts()
+    arrays[name] = (
+        ["<i8", list(value.shape), value.astype("<i8").tobytes()]
+        if isinstance(value, np.ndarray)
+        else value
+    )
+    return container(meta, arrays)
+
+
+def flipped_body_byte() -> bytes:
+    data = bytearray(to_bytes(Partitioner()))
+    data[-5] ^= 0xFF
+    return bytes(data)
+
+
+GARBAGE = {
+    "empty": b"",
+    "text": b"not a snapshot",
+    "random": np.random.default_rng(0).bytes(512),
+    "magic only": b"LMSNAP2\n",
+    "truncated": to_bytes(Partitioner())[:-40],
+    "flipped data byte": flipped_body_byte(),  # the CRC catches it
+    "body not a map": container(None, None),
+    "meta a list": container([1, 2], snapshot_parts()[1]),
+    "no counts": without("counts"),
+    "future version": with_meta(version=SNAPSHOT_VERSION + 1),
+    "no version": with_meta(version=None),
+    "bad param": with_meta(params={"ncut_min": -1.0}),
+    "unknown param": with_meta(params={"speed": 3}),
+    "bad seed mode": with_meta(params={"seed_mode": "sometimes"}),
+    "short history": with_meta(history_seqs=[1]),
+    "short counts": replaced("counts", np.zeros(3, dtype=np.int64)),
+    "repeated ids": replaced("feature_ids", np.zeros(20, dtype=np.int64)),
+    "indptr reversed": replaced(
+        "edge_indptr",
+        np.frombuffer(snapshot_parts()[1]["edge_indptr"][2], dtype="<i8")[::-1].copy(),
+    ),
+    "edge index out of range": replaced(
+        "edge_indices", np.frombuffer(snapshot_parts()[1]["edge_indices"][2], dtype="<i8") + 99
+    ),
+    "object dtype": replaced("counts", ["|O", [1], b"\x00" * 8]),
+    "bytes short of the shape": replaced("counts", ["<i8", [4], b"\x00" * 8]),
+    "negative shape": replaced("counts", ["<i8", [-1], b""]),
+}
+
+
+def v1_npz(arrays: dict[str, np.ndarray]) -> bytes:
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)  # type: ignore[arg-type]
     return buffer.getvalue()
 
 
-def with_meta(**changes: object) -> bytes:
-    arrays = snapshot_arrays()
+def v1_arrays() -> dict[str, np.ndarray]:
+    with np.load(io.BytesIO(V1_FIXTURE.read_bytes()), allow_pickle=False) as archive:
+        return {name: archive[name] for name in archive.files}
+
+
+def v1_with_meta(**changes: object) -> bytes:
+    arrays = v1_arrays()
     meta = json.loads(arrays["meta"].tobytes().decode())
     meta.update(changes)
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    return npz(arrays)
-
-
-def without(name: str) -> bytes:
-    arrays = snapshot_arrays()
-    del arrays[name]
-    return npz(arrays)
-
-
-def replaced(name: str, value: np.ndarray) -> bytes:
-    arrays = snapshot_arrays()
-    arrays[name] = value
-    return npz(arrays)
+    return v1_npz(arrays)
 
 
 def pickled_object_array() -> bytes:
@@ -121,37 +189,43 @@ def pickled_object_array() -> bytes:
     return data.getvalue()
 
 
-def flipped(locate: bytes, offset: int) -> bytes:
-    """A snapshot with the byte at ``offset`` from the first ``locate`` inverted."""
-    data = bytearray(to_bytes(Partitioner()))
+def v1_flipped(locate: bytes, offset: int) -> bytes:
+    data = bytearray(V1_FIXTURE.read_bytes())
     data[data.index(locate) + offset] ^= 0xFF
     return bytes(data)
 
 
-GARBAGE = {
-    "empty": b"",
-    "text": b"not a snapshot",
-    "random": np.random.default_rng(0).bytes(512),
-    "truncated": to_bytes(Partitioner())[:-40],
-    "flipped data byte": flipped(b'"version"', 3),  # the zip CRC catches it
-    "unknown compression": flipped(b"PK\x01\x02", 10),  # central directory: method
-    "zip of nothing": npz({}),
-    "no meta": without("meta"),
-    "no counts": without("counts"),
-    "meta not json": replaced("meta", np.frombuffer(b"\xff{", dtype=np.uint8)),
-    "meta a list": replaced("meta", np.frombuffer(b"[1, 2]", dtype=np.uint8)),
-    "future version": with_meta(version=SNAPSHOT_VERSION + 1),
-    "no version": with_meta(version=None),
-    "bad param": with_meta(params={"ncut_min": -1.0}),
-    "unknown param": with_meta(params={"speed": 3}),
-    "bad seed mode": with_meta(params={"seed_mode": "sometimes"}),
-    "short history": with_meta(history_seqs=[1]),
-    "short counts": replaced("counts", np.zeros(3, dtype=np.int64)),
-    "repeated ids": replaced("feature_ids", np.zeros(20, dtype=np.int64)),
-    "indptr reversed": replaced("edge_indptr", snapshot_arrays()["edge_indptr"][::-1].copy()),
-    "edge index out of range": replaced("edge_indices", snapshot_arrays()["edge_indices"] + 99),
-    "pickled object": pickled_object_array(),
+# Version 1 (npz) is still read: a record stored before the upgrade resumes.
+V1_GARBAGE = {
+    "v1 flipped data byte": v1_flipped(b'"version"', 3),  # the zip CRC catches it
+    "v1 unknown compression": v1_flipped(b"PK\x01\x02", 10),
+    "v1 zip of nothing": v1_npz({}),
+    "v1 meta not json": v1_npz({**v1_arrays(), "meta": np.frombuffer(b"\xff{", np.uint8)}),
+    "v1 meta a list": v1_npz({**v1_arrays(), "meta": np.frombuffer(b"[1, 2]", np.uint8)}),
+    "v1 claims version 2": v1_with_meta(version=2),
+    "v1 pickled object": pickled_object_array(),
 }
+GARBAGE.update(V1_GARBAGE)
+
+
+def test_a_version_1_snapshot_resumes_with_the_same_state_and_decisions() -> None:
+    # tests/core/data/snapshot_v1.npz: written by version 1 after these frames (odd seqs
+    # decided, so one frame pending).
+    walk = room_walk(0, rooms=4, back=True, stay=(20, 30), door_frames=2, door_share=0.2)
+    live = Partitioner(PartitionParams())
+    for seq, frame in enumerate(walk.frames[:71]):
+        live.apply(seq, seq * 0.1, frame)
+        if seq % 2:
+            live.decide()
+    restored = from_bytes(V1_FIXTURE.read_bytes())
+    assert_same_state(restored.state(), live.state())
+    assert from_bytes(to_bytes(restored)).state().last_stamp_s == 7.0
+    rest = list(enumerate(walk.frames))[71:]
+    assert observe_pairs(restored, rest) == observe_pairs(live, rest)
+
+
+def observe_pairs(partitioner: Partitioner, frames: list[tuple[int, list[int]]]) -> list[object]:
+    return [partitioner.observe(seq, seq * 0.1, frame) for seq, frame in frames]
 
 
 @pytest.mark.parametrize("data", GARBAGE.values(), ids=GARBAGE.keys())

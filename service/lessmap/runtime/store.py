@@ -92,7 +92,7 @@ class SessionRecord:
                     "status": self.status,
                     "last_seq": self.last_seq,
                     "meta": json.dumps(self.meta),
-                    # zlib level 1: ~0.15 x the npz bytes for ~0.5 ms per 40 KiB (the
+                    # zlib level 1: ~0.15 x the snapshot bytes for ~0.5 ms per 40 KiB (the
                     # network carries a checkpoint per ~40 frames of each robot).
                     "snapshot": None if self.snapshot is None else zlib.compress(self.snapshot, 1),
                     "updated_s": self.updated_s,
