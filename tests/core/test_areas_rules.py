@@ -130,6 +130,35 @@ def test_the_doorway_before_a_boundary_is_not_the_area_s_own() -> None:
     assert found_without_margin <= 5
 
 
+def sparse_turning(seed: int, frames: int = 2000, dwell: int = 60) -> Frames:
+    """One room of 15 landmarks seen 0-3 at a time by a narrow sensor that turns about.
+
+    Every ``dwell`` frames the sensor faces a new random heading and then sees the
+    landmarks within 3 of it: each landmark's rate is low, about 0.1, as in mrclam6.
+    """
+    rng = np.random.default_rng(seed)
+    out: Frames = []
+    heading = 0
+    for k in range(frames):
+        if k % dwell == 0:
+            heading = int(rng.integers(0, 15))
+        count = int(rng.integers(0, 4))
+        out.append(sorted({int((heading + rng.integers(-3, 4)) % 15) for _ in range(count)}))
+    return out
+
+
+def test_a_sparse_sensor_turning_in_one_room_stays_in_it() -> None:
+    # The absolute rate alone finds none of the room's features familiar: the proposer's
+    # splits at each turn go through; relative to the mean count, they are the room's own.
+    with_rule = without_rule = 0
+    for seed in range(8):
+        frames = sparse_turning(seed)
+        with_rule += len(track(frames)[1])
+        without_rule += len(track(frames, AreaParams(familiar_relative=0.0))[1])
+    assert with_rule == 0
+    assert without_rule >= 5
+
+
 # -- rule 4: a proposal names the area it re-enters ----------------------------------------
 
 
@@ -285,6 +314,8 @@ def test_restoring_at_every_frame_keeps_recognition_and_merges(seed: int) -> Non
         ("stay_share", 0.0),
         ("familiar_rate", 0.0),
         ("familiar_rate", 1.5),
+        ("familiar_relative", -0.1),
+        ("familiar_relative", 1.5),
         ("familiar_margin_frames", -1),
         ("recognise_frames", -1),
         ("recognise_llr", -1.0),

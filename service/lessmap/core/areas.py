@@ -27,9 +27,11 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
       saw no boundary (a room wider than the sensor's range, crossed blind);
    c. the frames from the boundary on are not the current area's own: when ``stay_share``
       of their sightings are of features *familiar* to the current area (seen in
-      ``familiar_rate`` of its non-empty frames, leaving out the frames from the boundary
-      on and the ``familiar_margin_frames`` non-empty frames before it, where a doorway
-      shows the next room), the robot moved within its area and the proposal is dropped.
+      ``familiar_rate`` of its non-empty frames, or in ``familiar_relative`` times the mean
+      count of its features if that is less, as with a sparse sensor; leaving out the
+      frames from the boundary on and the ``familiar_margin_frames`` non-empty frames before
+      it, where a doorway shows the next room), the robot moved within its area and the
+      proposal is dropped.
 
 4. **Which area, on a proposal.** The features seen from the boundary on are compared with
    every known area other than the current one: the share of them that the area has seen.
@@ -239,6 +241,7 @@ class AreaTracker:
             after,
             rate=p.familiar_rate,
             margin=p.familiar_margin_frames,
+            relative=p.familiar_relative,
         )
         if rules.blind_before(self.frames, boundary, p.blind_frames) or share >= p.stay_share:
             self.candidate = None

@@ -57,6 +57,14 @@ class AreaParams:
     stay_share: float = 0.5
     # 0.2: open rooms 2.00 / 1.28 / 1.60 per 10 min at 8-10 m (1.12 / 0.72 / 0.72).
     familiar_rate: float = 0.1
+    # Or seen in this share of the mean count of the area's features, whichever is less: with
+    # a sparse sensor every feature's rate is low (mrclam6: 1.7 of 15 landmarks per frame, so
+    # 0.11 on average) and no feature of one room passed 0.1. 0 (off): mrclam6 2.42 per 10
+    # min (1.28), 12-16 m open rooms 3.04 / 1.84 / 0.56 (1.76 / 0.64 / 0.16), held-out
+    # 3.20 / 2.16 / 1.04 (1.36 / 1.52 / 0.40); 0.25: mrclam1_w1s 1.29 (0.97); 0.1: dlr 82
+    # transitions (89). Buildings: 270° sparse R 98.8% at 0 (98.0), held-out 360° dense R
+    # 96.0% (95.2).
+    familiar_relative: float = 0.15
     # A short first stay would keep the next room, seen through the door, as familiar: 0
     # frames gives 270° sparse R 96.0% and 2.4% false names (98.8, 0.0%); 8 frames gives
     # 12-16 m open rooms at 270° 4.00 per 10 min (3.04) and dlr 113 transitions (102).
@@ -85,6 +93,7 @@ class AreaParams:
             "blind_frames": self.blind_frames >= 0,
             "stay_share": self.stay_share > 0.0,
             "familiar_rate": 0.0 < self.familiar_rate <= 1.0,
+            "familiar_relative": 0.0 <= self.familiar_relative <= 1.0,
             "familiar_margin_frames": self.familiar_margin_frames >= 0,
             "recognise_frames": self.recognise_frames >= 0,
             "recognise_llr": self.recognise_llr >= 0.0,

@@ -57,6 +57,7 @@ def familiar_share(
     *,
     rate: float,
     margin: int,
+    relative: float = 0.0,
 ) -> float:
     """Share of the new frames' sightings the current area knows well (rule 3c).
 
@@ -68,6 +69,7 @@ def familiar_share(
         after: sightings per feature from the boundary on.
         rate: ``familiar_rate``.
         margin: ``familiar_margin_frames``.
+        relative: ``familiar_relative`` (0: the rate alone decides).
     """
     start = boundary
     if margin:
@@ -79,6 +81,11 @@ def familiar_share(
     if remaining <= 0:
         return 0.0
     least = rate * remaining
+    if relative:
+        # the mean count of the features the area keeps (a sparse sensor's rates are all low)
+        kept = [n for n in (m - left_out.get(f, 0) for f, m in counts.items()) if n > 0]
+        if kept:
+            least = min(least, relative * sum(kept) / len(kept))
     familiar = 0
     for feature, n in after.items():
         seen = counts.get(feature, 0) - left_out.get(feature, 0)
