@@ -98,7 +98,7 @@ def snapshot_parts() -> tuple[dict[str, Any], dict[str, Any]]:
 
 def container(meta: object, arrays: object) -> bytes:
     """A version-2 snapshot of these parts, with a correct CRC (so the content is judged)."""
-    body = msgpack.packb({"meta": meta, "arrays": arrays}, use_bin_type=True)
+    body: bytes = msgpack.packb({"meta": meta, "arrays": arrays}, use_bin_type=True)
     return b"LMSNAP2\n" + struct.pack("<I", zlib.crc32(body)) + body
 
 

@@ -104,7 +104,7 @@ def to_bytes(partitioner: Partitioner) -> bytes:
         "closed_offsets": closed_offsets,
         "closed_values": closed_values,
     }
-    body = msgpack.packb(
+    body: bytes = msgpack.packb(
         {"meta": meta, "arrays": {name: _packed(a) for name, a in arrays.items()}},
         use_bin_type=True,
     )
