@@ -333,7 +333,7 @@ class SparseCounts:
         self._pending_rows: list[NDArray[np.int64]] = []
         self._pending_cols: list[NDArray[np.int64]] = []
         self._all_stale = True  # W is computed in full on the first refresh
-        self._cols: NDArray[np.int64] | None = None  # j of each key, until the keys change
+        self._cols: NDArray[np.int64] | None = None  # j of each key, refresh to next read
 
     def resize(self, nodes: int) -> None:
         """Record the node count (new nodes have no entries)."""
@@ -378,12 +378,13 @@ class SparseCounts:
     def _rows_cols(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         return self._keys >> _KEY_SHIFT, self._columns()
 
-    def _columns(self) -> NDArray[np.int64]:
-        # Kept between a decision's refresh and its degrees (8 B per edge while the keys
-        # stand): each pass over the keys costs as much as the rest of a carried decision.
-        if self._cols is None:
-            self._cols = self._keys & _COL_MASK
-        return self._cols
+    def _columns(self, *, release: bool = False) -> NDArray[np.int64]:
+        # A refresh keeps them for the decision's next read of W (its degrees or its CSR),
+        # which releases them: a pass over the keys costs as much as the rest of a carried
+        # decision, and 8 B per edge held between decisions would raise the session's RSS.
+        cols = self._cols if self._cols is not None else self._keys & _COL_MASK
+        self._cols = None if release else cols
+        return cols
 
     def _indptr(self) -> NDArray[np.int64]:
         bounds = np.arange(self._nodes + 1, dtype=np.int64) << _KEY_SHIFT
@@ -423,7 +424,7 @@ class SparseCounts:
         self._merge()
         n = self._nodes
         upper = sparse.csr_array(
-            (self._rates.copy(), self._columns().copy(), self._indptr()), shape=(n, n)
+            (self._rates.copy(), self._columns(release=True), self._indptr()), shape=(n, n)
         )
         symmetric: sparse.csr_array = (upper + upper.T).tocsr()
         return symmetric
@@ -436,7 +437,7 @@ class SparseCounts:
     def degrees(self) -> NDArray[np.float64]:
         """Row sums of W as of the last ``refresh``, shape (n,)."""
         n = self._nodes
-        both = np.bincount(self._columns(), self._rates, n)  # the lower triangle's row sums
+        both = np.bincount(self._columns(release=True), self._rates, n)  # lower triangle
         # The upper triangle's row sums, one CSR segment each (empty rows add nothing):
         # reduceat instead of a bincount over every key's row.
         starts = self._indptr()
