@@ -3,6 +3,7 @@
     python -m tests.benchmarks.core_bench                     # n = 50 ... 3200, visual, memory
     python -m tests.benchmarks.core_bench --quick             # n = 50, 200, 800; no 10k session
     python -m tests.benchmarks.core_bench --sizes 400,1600 --frames 40 --profile 1600
+    python -m tests.benchmarks.core_bench --sizes 400,1600,3200 --no-visual --no-memory --worst 5
 
 Run from the repository root. Everything runs in this process on one thread (BLAS pinned to
 one thread with threadpoolctl, as ``lessmap serve`` does), except the 10,000-node memory
@@ -69,6 +70,8 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from numpy.typing import NDArray
+
+    from lessmap.core.submaps import Evaluation
 
 REPO = Path(__file__).resolve().parents[2]
 SIZES = (50, 100, 200, 400, 800, 1600, 3200)
@@ -184,6 +187,7 @@ class Timings:
     total_ms: list[float] = field(default_factory=list)
     decide_ms: list[float] = field(default_factory=list)
     nodes: list[int] = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)  # what settled each measured decision
     edges: list[int] = field(default_factory=list)
     eigh_ms: list[float] = field(default_factory=list)
     eigh_at: list[int] = field(default_factory=list)  # measured frames eigh ran on
@@ -217,7 +221,27 @@ def time_lessmap(stream: Stream, params: PartitionParams, timings: Timings) -> N
         timings.decide_ms.append(1e3 * (ended - applied))
         evaluation = partitioner.last_evaluation
         timings.nodes.append(evaluation.nodes if evaluation is not None else 0)
+        timings.kinds.append(_kind(evaluation, seq))
     timings.transitions = partitioner.transitions
+
+
+def _kind(evaluation: Evaluation | None, seq: int) -> str:
+    """What settled the decision of frame ``seq``: a transition, a solve, or a proof of λ2."""
+    if evaluation is None or evaluation.seq != seq:
+        return "none"
+    if evaluation.transition:
+        return "transition"
+    if evaluation.lambda2_above is not None:
+        return "proven"  # the carried floor, or a fresh Cholesky certificate
+    return "solve" if evaluation.nodes >= 2 else "none"
+
+
+def worst(name: str, t: Timings, count: int) -> str:
+    """The ``count`` most expensive measured frames and what each decision ran."""
+    order = sorted(range(len(t.total_ms)), key=lambda i: -t.total_ms[i])[:count]
+    listed = ", ".join(f"{t.total_ms[i]:.2f} ms ({t.kinds[i]}, {t.nodes[i]} nodes)" for i in order)
+    tally = ", ".join(f"{kind} {t.kinds.count(kind)}" for kind in sorted(set(t.kinds)))
+    return f"  worst of {name}: {listed}; decisions: {tally}"
 
 
 def decisions(stream: Stream, params: PartitionParams, *, exact: bool) -> list[tuple[object, ...]]:
@@ -536,6 +560,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--eigh-max", type=int, default=1600, help="largest graph for eigh")
     parser.add_argument("--eigh-samples", type=int, default=8, help="eigh frames above 400")
     parser.add_argument("--profile", type=int, help="print cProfile of lessmap at this size")
+    parser.add_argument(
+        "--worst", type=int, default=0, help="list each stream's N most expensive frames"
+    )
     parser.add_argument("--memory-child", nargs=3, type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.memory_child:
@@ -567,6 +594,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
             results[n] = timings
             out.write(row(f"room chain n={n}", timings) + "\n")
+            if args.worst:
+                out.write(worst(f"n={n}", timings, args.worst) + "\n")
             out.flush()
             if text:
                 profiles.append(f"cProfile, lessmap pass, n={n}:\n{text}")
@@ -577,6 +606,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             timings, _ = measure(stream, eigh_max=args.eigh_max, eigh_samples=args.eigh_samples)
             features = int(_median([f.size for f in stream.frames]))
             out.write(row(f"visual {features}/frame", timings) + "\n")
+            if args.worst:
+                out.write(worst("visual", timings, args.worst) + "\n")
     binding = mrpt_binding()
     out.write(
         "MRPT: not installed\n"

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
 
 def test_the_table_is_printed_at_tiny_sizes(capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["--sizes", "50,450", "--frames", "12", "--no-memory"]
+    argv = ["--sizes", "50,450", "--frames", "12", "--no-memory", "--worst", "2"]
     argv += ["--visual-frames", "20", "--visual-alive", "120"]
     assert core_bench.main(argv) == 0
     out = capsys.readouterr().out
@@ -28,6 +28,20 @@ def test_the_table_is_printed_at_tiny_sizes(capsys: pytest.CaptureFixture[str]) 
     for row in rows:
         assert "nan" not in row
     assert "MRPT:" in out
+    worst = [line for line in lines if line.startswith("  worst of ")]
+    assert [line.split(":")[0] for line in worst] == [
+        "  worst of n=50",
+        "  worst of n=450",
+        "  worst of visual",
+    ]
+    frames = [int(row.split()[3]) for row in rows[:2]] + [int(rows[2].split()[2])]
+    for line, measured in zip(worst, frames, strict=True):
+        listed, tally = line.split("; decisions: ")
+        assert listed.count(" ms (") == 2
+        kinds = dict(entry.split() for entry in tally.split(", "))
+        assert set(kinds) <= {"none", "proven", "solve", "transition"}
+        assert sum(int(count) for count in kinds.values()) == measured
+        assert int(kinds["transition"]) >= 1  # each stream crosses a door
 
 
 @pytest.mark.parametrize(
