@@ -85,6 +85,7 @@ def transition_record(robot: str, transition: Transition) -> dict[str, Any]:
 def area_record(robot: str, change: AreaTransition) -> dict[str, Any]:
     """Return one area change as a JSON-ready dict: the transition plus its areas."""
     return transition_record(robot, change.transition) | {
+        "reason": str(change.reason),  # RECOGNISED has no value in the paper's Reason
         "area": change.area,
         "left_area": change.left_area,
         "revisit_of": change.revisit_of,

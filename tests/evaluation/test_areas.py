@@ -135,6 +135,8 @@ def test_segment_method_areas_prints_areas(
     assert [c["revisit_of"] for c in changes] == [None, None, 1, 0]
     assert {c["rule"] for c in changes} <= {"split", "recognised"}
     assert changes[0]["rule"] == "split"  # a first visit is always the proposer's
+    for change in changes:  # a recognised change ran no Eq. 4 test, and says so
+        assert (change["reason"] == "RECOGNISED") == (change["rule"] == "recognised")
     assert summary["method"] == "areas"
     assert summary["areas_per_robot"] == {"r1": 3}
     assert summary["params"]["ncut_min"] == 0.4

@@ -139,7 +139,7 @@ def area_detections(frames: Iterable[FrameRow], params: AreaParams) -> list[Dete
         change = tracker.observe(frame.seq, frame.stamp_s, frame.features)
         if change is not None:
             t = change.transition
-            found.append(Detection(frame.robot, t.seq, t.boundary_seq, str(t.reason)))
+            found.append(Detection(frame.robot, t.seq, t.boundary_seq, str(change.reason)))
     return found
 
 
