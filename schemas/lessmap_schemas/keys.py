@@ -14,7 +14,8 @@ Layout (all under `KEY_PREFIX`, one chunk per name):
 
 `<p>` is the robot's partition (`partition.partition_of`): a service instance subscribes to the
 frames of the partitions it owns only (`frames_of_partition`), so Zenoh's routers deliver it no
-other robot's frames.
+other robot's frames, or to every partition's (`frames_of_every_partition`, one subscription,
+cheaper to route) and keeps those of the partitions it owns.
 
 Service bookkeeping sits under the `@` chunk: Zenoh never lets `*` or `**` match a chunk that
 starts with `@`, so a fleet-wide `lessmap/v2/**` subscription sees robot traffic only.
@@ -112,6 +113,11 @@ def frames(fleet: str, robot: str) -> str:
 def frames_of_partition(partition: int) -> str:
     """Return the key expression of every robot's frames in one partition (a subscription)."""
     return f"{KEY_PREFIX}/{ANY}/{ANY}/frames/{_partition_chunk(partition)}"
+
+
+def frames_of_every_partition() -> str:
+    """Return the key expression of every robot's frames (one subscription for all)."""
+    return f"{KEY_PREFIX}/{ANY}/{ANY}/frames/{ANY}"
 
 
 def _partition_chunk(partition: int) -> str:

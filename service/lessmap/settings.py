@@ -199,6 +199,17 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     )
     # Several instances: partitions are owned by rendezvous hashing over the live instances
     # (schemas/README.md section 2a); nothing to configure but distinct instance names.
+    # One subscription to every partition's frames, filtered by ownership in the receiver,
+    # or one per owned partition. Zenoh's routing cost per sample grows with the number of
+    # subscriptions it matches against: measured in one process, 256 partition subscriptions
+    # cost ~37 us of Zenoh CPU per frame against ~3 us for one (docs/BENCHMARKS.md). The one
+    # subscription takes every instance's frames over the network, though: past a handful of
+    # instances on one network, "partitions" costs less in all.
+    frames_subscription: Literal["all", "partitions"] = Field(
+        "all",
+        description="subscribe to every partition's frames (filtered by ownership) or only "
+        "to the owned partitions'",
+    )
     fence_after_s: float = Field(
         2.0,
         gt=0.0,

@@ -326,10 +326,12 @@ def test_a_taken_port_is_a_one_line_error(serve: Callable[..., ServeProcess]) ->
     assert first.terminate() == 0
 
 
+@pytest.mark.parametrize("subscription", ["all", "partitions"])
 def test_two_instances_split_a_fleet_by_partition(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
     tmp_path: Path,
+    subscription: str,
 ) -> None:
     fleet = "split"
     frames = list(read_frames(dataset("mrclam6.frames.jsonl")))[:2500]
@@ -346,8 +348,9 @@ def test_two_instances_split_a_fleet_by_partition(
         if len(set(owners([f"split-a{i}", f"split-b{i}"]).values())) == 2
     )
     owner_of = owners(names)
+    mode = ("--frames-subscription", subscription)
     first = start_service(
-        serve, "--instance", names[0], "--state-dir", str(tmp_path / "a"), metrics=True
+        serve, "--instance", names[0], "--state-dir", str(tmp_path / "a"), *mode, metrics=True
     )
     session = client_session(first.endpoint)
 
@@ -365,6 +368,7 @@ def test_two_instances_split_a_fleet_by_partition(
         names[1],
         "--state-dir",
         str(tmp_path / "b"),
+        *mode,
         metrics=True,
     )
     with FleetClient(fleet, session=session) as client:
@@ -406,7 +410,9 @@ def test_two_instances_split_a_fleet_by_partition(
         mine = [t for t in got if t.robot == f"r{robot}"]
         assert [as_record(t) for t in mine] == expected.get(robot, []), robot
         assert {t.instance for t in mine} <= {owner_of[f"r{robot}"]}
-    # Zenoh routed each instance its own robots' frames only (frames and session ends).
+    # Each instance took its own robots' frames only (frames and session ends): Zenoh routed
+    # it nothing else ("partitions"), or it left the others' frames to their owner ("all").
+    everything = len(frames) + len(robots)
     for proc, name in ((first, names[0]), (second, names[1])):
         text = proc.metrics()
         own = sum(
@@ -414,6 +420,7 @@ def test_two_instances_split_a_fleet_by_partition(
         )
         assert own > 0
         assert metric_value(text, "lessmap_frames_received_total") == own, name
-        assert metric_value(text, "lessmap_frames_foreign_total") == 0
+        foreign = everything - own if subscription == "all" else 0
+        assert metric_value(text, "lessmap_frames_foreign_total") == foreign, name
     assert second.terminate() == 0
     assert first.terminate() == 0

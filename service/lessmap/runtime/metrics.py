@@ -132,7 +132,8 @@ class ServiceMetrics:
         )
         self.frames_foreign = Counter(
             "lessmap_frames_foreign",
-            "Frames of a partition this instance no longer owns (left to its new owner)",
+            "Frames of a partition this instance does not own (left to its owner; with "
+            "frames_subscription=all, every other instance's robots' frames too)",
             registry=r,
         )
         self.partitions_owned = Gauge(

@@ -1,10 +1,14 @@
 """The receive path: the frames subscribers' channels, swept in batches into the shards.
 
-Each owned partition has one frames subscriber whose handler is a Zenoh ``FifoChannel``:
-Zenoh's thread only pushes the sample into the channel, and no Python runs per sample on
-Zenoh's side. One thread, ``lessmap-receive``, sweeps every channel once per tick and hands
-what it found to the shards: one ``Shard.offer_many`` (one lock, one wake-up of the worker)
-per shard and sweep.
+By default one frames subscriber takes every partition's frames (``EVERY_PARTITION``) and
+the sweep keeps those of the partitions this instance owns; with ``frames_subscription =
+"partitions"`` each owned partition has a subscriber of its own. Zenoh's routing cost per
+sample grows with the subscriptions it matches: 256 of them cost ~10 x the Zenoh CPU of one
+(docs/BENCHMARKS.md). Each subscriber's handler is a Zenoh ``FifoChannel``: Zenoh's thread
+only pushes the sample into the channel, and no Python runs per sample on Zenoh's side.
+One thread, ``lessmap-receive``, sweeps every channel once per tick and hands what it found
+to the shards: one ``Shard.offer_many`` (one lock, one wake-up of the worker) per shard and
+sweep.
 
 Why not a Python callback per sample: zenoh-python runs such a callback on a thread of its
 own per subscriber, so every frame cost a thread wake-up and two GIL hand-offs (to the
@@ -48,6 +52,7 @@ _IDLE_TICK_S = 0.05  # sweep period once nothing arrived for _IDLE_AFTER_S
 _IDLE_AFTER_S = 1.0
 _SWEEP_MAX = 8192  # samples taken from one channel per sweep: the others get their turn
 _CLOSING_SWEEPS = 200  # an undeclared channel is swept this often at most, then let go
+EVERY_PARTITION = -1  # the partition number ``watch`` takes for the one subscription to all
 
 Channel = zenoh.Handler[zenoh.Sample]
 
@@ -153,16 +158,26 @@ class Receiver:
     def _hand_on(self, partition: int, samples: list[zenoh.Sample]) -> None:
         now = time.monotonic()
         self.last_sample_s = now
-        if not self._owned(partition):
+        every = partition == EVERY_PARTITION
+        if not every and not self._owned(partition):
             # In flight when the partition moved, or during a freeze: the owner has it.
             self._metrics.frames_foreign.inc(len(samples))
             return
-        self._metrics.frames_received.inc(len(samples))
         limit = self._max_payload
         shards = self._shards
         batches: list[list[Inbound]] = [[] for _ in shards]
+        owned: dict[str, bool] = {}  # partition chunk -> owned, for this batch
+        foreign = 0
         for sample in samples:
             key = str(sample.key_expr)
+            if every:
+                chunk = key[key.rfind("/") + 1 :]
+                mine = owned.get(chunk)
+                if mine is None:
+                    mine = owned[chunk] = chunk.isdigit() and self._owned(int(chunk))
+                if not mine:
+                    foreign += 1  # another instance's robot (or in flight, or frozen)
+                    continue
             payload = sample.payload
             index = 0 if len(shards) == 1 else shard_index(key, len(shards))
             if len(payload) > limit:
@@ -171,6 +186,8 @@ class Receiver:
                 shards[index].note_rejection(key, ErrorCode.LIMIT_EXCEEDED, detail)
                 continue
             batches[index].append(Inbound(now, key, payload.to_bytes()))
+        self._metrics.frames_foreign.inc(foreign)
+        self._metrics.frames_received.inc(len(samples) - foreign)
         for shard, batch in zip(shards, batches, strict=True):
             if not batch:
                 continue

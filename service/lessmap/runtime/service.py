@@ -32,7 +32,7 @@ from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.ownership import Change, Ownership
-from lessmap.runtime.receiver import Receiver, shard_index
+from lessmap.runtime.receiver import EVERY_PARTITION, Receiver, shard_index
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, PROBE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
@@ -547,7 +547,7 @@ class Service:
             self.settings.instance,
             self.settings.fence_after_s,
         )
-        self._hand_over(sorted(self._frame_subs))
+        self._hand_over(sorted(self.ownership.owned()))
         for p in list(self._standby_subs):
             self._standby_subs.pop(p).undeclare()
         self._apply(self.ownership.set_live(self._live_instances()))
@@ -614,12 +614,21 @@ class Service:
         assert session is not None
         for p in partitions:
             self.ownership.acquire(p)
-            if p not in self._frame_subs and self._receiver is not None:
-                self._frame_subs[p] = session.declare_subscriber(
-                    keys.frames_of_partition(p), self._receiver.channel()
-                )
         if self._receiver is not None:
-            self._receiver.watch(self._frame_subs)
+            subs = self._frame_subs
+            if self.settings.frames_subscription == "all":
+                # One subscription for good; the receiver keeps the owned partitions' frames.
+                if EVERY_PARTITION not in subs:
+                    subs[EVERY_PARTITION] = session.declare_subscriber(
+                        keys.frames_of_every_partition(), self._receiver.channel()
+                    )
+            else:
+                for p in partitions:
+                    if p not in subs:
+                        subs[p] = session.declare_subscriber(
+                            keys.frames_of_partition(p), self._receiver.channel()
+                        )
+            self._receiver.watch(subs)
         for p in partitions:
             self._probe_caches(p)
         self.metrics.partition_moves.labels(direction="in").inc(len(partitions))
