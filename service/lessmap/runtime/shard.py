@@ -16,9 +16,11 @@ CovGraph's edges, ``SessionTable.decision_cost``) and is served what its deficit
 - all of its pending frames with a decision after each, when that fits (a robot that keeps
   up on its own is never coalesced because another robot was expensive);
 - else as many frames as fit with one decision per ``max_batch_frames`` (the robot's own
-  load coalesces its own frames); the same when the shard is behind, i.e. the robot's
-  oldest pending frame waited longer than ``coalesce_after_s`` (deciding at every frame
-  under a backlog would only deepen it: a decision costs 1.5-3 x a frame's counting);
+  load coalesces its own frames); the same when the shard is behind (a frame waited longer
+  than ``coalesce_after_s``) for the robots asking more than a max-min fair share of one
+  round's budget (``_coalescing_level``): deciding at every frame under a backlog would only
+  deepen it (a decision costs 1.5-3 x a frame's counting), but a robot asking little is
+  never coalesced because another one asks a lot;
 - else nothing this round (the deficit carries over, so a frame larger than the quantum
   waits a few rounds while the other robots are served).
 
@@ -43,6 +45,7 @@ leave a hold waiting): the same FIFO, so the end is always taken after the repli
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -70,6 +73,9 @@ _ROBOT_SHARE = 4  # one robot may hold at most 1/_ROBOT_SHARE of the queue (mess
 _LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
 _FLUSH_FRAMES = 64  # plain frames of several robots' turns handed to the table at once
+# What one cost unit takes on the worker (sessions.py: ~25 ns per pair update), to turn
+# ``coalesce_after_s`` into a round's budget of cost units.
+_SECONDS_PER_COST_UNIT = 25e-9
 _KEYS_REMEMBERED = 65_536  # parsed robot keys kept (``_parse_key``)
 
 LIVE = 0  # a sample of the frames subscriber
@@ -135,6 +141,7 @@ class Shard:
         self._request_catchup = request_catchup
         self._quantum = quantum
         self._coalesce_after_s = coalesce_after_s
+        self._level = math.inf  # this round's ``_coalescing_level``
         self._lanes: dict[tuple[str, str], _Lane] = {}  # insertion order = round order
         self._robot_of: dict[str, tuple[str, str]] = {}  # valid keys seen: (fleet, robot)
         # Seconds waited by the round's frames, for the latency histograms (``_round``).
@@ -381,6 +388,7 @@ class Shard:
         """Give every robot with pending messages one turn (deficit round robin)."""
         metrics = self._outbox.metrics
         try:
+            self._level = self._coalescing_level(time.monotonic())
             for key in list(self._lanes):
                 if self._abandon:
                     return
@@ -402,6 +410,36 @@ class Shard:
                 metrics.frame_latency_seconds.observe_many(self._frame_waits)
                 self._frame_waits = []
             metrics.queue_depth.set(self._held)
+
+    def _coalescing_level(self, now: float) -> float:
+        """The per-frame demand above which a robot's turn shares its decisions this round.
+
+        Infinite (the paper's loop for everyone) unless the shard is behind: the oldest
+        pending frame waited longer than ``coalesce_after_s``. Then the round should take no
+        more than that again, ``budget`` cost units, shared max-min fairly: the level L with
+        sum(min(demand, L)) = budget, where a robot's demand is what deciding at each of its
+        pending frames costs. A robot asking no more than L keeps a decision per frame.
+        L is never below the largest indivisible demand of the round (a robot's pending
+        frames with one decision): a robot whose single decision outweighs the budget
+        (a huge CovGraph) then makes the others wait, but never changes their decisions.
+        """
+        lanes = self._lanes
+        heads = [lane.items[0].received_s for lane in lanes.values() if lane.items]
+        live = [t for t in heads if t > 0.0]
+        if not live or now - min(live) <= self._coalesce_after_s:
+            return math.inf
+        with self.lock:
+            cost = self.table.decision_cost
+            pending = [(len(lane.items), cost(key)) for key, lane in lanes.items()]
+        demands = sorted(n * (FRAME_COST + d) for n, d in pending)
+        floor = max(n * FRAME_COST + d for n, d in pending)
+        remaining = self._coalesce_after_s / _SECONDS_PER_COST_UNIT
+        for index, demand in enumerate(demands):
+            share = remaining / (len(demands) - index)
+            if demand > share:
+                return max(share, floor)
+            remaining -= demand
+        return math.inf
 
     def _decoded_head(self, key: tuple[str, str], lane: _Lane, out: list[Rejection]) -> bool:
         """Decode the lane's head (a live sample) into ``lane.head``; drop it if it is bad.
@@ -440,8 +478,9 @@ class Shard:
         total = 0  # cost of the planned messages, decisions left out
         # The plan affords a decision after every message, unless the robot's oldest frame
         # waited too long: a shard behind its robots shares decisions (module doc).
-        head_received = lane.items[0].received_s if lane.items else 0.0
-        fits_per_frame = head_received <= 0.0 or now - head_received <= self._coalesce_after_s
+        # Behind (``_coalescing_level``): a robot asking more than its fair share of the
+        # round shares its decisions.
+        fits_per_frame = len(lane.items) * (FRAME_COST + decision) <= self._level
         while lane.items and len(plan) < len(lane.items):
             index = len(plan)
             if index == 0 and not self._decoded_head(key, lane, rejected):
