@@ -354,15 +354,24 @@ class SparseCounts:
         keys = (np.concatenate(self._pending_rows) << _KEY_SHIFT) | np.concatenate(
             self._pending_cols
         )
+        single = len(self._pending_rows) == 1
         self._pending_rows.clear()
         self._pending_cols.clear()
-        keys.sort()
-        starts = np.flatnonzero(np.concatenate(([True], keys[1:] != keys[:-1])))
-        distinct = keys[starts]
-        repeats = np.diff(np.append(starts, keys.size))
+        if single:
+            # One frame's pairs: its nodes are sorted and distinct and triu_indices lists
+            # the pairs row by row, so the keys are already strictly ascending.
+            distinct, repeats = keys, np.ones(keys.size, dtype=np.int64)
+        else:
+            keys.sort()
+            starts = np.flatnonzero(np.concatenate(([True], keys[1:] != keys[:-1])))
+            distinct = keys[starts]
+            repeats = np.diff(np.append(starts, keys.size))
         at = np.searchsorted(self._keys, distinct)
-        known = at < self._keys.size
-        known[known] = self._keys[at[known]] == distinct[known]
+        if self._keys.size:
+            # A key beyond the last one compares with the last (smaller) key: not known.
+            known = self._keys[np.minimum(at, self._keys.size - 1)] == distinct
+        else:
+            known = np.zeros(distinct.size, dtype=bool)
         self._counts[at[known]] += repeats[known]  # distinct keys: no lost updates
         fresh = ~known
         if fresh.any():
