@@ -12,9 +12,12 @@ the other, ``--repeats`` times, and times each with the thread's CPU clock:
 - ``core``: one ``Partitioner`` per robot, ``observe`` per frame, robots interleaved frame
   by frame (the paper's loop, the fleet benchmark's baseline, with as many robots);
 - ``worker``: a real ``Shard`` (its worker's loop run in this thread) with a real
-  ``SessionTable`` and an ``Outbox`` on a Zenoh peer session (memory-only, no checkpoints),
-  fed the encoded frames as the receiver hands them on (``offer_many``, one batch per
-  ``--sweep-ms`` of the fleet's frames), deciding at every frame as at 200 robots unloaded;
+  ``SessionTable`` and an ``Outbox`` on a Zenoh peer session, with the service's defaults:
+  work budgets (so edges are counted) and a ``CheckpointStore`` in a temporary folder
+  (a checkpoint per 100 frames of a session; the store's writer thread and Zenoh's threads
+  are counted too: process CPU), fed the encoded frames as the receiver hands them on
+  (``offer_many``, one batch per ``--sweep-ms`` of the fleet's frames), deciding at every
+  frame as at 200 robots unloaded (``--memory-only``: no store, as before 2026-11-25);
 - ``receive``: the receiver's sweep of real Zenoh channels (samples put on a local session),
   per sample.
 
@@ -29,7 +32,9 @@ import json
 import os
 import statistics
 import sys
+import tempfile
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -41,6 +46,8 @@ from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.receiver import Receiver
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import Inbound, Shard
+from lessmap.runtime.store import CheckpointStore
+from lessmap.settings import ServiceSettings
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.limits import DEFAULT_LIMITS
@@ -71,46 +78,70 @@ def time_core(frames: Sequence[tuple[int, Frame]], robots: int) -> float:
     """Thread CPU seconds of the core alone on the frames."""
     params = PartitionParams.from_profile("laser")
     partitioners = [Partitioner(params) for _ in range(robots)]
-    started = time.thread_time()
+    started = time.process_time()
     for robot, frame in frames:
         partitioners[robot].observe(frame.seq, frame.stamp_s, frame.features)
-    return time.thread_time() - started
+    return time.process_time() - started
 
 
 def time_worker(
-    session: zenoh.Session, items: Sequence[Inbound], robots: int, per_sweep: int
+    session: zenoh.Session,
+    items: Sequence[Inbound],
+    robots: int,
+    per_sweep: int,
+    *,
+    memory_only: bool,
 ) -> float:
-    """Thread CPU seconds of a shard's worker loop on the encoded frames."""
-    metrics = ServiceMetrics()
-    outbox = Outbox(
-        session,
-        metrics,
-        instance="bench",
-        transition_cache=16,
-        max_publishers=robots,
-        error_rate_per_s=10.0,
-        error_burst=10,
+    """CPU seconds of a shard's worker loop on the encoded frames (module docstring)."""
+    fields = ServiceSettings.model_fields
+    every, interval = (
+        fields[f].default for f in ("checkpoint_every_frames", "checkpoint_interval_s")
     )
-    table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        max_sessions=robots,
-        max_nodes=100_000,
-        max_batch_frames=256,
-        idle_timeout_s=3600.0,
-        instance="bench",
-        clock=time.perf_counter,
+    max_pairs, max_edges = (
+        fields[f].default for f in ("max_pairs_per_frame", "max_edges_per_session")
     )
-    shard = Shard(0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30)
-    started = time.thread_time()
-    for at in range(0, len(items), per_sweep):
-        refused = shard.offer_many(list(items[at : at + per_sweep]))
-        assert not refused
-        shard._collect()
-        while shard._lanes:
-            shard._round()
-    spent = time.thread_time() - started
-    applied = outbox.frames_applied
-    outbox.close()
+    with tempfile.TemporaryDirectory() as folder:
+        store = CheckpointStore(None if memory_only else Path(folder))
+        store.open()
+        metrics = ServiceMetrics()
+        outbox = Outbox(
+            session,
+            metrics,
+            instance="bench",
+            transition_cache=16,
+            max_publishers=robots,
+            error_rate_per_s=10.0,
+            error_burst=10,
+            store=store,
+        )
+        table = SessionTable(
+            PartitionParams.from_profile("laser"),
+            max_sessions=robots,
+            max_nodes=100_000,
+            max_batch_frames=256,
+            idle_timeout_s=3600.0,
+            instance="bench",
+            clock=time.perf_counter,
+            store=None if memory_only else store,
+            checkpoint_every_frames=every,
+            checkpoint_interval_s=interval,
+            max_pairs_per_frame=max_pairs,
+            max_edges=max_edges,
+        )
+        shard = Shard(
+            0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30
+        )
+        started = time.process_time()
+        for at in range(0, len(items), per_sweep):
+            refused = shard.offer_many(list(items[at : at + per_sweep]))
+            assert not refused
+            shard._collect()
+            while shard._lanes:
+                shard._round()
+        store.close()  # the writer thread's work is counted: it is the service's too
+        spent = time.process_time() - started
+        applied = outbox.frames_applied
+        outbox.close()
     assert applied == len(items), f"{applied} of {len(items)} frames applied"
     return spent
 
@@ -176,6 +207,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "frames in this many ms at 200 robots x rate (10)",
     )
     parser.add_argument("--repeats", type=int, default=3, help="interleaved repeats (3)")
+    parser.add_argument(
+        "--memory-only",
+        action="store_true",
+        help="no checkpoint store (lessmap serve --memory-only)",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     frames = fleet_frames(args.robots, args.seconds, args.rate)
@@ -191,7 +227,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     with zenoh.open(conf) as session, threadpool_limits(limits=1):
         for _ in range(args.repeats):
             runs["core"].append(time_core(frames, args.robots))
-            runs["worker"].append(time_worker(session, items, args.robots, per_sweep))
+            runs["worker"].append(
+                time_worker(session, items, args.robots, per_sweep, memory_only=args.memory_only)
+            )
             runs["receive"].append(time_receive(session, items, per_sweep))
     us = {name: 1e6 * statistics.median(values) / len(frames) for name, values in runs.items()}
     load = f"{os.getloadavg()[0]:.2f}"
@@ -210,7 +248,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     sys.stdout.write(
         f"{len(frames)} frames of {args.robots} robots, {per_sweep} per sweep, medians of "
-        f"{args.repeats} (thread CPU), load average {load}\n"
+        f"{args.repeats} (process CPU; receiver: its thread's), load average {load}"
+        f"{', memory-only' if args.memory_only else ', checkpoints on'}\n"
         f"  core observe          {us['core']:7.1f} µs/frame\n"
         f"  shard worker          {us['worker']:7.1f} µs/frame  "
         f"= {result['worker_over_core']:.2f}× core\n"
