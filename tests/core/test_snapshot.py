@@ -10,7 +10,6 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 import pytest
 
@@ -86,20 +85,34 @@ def test_fresh_partitioner_round_trips() -> None:
     assert observe_all(restored, two_room_frames()) == observe_all(Partitioner(), two_room_frames())
 
 
-def snapshot_parts() -> tuple[dict[str, Any], dict[str, Any]]:
-    """(meta, packed arrays) of a version-2 snapshot, to build damaged ones from."""
+def snapshot_parts() -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(meta, arrays) of a version-2 snapshot, to build damaged ones from."""
     partitioner = Partitioner()
     observe_all(partitioner, two_room_frames()[:40])
     data = to_bytes(partitioner)
     assert data[:8] == b"LMSNAP2\n"
-    doc = msgpack.unpackb(data[12:], raw=False)
-    return doc["meta"], doc["arrays"]
+    (length,) = struct.unpack_from("<I", data, 12)
+    header = json.loads(data[16 : 16 + length])
+    blobs = data[16 + length :]
+    arrays = {
+        name: np.frombuffer(blobs[offset : offset + size], dtype=kind).reshape(shape)
+        for name, kind, shape, offset, size in header["arrays"]
+    }
+    return header["meta"], arrays
 
 
-def container(meta: object, arrays: object) -> bytes:
-    """A version-2 snapshot of these parts, with a correct CRC (so the content is judged)."""
-    body: bytes = msgpack.packb({"meta": meta, "arrays": arrays}, use_bin_type=True)
-    return b"LMSNAP2\n" + struct.pack("<I", zlib.crc32(body)) + body
+def container(meta: object, arrays: dict[str, Any], *, table: object = None) -> bytes:
+    """A version-2 snapshot of these parts with a correct CRC (so the content is judged);
+    ``table`` replaces the header's array table."""
+    blobs, entries, offset = [], [], 0
+    for name, array in arrays.items():
+        blob = array.tobytes()
+        entries.append([name, array.dtype.str, list(array.shape), offset, len(blob)])
+        blobs.append(blob)
+        offset += len(blob)
+    header = json.dumps({"meta": meta, "arrays": entries if table is None else table}).encode()
+    rest = struct.pack("<I", len(header)) + header + b"".join(blobs)
+    return b"LMSNAP2\n" + struct.pack("<I", zlib.crc32(rest)) + rest
 
 
 def with_meta(**changes: object) -> bytes:
@@ -114,14 +127,16 @@ def without(name: str) -> bytes:
     return container(meta, arrays)
 
 
-def replaced(name: str, value: np.ndarray | list[object]) -> bytes:
+def replaced(name: str, value: np.ndarray) -> bytes:
     meta, arrays = snapshot_parts()
-    arrays[name] = (
-        ["<i8", list(value.shape), value.astype("<i8").tobytes()]
-        if isinstance(value, np.ndarray)
-        else value
-    )
+    arrays[name] = value
     return container(meta, arrays)
+
+
+def with_entry(name: str, entry: list[object]) -> bytes:
+    meta, arrays = snapshot_parts()
+    kept = [e for e in json.loads(container(meta, arrays)[16:].split(b"]]}")[0] + b"]]}")["arrays"]]
+    return container(meta, arrays, table=[e if e[0] != name else entry for e in kept])
 
 
 def flipped_body_byte() -> bytes:
@@ -137,7 +152,9 @@ GARBAGE = {
     "magic only": b"LMSNAP2\n",
     "truncated": to_bytes(Partitioner())[:-40],
     "flipped data byte": flipped_body_byte(),  # the CRC catches it
-    "body not a map": container(None, None),
+    "header not an object": b"LMSNAP2\n"
+    + struct.pack("<I", zlib.crc32(b"\x06\x00\x00\x00[1, 2]"))
+    + b"\x06\x00\x00\x00[1, 2]",
     "meta a list": container([1, 2], snapshot_parts()[1]),
     "no counts": without("counts"),
     "future version": with_meta(version=SNAPSHOT_VERSION + 1),
@@ -145,19 +162,16 @@ GARBAGE = {
     "bad param": with_meta(params={"ncut_min": -1.0}),
     "unknown param": with_meta(params={"speed": 3}),
     "bad seed mode": with_meta(params={"seed_mode": "sometimes"}),
-    "short history": with_meta(history_seqs=[1]),
     "short counts": replaced("counts", np.zeros(3, dtype=np.int64)),
     "repeated ids": replaced("feature_ids", np.zeros(20, dtype=np.int64)),
-    "indptr reversed": replaced(
-        "edge_indptr",
-        np.frombuffer(snapshot_parts()[1]["edge_indptr"][2], dtype="<i8")[::-1].copy(),
-    ),
-    "edge index out of range": replaced(
-        "edge_indices", np.frombuffer(snapshot_parts()[1]["edge_indices"][2], dtype="<i8") + 99
-    ),
-    "object dtype": replaced("counts", ["|O", [1], b"\x00" * 8]),
-    "bytes short of the shape": replaced("counts", ["<i8", [4], b"\x00" * 8]),
-    "negative shape": replaced("counts", ["<i8", [-1], b""]),
+    "indptr reversed": replaced("edge_indptr", snapshot_parts()[1]["edge_indptr"][::-1].copy()),
+    "edge index out of range": replaced("edge_indices", snapshot_parts()[1]["edge_indices"] + 99),
+    "short history seqs": replaced("history_seqs", np.zeros(1, dtype=np.int64)),
+    "float counts": replaced("counts", snapshot_parts()[1]["counts"].astype(np.float64)),
+    "object dtype": with_entry("counts", ["counts", "|O", [1], 0, 8]),
+    "bytes short of the shape": with_entry("counts", ["counts", "<i8", [4], 0, 8]),
+    "negative shape": with_entry("counts", ["counts", "<i8", [-1], 0, 0]),
+    "beyond the end": with_entry("counts", ["counts", "<i8", [4], 10**9, 32]),
 }
 
 

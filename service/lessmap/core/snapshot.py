@@ -1,13 +1,14 @@
 """A partitioner's whole state as bytes and back, bit-exact.
 
-Format (version 2): the 8-byte magic ``LMSNAP2`` + newline, the CRC-32 of the body (4 bytes,
-little-endian), then the body, one msgpack map: ``meta`` (the scalars, msgpack-native: floats
-are IEEE doubles, so exact) and ``arrays`` (name -> [dtype, shape, raw little-endian bytes]).
-msgpack is the wire contract's codec, so any client language reads it; the CRC catches a
-damaged record, as the zip archive's did. Version 1, an uncompressed NumPy ``.npz`` archive
-with a JSON ``meta`` entry, is still read (records stored before an upgrade), never written:
-building a zip archive cost ~3 ms a checkpoint, as much as 40 frames' counting, on the
-worker that decides for every robot of the shard (docs/BENCHMARKS.md).
+Format (version 2): the 8-byte magic ``LMSNAP2`` + newline, the CRC-32 of the rest (4 bytes,
+little-endian), the length of the header (4 bytes, little-endian), the header (UTF-8 JSON:
+``meta``, the scalars, and ``arrays``, a list of [name, dtype, shape, offset, bytes]), then
+the arrays' raw bytes (int64, little-endian). Readable from any language with JSON and a
+CRC; the CRC catches a damaged record, as the zip archive's did; the standard library only
+(the core imports no codec). Version 1, an uncompressed NumPy ``.npz`` archive with a JSON
+``meta`` entry, is still read (records stored before an upgrade), never written: building a
+zip archive cost ~3 ms a checkpoint, as much as 40 frames' counting, on the worker that
+decides for every robot of the shard (docs/BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from dataclasses import asdict
 from itertools import chain
 from typing import Any
 
-import msgpack
 import numpy as np
 
 from lessmap.core.covgraph import CovGraphState
@@ -32,8 +32,10 @@ from lessmap.core.submaps import Submap
 SNAPSHOT_VERSION = 2
 _MAGIC = b"LMSNAP2\n"
 _CRC = struct.Struct("<I")
-_DTYPES = {"<i8": np.int64, "<f8": np.float64}  # the only ones a snapshot holds
+_LENGTH = struct.Struct("<I")
+_DTYPES = {"<i8": np.int64}  # every array of a snapshot is int64
 _ARRAYS = (
+    "history_seqs",
     "feature_ids",
     "counts",
     "first_seen",
@@ -77,13 +79,12 @@ def to_bytes(partitioner: Partitioner) -> bytes:
     meta: dict[str, Any] = {
         "version": SNAPSHOT_VERSION,
         "params": {k: str(v) if k == "seed_mode" else v for k, v in asdict(state.params).items()},
-        "history_seqs": [r.seq for r in state.history],
         "closed": [[s.id, s.first_seq, s.last_seq, s.frame_count] for s in state.closed_submaps],
         "submap_id": state.submap_id,
         "submap_first_seq": state.submap_first_seq,
         "submap_frame_count": state.submap_frame_count,
         "last_seq": state.last_seq,
-        "last_stamp_s": state.last_stamp_s,
+        "last_stamp_s": state.last_stamp_s.hex(),  # hex keeps the float exact
         "last_features": list(state.last_features),
         "pending_frames": state.pending_frames,
         "pending_nonempty": state.pending_nonempty,
@@ -93,6 +94,9 @@ def to_bytes(partitioner: Partitioner) -> bytes:
     }
     graph = state.graph
     arrays = {
+        "history_seqs": np.fromiter(
+            (r.seq for r in state.history), dtype=np.int64, count=len(state.history)
+        ),
         "feature_ids": graph.feature_ids,
         "counts": graph.counts,
         "first_seen": graph.first_seen,
@@ -104,50 +108,68 @@ def to_bytes(partitioner: Partitioner) -> bytes:
         "closed_offsets": closed_offsets,
         "closed_values": closed_values,
     }
-    body: bytes = msgpack.packb(
-        {"meta": meta, "arrays": {name: _packed(a) for name, a in arrays.items()}},
-        use_bin_type=True,
-    )
-    return _MAGIC + _CRC.pack(zlib.crc32(body)) + body
+    blobs: list[bytes] = []
+    table: list[list[Any]] = []
+    offset = 0
+    for name, array in arrays.items():
+        kind = "<i8"
+        blob = np.ascontiguousarray(array, dtype=kind).tobytes()
+        table.append([name, kind, list(array.shape), offset, len(blob)])
+        blobs.append(blob)
+        offset += len(blob)
+    header = json.dumps({"meta": meta, "arrays": table}, separators=(",", ":")).encode()
+    rest = b"".join([_LENGTH.pack(len(header)), header, *blobs])
+    return _MAGIC + _CRC.pack(zlib.crc32(rest)) + rest
 
 
-def _packed(array: np.ndarray) -> list[Any]:
-    """[dtype, shape, bytes] of an int64 or float64 array, little-endian."""
-    kind = "<f8" if array.dtype.kind == "f" else "<i8"
-    data = np.ascontiguousarray(array, dtype=kind)
-    return [kind, list(data.shape), data.tobytes()]
-
-
-def _unpacked(name: str, entry: Any) -> np.ndarray:
-    """The array of a ``_packed`` entry, checked against its declared dtype and shape."""
-    kind, shape, data = entry
+def _array(name: str, entry: Any, data: memoryview) -> np.ndarray:
+    """One array of the header's table, checked against its declared dtype and shape."""
+    if not (isinstance(entry, list) and len(entry) == 5):
+        msg = f"array {name!r}: malformed entry"
+        raise GraphError(msg)
+    _name, kind, shape, offset, size = entry
     dtype = _DTYPES.get(kind)
-    if dtype is None or not isinstance(shape, list) or not isinstance(data, bytes):
-        msg = f"array {name!r}: unsupported entry"
+    if (
+        dtype is None
+        or not isinstance(shape, list)
+        or not all(type(n) is int and n >= 0 for n in shape)
+        or type(offset) is not int
+        or type(size) is not int
+        or not 0 <= offset <= offset + size <= len(data)
+    ):
+        msg = f"array {name!r}: unsupported entry {entry!r:.80}"
         raise GraphError(msg)
     count = int(np.prod(shape, dtype=np.int64)) if shape else 1
-    if count < 0 or count * 8 != len(data):
-        msg = f"array {name!r}: {len(data)} bytes for shape {shape}"
+    if count * 8 != size:
+        msg = f"array {name!r}: {size} bytes for shape {shape}"
         raise GraphError(msg)
-    return np.frombuffer(data, dtype=dtype).reshape(shape).copy()
+    return np.frombuffer(data[offset : offset + size], dtype=dtype).reshape(shape).copy()
 
 
 def _read_v2(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    head = len(_MAGIC) + _CRC.size
-    if len(data) < head:
+    start = len(_MAGIC) + _CRC.size
+    if len(data) < start + _LENGTH.size:
         msg = "snapshot truncated"
         raise GraphError(msg)
     (crc,) = _CRC.unpack_from(data, len(_MAGIC))
-    body = memoryview(data)[head:]
-    if zlib.crc32(body) != crc:
+    rest = memoryview(data)[start:]
+    if zlib.crc32(rest) != crc:
         msg = "snapshot damaged: CRC-32 mismatch"
         raise GraphError(msg)
-    doc = msgpack.unpackb(body, raw=False, strict_map_key=True)
-    meta, packed = doc["meta"], doc["arrays"]
-    if not isinstance(meta, dict) or not isinstance(packed, dict):
-        msg = "snapshot body is not {meta, arrays}"
+    (length,) = _LENGTH.unpack_from(rest)
+    header = json.loads(bytes(rest[_LENGTH.size : _LENGTH.size + length]).decode())
+    if not isinstance(header, dict):
+        msg = "snapshot header is not a JSON object"
         raise GraphError(msg)
-    return meta, {name: _unpacked(name, packed[name]) for name in _ARRAYS}
+    meta, table = header.get("meta"), header.get("arrays")
+    if not isinstance(meta, dict) or not isinstance(table, list):
+        msg = "snapshot header has no meta object and arrays list"
+        raise GraphError(msg)
+    entries = {entry[0]: entry for entry in table if isinstance(entry, list) and entry}
+    blobs = rest[_LENGTH.size + length :]
+    arrays = {name: _array(name, entries.get(name), blobs) for name in _ARRAYS}
+    meta["history_seqs"] = arrays.pop("history_seqs").tolist()
+    return meta, arrays
 
 
 def _read_v1(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -161,7 +183,6 @@ def _read_v1(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     if meta.get("version") != 1:
         msg = f"snapshot version {meta.get('version')!r}, expected 1 or {SNAPSHOT_VERSION}"
         raise GraphError(msg)
-    meta["last_stamp_s"] = float.fromhex(meta["last_stamp_s"])
     return meta, arrays
 
 
@@ -209,7 +230,7 @@ def from_bytes(data: bytes) -> Partitioner:
             submap_first_seq=meta["submap_first_seq"],
             submap_frame_count=meta["submap_frame_count"],
             last_seq=meta["last_seq"],
-            last_stamp_s=float(meta["last_stamp_s"]),
+            last_stamp_s=float.fromhex(meta["last_stamp_s"]),
             last_features=tuple(meta["last_features"]),
             pending_frames=meta["pending_frames"],
             pending_nonempty=meta["pending_nonempty"],
@@ -222,6 +243,6 @@ def from_bytes(data: bytes) -> Partitioner:
         raise
     except Exception as exc:
         # Snapshot bytes come from storage or another instance: anything malformed, however
-        # msgpack, numpy, zipfile or json report it, is one error type for the caller.
+        # numpy, zipfile or json report it, is one error type for the caller.
         msg = f"not a partitioner snapshot: {type(exc).__name__}: {exc}"
         raise GraphError(msg) from exc
