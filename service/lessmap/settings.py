@@ -163,8 +163,11 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     checkpoint_every_frames: int = Field(
         100, ge=1, description="checkpoint a session after this many applied frames"
     )
+    # 10 s: at 10 Hz the same spacing as checkpoint_every_frames. A checkpoint rewrites the
+    # session's whole state (its frame history alone is ~300 KiB at 20 features a frame), and
+    # at 5 s the checkpoints of 500 robots took ~15 % of the worker (docs/BENCHMARKS.md).
     checkpoint_interval_s: float = Field(
-        5.0, gt=0.0, description="or after this many seconds with new frames"
+        10.0, gt=0.0, description="or after this many seconds with new frames"
     )
     catchup_max_frames: int = Field(
         1000, ge=1, description="frames asked of each robot's cache when catching up"

@@ -306,9 +306,12 @@ class DenseCounts:
         """a_ij as canonical int64 CSR arrays, of all nodes or of ``kept`` only."""
         n = self._nodes
         block = self._counts[:n, :n] if kept is None else self._counts[np.ix_(kept, kept)]
-        upper = sparse.csr_array(np.triu(block, k=1).astype(np.int64))
-        upper.sort_indices()
-        return UpperCounts.from_csr(upper)
+        # Straight from the dense block (every checkpoint asks): nonzero walks it in row-major
+        # order, so the entries come out in canonical CSR order with no sparse matrix built.
+        rows, cols = np.nonzero(np.triu(block, k=1))
+        indptr = np.zeros(block.shape[0] + 1, dtype=np.int64)
+        np.cumsum(np.bincount(rows, minlength=block.shape[0]), out=indptr[1:])
+        return UpperCounts(indptr, cols.astype(np.int64), block[rows, cols].astype(np.int64))
 
 
 class SparseCounts:

@@ -263,7 +263,7 @@ class SessionTable:
         clock: Callable[[], float],
         store: CheckpointStore | None = None,
         checkpoint_every_frames: int = 100,
-        checkpoint_interval_s: float = 5.0,
+        checkpoint_interval_s: float = 10.0,
         checkpoint_phase: bool = True,
         catchup_max_frames: int = 0,
         catchup_wait_s: float = 2.0,
