@@ -60,7 +60,12 @@ def stop_signals() -> Iterator[StopSignal]:
             signal.signal(sig, handler)
 
 
-def add_run_options(parser: argparse.ArgumentParser) -> None:
+def add_run_options(
+    parser: argparse.ArgumentParser,
+    *,
+    connect_timeout_s: float = 10.0,
+    connect_help: str = "how long to retry while no router answers",
+) -> None:
     """Add ``--duration`` and ``--connect-timeout``, the options every foreground command has."""
     parser.add_argument(
         "--duration",
@@ -72,7 +77,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--connect-timeout",
         type=float,
-        default=10.0,
+        default=connect_timeout_s,
         metavar="S",
-        help="how long to retry while no router answers (default 10)",
+        help=f"{connect_help} (default {connect_timeout_s:g})",
     )

@@ -54,14 +54,11 @@ def _common(parser: argparse.ArgumentParser) -> None:
         metavar="ROBOT",
         help="also show this robot's CovGraph (its current submap, from its frames)",
     )
-    add_run_options(parser)
-    parser.set_defaults(connect_timeout=CONNECT_TIMEOUT_S)
-    for action in parser._actions:  # argparse has no public way to reword an option's help
-        if action.dest == "connect_timeout":
-            action.help = (
-                "how long to wait for the lessmap router, saying so once while waiting "
-                f"(default {CONNECT_TIMEOUT_S:g})"
-            )
+    add_run_options(
+        parser,
+        connect_timeout_s=CONNECT_TIMEOUT_S,
+        connect_help="how long to wait for the lessmap router, saying so once while waiting",
+    )
 
 
 def configure_view(parser: argparse.ArgumentParser) -> None:
