@@ -19,6 +19,7 @@ from lessmap.core import (
     Submap,
     Transition,
 )
+from lessmap.core.partitioner import _feature_array
 from tests.core.helpers import (
     TWO_ROOM_DOOR,
     assert_same_state,
@@ -29,6 +30,8 @@ from tests.core.helpers import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from tests.core.helpers import Frames
 
 
@@ -432,3 +435,26 @@ def test_keep_closed_submaps_and_history_bounds() -> None:
     assert partitioner.closed_submaps == tuple(t.closed for t in found[-2:])
     assert partitioner.transitions == len(found)
     assert [t.closed.id for t in found] == list(range(len(found)))
+
+
+@given(
+    st.lists(
+        st.one_of(
+            st.integers(-(2**64), 2**64),
+            st.integers(-5, 5),
+            st.booleans(),
+            st.floats(allow_nan=False, width=32),
+        ),
+        max_size=30,
+    )
+)
+def test_a_list_of_ints_gives_the_array_numpy_would(features: list[Any]) -> None:
+    # The plain-list shortcut of _feature_array against the numpy path (a tuple takes it):
+    # the same distinct sorted int64 array, or the same error.
+    def outcome(values: Iterable[Any]) -> tuple[str, Any]:
+        try:
+            return "ok", _feature_array(7, values).tolist()
+        except GraphError as exc:
+            return "error", str(exc)
+
+    assert outcome(features) == outcome(tuple(features))
