@@ -109,9 +109,9 @@ def _feature_array(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
         # of numpy's conversion for a frame of ~20 (every frame of a fleet comes this way).
         # The same array as below; anything else (bools, floats, IDs beyond int64) is left
         # to the checks below and their messages.
-        distinct = sorted(set(features))
-        if not distinct or (distinct[0] >= _INT64_MIN and distinct[-1] <= _INT64_MAX):
-            return np.array(distinct, dtype=np.int64)
+        ids = sorted(set(features))
+        if not ids or (ids[0] >= _INT64_MIN and ids[-1] <= _INT64_MAX):
+            return np.array(ids, dtype=np.int64)
     values = features if isinstance(features, np.ndarray) else list(features)
     try:
         array = np.asarray(values)
