@@ -24,6 +24,7 @@ from lessmap.core.areas import (
     rate_overlap,
 )
 from lessmap.core.areas_snapshot import from_bytes, to_bytes
+from lessmap.core.params import PartitionParams
 from tests.core.helpers import room_walk
 
 if TYPE_CHECKING:
@@ -157,6 +158,50 @@ def test_a_sparse_sensor_turning_in_one_room_stays_in_it() -> None:
         without_rule += len(track(frames, AreaParams(familiar_relative=0.0))[1])
     assert with_rule == 0
     assert without_rule >= 5
+
+
+# -- rule 3d: a weak proposal waits until its new side has lasted --------------------------
+
+
+def doorway(rng: np.random.Generator) -> Frames:
+    """Room A, four frames that see room B through the door, then B (from frame 34)."""
+    return [
+        *stay(rng, A, 30),
+        *[seen(rng, A, 0.8) + seen(rng, B, 0.3) for _ in range(4)],
+        *stay(rng, B, 30),
+    ]
+
+
+def test_a_weak_proposal_waits_for_its_new_side_to_last() -> None:
+    p = AreaParams()
+    early = 0
+    for seed in range(10):
+        _, found = track(doorway(np.random.default_rng(seed)))
+        assert moves(found) == [(0, 1)]
+        for change in found:
+            t = change.transition
+            if t.ncut is not None and t.ncut > p.weak_ncut:
+                assert t.seq - t.boundary_seq >= p.weak_frames
+        _, off = track(doorway(np.random.default_rng(seed)), AreaParams(weak_frames=0))
+        assert moves(off) == [(0, 1)]
+        early += sum(c.transition.seq - c.transition.boundary_seq < p.weak_frames for c in off)
+    assert early >= 5  # without the rule, most of these doors are confirmed sooner
+
+
+def test_a_door_that_stays_in_view_is_found_sooner_than_at_ncut_0_4() -> None:
+    # A 360° sensor sees room A from B for ten frames: the door's Ncut falls slowly, and
+    # proposals up to the looser bound (held by rule 3d) find it sooner.
+    strict = AreaParams(proposal=PartitionParams(ncut_min=0.4, lambda2_min=0.4))
+    latency = latency_strict = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        frames = [*stay(rng, A, 30), *wide_door(rng, B, A), *stay(rng, B, 30)]
+        (change,) = track(frames)[1]
+        (change_strict,) = track(frames, strict)[1]
+        assert change.transition.seq <= change_strict.transition.seq
+        latency += change.transition.seq - 30
+        latency_strict += change_strict.transition.seq - 30
+    assert latency < latency_strict - 10
 
 
 # -- rule 4: a proposal names the area it re-enters ----------------------------------------

@@ -31,7 +31,10 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
       count of its features if that is less, as with a sparse sensor; leaving out the
       frames from the boundary on and the ``familiar_margin_frames`` non-empty frames before
       it, where a doorway shows the next room), the robot moved within its area and the
-      proposal is dropped.
+      proposal is dropped;
+   d. a *weak* proposal, spectral with an Ncut above ``weak_ncut``, waits until the frames
+      from its boundary on span ``weak_frames`` frames (else it expires as in a): weaker
+      evidence must last longer before it counts.
 
 4. **Which area, on a proposal.** The features seen from the boundary on are compared with
    every known area other than the current one: the share of them that the area has seen.
@@ -223,6 +226,12 @@ class AreaTracker:
         candidate = self.candidate
         assert candidate is not None
         boundary = candidate.boundary_seq
+        p = self.params
+        weak = candidate.ncut is not None and candidate.ncut > p.weak_ncut
+        if weak and seq - boundary < p.weak_frames:  # rule 3d
+            if seq - candidate.seq >= p.confirm_frames:
+                self.candidate = None
+            return None
         after, before, moved = rules.sides(self.frames, self.segment_counts, boundary)
         minimum = self.params.min_area_features
         if len(before) < minimum:
@@ -232,7 +241,6 @@ class AreaTracker:
             if seq - candidate.seq >= self.params.confirm_frames:
                 self.candidate = None
             return None
-        p = self.params
         share = rules.familiar_share(
             self.frames,
             self.areas[self.current],
