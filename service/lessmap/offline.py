@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields as dataclass_fields
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from lessmap.core import GraphError, Partitioner, Transition
@@ -225,16 +225,10 @@ def run(args: argparse.Namespace) -> int:
         "seed_mode": str(params.seed_mode),
     }
     if args.method == "areas":
+        # Every scalar of AreaParams (its proposer's are the paper's above), listed from the
+        # dataclass so that a new rule's setting shows without a second list to keep.
         record["params"] |= {
-            "pool_min_features": areas.pool_min_features,
-            "pool_max_frames": areas.pool_max_frames,
-            "min_area_features": areas.min_area_features,
-            "revisit_overlap": areas.revisit_overlap,
-            "blind_frames": areas.blind_frames,
-            "stay_share": areas.stay_share,
-            "recognise_frames": areas.recognise_frames,
-            "recognise_llr": areas.recognise_llr,
-            "merge_overlap": areas.merge_overlap,
+            f.name: getattr(areas, f.name) for f in dataclass_fields(areas) if f.name != "proposal"
         }
     out.write(json.dumps(record) + "\n")
     out.flush()

@@ -141,6 +141,7 @@ def test_segment_method_areas_prints_areas(
     assert summary["areas_per_robot"] == {"r1": 3}
     assert summary["params"]["ncut_min"] == 0.44
     assert summary["params"]["merge_overlap"] == AreaParams().merge_overlap
+    assert summary["params"]["weak_frames"] == AreaParams().weak_frames  # every setting listed
     assert main(["segment", str(path), "--summary-only"]) == 0
     paper = json.loads(capsys.readouterr().out)
     assert "method" not in paper
