@@ -199,6 +199,16 @@ def replay_summary(proc: Proc) -> dict[str, Any]:
     return summary
 
 
+def failure_context(summary: dict[str, Any], site: Site) -> str:
+    """What a failed replay needs to be understood: the robots' counts and the warnings."""
+    notable = ("WARNING", "ERROR", "stalled", "missing", "gap", "catch")
+    lines = [f"per robot: {json.dumps(summary.get('per_robot'))}"]
+    for proc in site.procs:
+        found = [line for line in proc.log().splitlines() if any(w in line for w in notable)]
+        lines += [f"--- {proc.name}: {len(found)} notable line(s), the last 15:", *found[-15:]]
+    return "\n".join(lines)
+
+
 def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> None:
     path = dataset("mrclam6.frames.jsonl")
     frames = list(read_frames(path))
@@ -254,7 +264,7 @@ def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> 
             + f"; all {PARTITIONS} partitions owned again after {takeover_s:.2f} s (Health polled)"
         )
         summary = replay_summary(replay)
-        assert code == 0, (summary, [p.log()[-2000:] for p in site.procs])
+        assert code == 0, failure_context(summary, site)
         for robot, counts in summary["per_robot"].items():
             assert counts["applied"] == counts["offered"], (robot, counts)
         assert compare(expected, [t for _, t in bus.got]) == []
@@ -296,7 +306,7 @@ def test_an_owner_frozen_past_its_lease_publishes_nothing_stale(site: Site) -> N
         code = replay.process.wait(300)
         time.sleep(1.0)
         summary = replay_summary(replay)
-        assert code == 0, (summary, [p.log()[-2000:] for p in site.procs])
+        assert code == 0, failure_context(summary, site)
         assert compare(expected, [t for _, t in bus.got]) == []
         assert "session resumed from the state store" in instances[other].log()
     finally:
