@@ -15,7 +15,7 @@ from prometheus_client import CollectorRegistry, Histogram, generate_latest
 from lessmap.core import PartitionParams
 from lessmap.runtime.metrics import BatchHistogram, ServiceMetrics
 from lessmap.runtime.outbox import Outbox
-from lessmap.runtime.receiver import Receiver
+from lessmap.runtime.receiver import EVERY_PARTITION, Receiver
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, Inbound, Shard
 from lessmap_schemas import keys
@@ -113,8 +113,9 @@ def wait_matched(publisher: zenoh.Publisher) -> None:
     wait_until(matched, 20.0, "the subscriber to match")
 
 
+@pytest.mark.parametrize("subscription", ["partitions", "all"])
 def test_receiver_sweeps_samples_into_the_shard_and_reports_what_it_refuses(
-    router: str, client_session: Callable[[str], zenoh.Session]
+    router: str, client_session: Callable[[str], zenoh.Session], subscription: str
 ) -> None:
     service_session, robot_session = client_session(router), client_session(router)
     metrics = ServiceMetrics()
@@ -124,10 +125,17 @@ def test_receiver_sweeps_samples_into_the_shard_and_reports_what_it_refuses(
     receiver = Receiver(
         [shard], metrics, max_payload_bytes=1000, queue_depth=64, owned=lambda p: p == mine
     )
-    subs = {
-        p: service_session.declare_subscriber(keys.frames_of_partition(p), receiver.channel())
-        for p in (mine, partition_of(FLEET, other))
-    }
+    if subscription == "all":
+        subs = {
+            EVERY_PARTITION: service_session.declare_subscriber(
+                keys.frames_of_every_partition(), receiver.channel()
+            )
+        }
+    else:
+        subs = {
+            p: service_session.declare_subscriber(keys.frames_of_partition(p), receiver.channel())
+            for p in (mine, partition_of(FLEET, other))
+        }
     receiver.watch(subs)
     receiver.start()
     try:
@@ -140,6 +148,10 @@ def test_receiver_sweeps_samples_into_the_shard_and_reports_what_it_refuses(
         own.put(b"\x00" * 2000)  # over max_payload_bytes: refused unread
         for seq in range(3):
             foreign.put(item(other, seq).payload)
+        hostile = ["\u00b2", "1" * 5000, "abc"]  # no partition: digits int() refuses, or none
+        if subscription == "all":  # only the one subscription to every partition sees them
+            for chunk in hostile:
+                robot_session.put(keys.frames(FLEET, "mine").rsplit("/", 1)[0] + "/" + chunk, b"x")
 
         def text() -> str:
             return generate_latest(metrics.registry).decode()
@@ -147,7 +159,8 @@ def test_receiver_sweeps_samples_into_the_shard_and_reports_what_it_refuses(
         wait_until(
             lambda: (
                 metric_value(text(), "lessmap_frames_received_total") == 6
-                and metric_value(text(), "lessmap_frames_foreign_total") == 3
+                and metric_value(text(), "lessmap_frames_foreign_total")
+                == 3 + (len(hostile) if subscription == "all" else 0)
             ),
             20.0,
             "every sample swept",

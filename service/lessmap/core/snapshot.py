@@ -49,21 +49,14 @@ _ARRAYS = (
 )
 
 
-def _ragged(rows: list[list[int]] | list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Pack a list of int lists as (offsets, values)."""
-    lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+def _ragged(rows: list[np.ndarray] | list[tuple[int, ...]]) -> tuple[np.ndarray, np.ndarray]:
+    """Pack rows of ints (arrays, or tuples of Python ints) as (offsets, values)."""
     offsets = np.zeros(len(rows) + 1, dtype=np.int64)
-    np.cumsum(lengths, out=offsets[1:])
-    values = np.concatenate(rows).astype(np.int64, copy=False) if rows else np.zeros(0, np.int64)
-    return offsets, values
-
-
-def _ragged_tuples(rows: list[tuple[int, ...]]) -> tuple[np.ndarray, np.ndarray]:
-    """``_ragged`` for rows of Python ints (one pass, no array per row)."""
-    lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
-    offsets = np.zeros(len(rows) + 1, dtype=np.int64)
-    np.cumsum(lengths, out=offsets[1:])
-    values = np.fromiter(chain.from_iterable(rows), dtype=np.int64, count=int(offsets[-1]))
+    np.cumsum(np.fromiter(map(len, rows), dtype=np.int64, count=len(rows)), out=offsets[1:])
+    if rows and isinstance(rows[0], np.ndarray):
+        values = np.concatenate(rows).astype(np.int64, copy=False)
+    else:  # tuples: one pass over the ints, no array per row
+        values = np.fromiter(chain.from_iterable(rows), dtype=np.int64, count=int(offsets[-1]))
     return offsets, values
 
 
@@ -75,7 +68,7 @@ def to_bytes(partitioner: Partitioner) -> bytes:
     """Serialize a partitioner's whole state (format: module docstring)."""
     state = partitioner.state()
     history_offsets, history_values = _ragged([r.features for r in state.history])
-    closed_offsets, closed_values = _ragged_tuples([s.features for s in state.closed_submaps])
+    closed_offsets, closed_values = _ragged([s.features for s in state.closed_submaps])
     meta: dict[str, Any] = {
         "version": SNAPSHOT_VERSION,
         "params": {k: str(v) if k == "seed_mode" else v for k, v in asdict(state.params).items()},

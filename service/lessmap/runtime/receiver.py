@@ -174,7 +174,11 @@ class Receiver:
                 chunk = key[key.rfind("/") + 1 :]
                 mine = owned.get(chunk)
                 if mine is None:
-                    mine = owned[chunk] = chunk.isdigit() and self._owned(int(chunk))
+                    try:  # any client may put here: "²", "1" * 5000, "abc" are no partition
+                        mine = self._owned(int(chunk)) if chunk.isdecimal() else False
+                    except ValueError:
+                        mine = False
+                    owned[chunk] = mine
                 if not mine:
                     foreign += 1  # another instance's robot (or in flight, or frozen)
                     continue

@@ -283,7 +283,7 @@ class SessionTable:
         self._ledger = ledger
         self._ledger_slot = ledger_slot
         self._admission = admission
-        self._decide_every = max_batch_frames  # this call's coalescing (``handle_batch``)
+        self._decide_every = max_batch_frames  # this turn's coalescing (``handle_turns``)
         self._catchup_max_frames = catchup_max_frames  # 0: no catch-up, gaps reported at once
         self._catchup_wait_s = catchup_wait_s
         self._holding: set[RobotKey] = set()  # sessions with a hold under way
@@ -422,12 +422,13 @@ class SessionTable:
         ``decide_every`` lowers the coalescing of this call (the fair scheduler asks for 1
         when a robot's frames fit its share); it never raises it above ``max_batch_frames``.
         """
-        limit = self._max_batch_frames
-        self._decide_every = limit if decide_every is None else max(1, min(decide_every, limit))
-        try:
-            return self._handle_batch(messages, now_s)
-        finally:
-            self._decide_every = limit
+        per_robot: dict[RobotKey, list[Frame | SessionEnd]] = {}
+        for fleet, robot, message in messages:
+            per_robot.setdefault((fleet, robot), []).append(message)
+        return self.handle_turns(
+            [(key, robot_messages, decide_every) for key, robot_messages in per_robot.items()],
+            now_s,
+        )
 
     def handle_turns(
         self,
@@ -436,7 +437,8 @@ class SessionTable:
     ) -> Outcome:
         """Apply several robots' turns, each as ``handle_batch`` of its messages, one outcome.
 
-        A turn is (robot, its messages in arrival order, its ``decide_every``). The shard
+        A turn is (robot, its messages in arrival order, its ``decide_every``: it lowers the
+        coalescing, never raises it above ``max_batch_frames``). The shard
         hands a whole round's plain turns at once: one call, one outcome and one publish for
         many robots instead of one each (the runtime's cost per frame, not the core's).
         """
@@ -450,17 +452,6 @@ class SessionTable:
                 self._handle_robot_safely(key, robot_messages, now_s, outcome)
         finally:
             self._decide_every = limit
-        return outcome
-
-    def _handle_batch(
-        self, messages: Iterable[tuple[str, str, Frame | SessionEnd]], now_s: float
-    ) -> Outcome:
-        outcome = Outcome()
-        per_robot: dict[RobotKey, list[Frame | SessionEnd]] = {}
-        for fleet, robot, message in messages:
-            per_robot.setdefault((fleet, robot), []).append(message)
-        for key, robot_messages in per_robot.items():
-            self._handle_robot_safely(key, robot_messages, now_s, outcome)
         return outcome
 
     def _handle_robot_safely(

@@ -424,9 +424,10 @@ class Shard:
         (a huge CovGraph) then makes the others wait, but never changes their decisions.
         """
         lanes = self._lanes
-        heads = [lane.items[0].received_s for lane in lanes.values() if lane.items]
-        live = [t for t in heads if t > 0.0]
-        if not live or now - min(live) <= self._coalesce_after_s:
+        # Replies and probes carry no receipt time (0.0): only live frames say how late we are.
+        live = [lane.items[0].received_s for lane in lanes.values() if lane.items]
+        oldest = min((t for t in live if t > 0.0), default=None)
+        if oldest is None or now - oldest <= self._coalesce_after_s:
             return math.inf
         with self.lock:
             cost = self.table.decision_cost
@@ -476,10 +477,8 @@ class Shard:
         # Plan: (item, decoded message or None, its cost without a decision).
         plan: list[tuple[Inbound, Frame | SessionEnd | None, int]] = []
         total = 0  # cost of the planned messages, decisions left out
-        # The plan affords a decision after every message, unless the robot's oldest frame
-        # waited too long: a shard behind its robots shares decisions (module doc).
-        # Behind (``_coalescing_level``): a robot asking more than its fair share of the
-        # round shares its decisions.
+        # The plan affords a decision after every message, unless the shard is behind and
+        # this robot asks more than its fair share of the round (``_coalescing_level``).
         fits_per_frame = len(lane.items) * (FRAME_COST + decision) <= self._level
         while lane.items and len(plan) < len(lane.items):
             index = len(plan)
