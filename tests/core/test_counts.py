@@ -30,8 +30,10 @@ NODES = 12
 STORES: list[Callable[[int, UpperCounts], CountStore]] = [
     lambda nodes, upper: DenseCounts(nodes, NODES, upper),
     lambda nodes, upper: SparseCounts(nodes, upper),
+    # The dense store's row-by-row refresh, which it uses above FULL_REFRESH_MAX_NODES.
+    lambda nodes, upper: DenseCounts(nodes, NODES, upper, full_refresh_max_nodes=0),
 ]
-STORE_IDS = ["dense", "sparse"]
+STORE_IDS = ["dense", "sparse", "dense-rows"]
 FRAMES = st.lists(st.lists(st.integers(0, NODES - 1), max_size=7), max_size=30)
 EXAMPLES = settings(max_examples=100, deadline=None)
 
@@ -100,12 +102,16 @@ def test_store_counts_and_w_match_brute_force(
     assert np.array_equal(upper.csr().toarray(), a)
 
 
+@pytest.mark.parametrize("dense_make", [STORES[0], STORES[2]], ids=["dense", "dense-rows"])
 @given(frames=FRAMES, kept=st.sets(st.integers(0, NODES - 1)), after=FRAMES)
 @EXAMPLES
 def test_both_stores_agree_bit_for_bit_through_reload_and_subgraph(
-    frames: list[list[int]], kept: set[int], after: list[list[int]]
+    dense_make: Callable[[int, UpperCounts], CountStore],
+    frames: list[list[int]],
+    kept: set[int],
+    after: list[list[int]],
 ) -> None:
-    dense, sparse_store = Driver(STORES[0]), Driver(STORES[1])
+    dense, sparse_store = Driver(dense_make), Driver(STORES[1])
     for frame in frames:
         dense.add(frame)
         sparse_store.add(frame)
@@ -119,11 +125,11 @@ def test_both_stores_agree_bit_for_bit_through_reload_and_subgraph(
     assert_same_upper(dense.store.upper(chosen), sparse_store.store.upper(chosen))
     # Each store rebuilt from the other's arrays counts on exactly like the original.
     swapped = [
-        STORES[0](dense.nodes, sparse_store.store.upper()),
+        dense_make(dense.nodes, sparse_store.store.upper()),
         STORES[1](dense.nodes, dense.store.upper()),
     ]
     for store, original in zip(swapped, (dense, sparse_store), strict=True):
-        driver = Driver(STORES[0])
+        driver = Driver(dense_make)
         driver.store, driver.ids = store, list(original.ids)
         driver.counts[:] = original.counts
         for frame in after:
@@ -134,6 +140,7 @@ def test_both_stores_agree_bit_for_bit_through_reload_and_subgraph(
         assert driver.store.similarity_array().tobytes() == (
             original.store.similarity_array().tobytes()
         )
+        assert driver.store.edge_count() == original.store.edge_count()
 
 
 def test_dense_store_grows_by_doubling_up_to_its_limit() -> None:
