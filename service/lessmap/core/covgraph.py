@@ -135,15 +135,22 @@ class CovGraph:
 
     # -- update ----------------------------------------------------------------------------
 
-    def add_frame(self, seq: int, features: Iterable[int]) -> NDArray[np.int64]:
+    def add_frame(
+        self, seq: int, features: Iterable[int], *, distinct: bool = False
+    ) -> NDArray[np.int64]:
         """Count one frame: n_i += 1 per feature, a_ij += 1 per pair (§3.1).
 
         Duplicate IDs within a frame count once; an empty frame changes nothing.
+        ``distinct=True`` promises a list of distinct Python ints in ascending order (the
+        partitioner's), which skips the set; new features get their nodes in that order.
 
         Returns:
             The node indices of the frame's distinct features, sorted ascending.
         """
-        nodes = self._intern(features, seq)
+        if distinct and type(features) is list:
+            nodes = self._intern_distinct(features, seq)
+        else:
+            nodes = self._intern(features, seq)
         if nodes.size == 0:
             return nodes
         self._counts[nodes] += 1
@@ -161,6 +168,17 @@ class CovGraph:
                 node = self._new_node(int(feature), seq)
             nodes.add(node)
         return np.fromiter(sorted(nodes), dtype=np.int64, count=len(nodes))
+
+    def _intern_distinct(self, features: list[int], seq: int) -> NDArray[np.int64]:
+        # One C-level lookup pass; new features (rare once a room is known) one by one, in
+        # the order ``_intern`` would create them (ascending IDs: the same node indices).
+        nodes = list(map(self._index.get, features))
+        if None in nodes:
+            for at, node in enumerate(nodes):
+                if node is None:
+                    nodes[at] = self._new_node(features[at], seq)
+        nodes.sort()  # no None is left
+        return np.array(nodes, dtype=np.int64)
 
     def _new_node(self, feature: int, seq: int) -> int:
         self._fit_store(self._size + 1)

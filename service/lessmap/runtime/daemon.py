@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import logging
 import signal
 import threading
@@ -83,6 +84,10 @@ def _serve(settings: ServiceSettings, zenoh_cfg: Sequence[str]) -> int:
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     service = Service(settings, zenoh_cfg)
+    # The modules and objects of start-up live as long as the process: out of the collector's
+    # sight, a full collection walks only what sessions hold (one took 173 ms at 500 robots).
+    gc.collect()
+    gc.freeze()
     try:
         service.start()
         # Park on an Event, not on a Zenoh receive: signals are handled between waits.
