@@ -22,6 +22,7 @@ from typing import Any
 _CALIBRATION_FRAMES = 200
 _DEFAULT_SPACING_M = 0.6  # the sim's landmark spacing is drawn in (a, 2a); default a = 0.6
 _BASELINE_ROBOTS = 4
+_EARLY_S = 0.002  # a frame may leave this much before its time (robots are not in step)
 
 
 # -- what to run ---------------------------------------------------------------------------
@@ -178,7 +179,10 @@ def generator_main(spec_path: str) -> int:
             for local, publisher in enumerate(publishers):
                 target = base + offsets[local]
                 delay = target - time.time()
-                if delay > 0:
+                if delay > _EARLY_S:
+                    # Frames due within _EARLY_S go out together. A wake-up per frame cost
+                    # the generators 15.0-16.4 s of CPU for 150,000 frames (500 robots, 30 s)
+                    # against 11.7 s, on the cores the service runs on.
                     time.sleep(delay)
                 elif -delay > period:
                     late_frames += 1
