@@ -147,15 +147,16 @@ def test_only_runtime_and_client_touch_zenoh(path: Path) -> None:
 
 @pytest.mark.parametrize("path", files("lessmap", "evaluation"), ids=ids)
 def test_evaluation_builds_on_the_core_and_the_simulator_only(path: Path) -> None:
-    # The offline tools (frames files, errors, offline runs) are core-level too: no I/O
-    # beyond reading files, no transport. The simulator and its scorer are shared with the
-    # demo: one scorer, not a copy per package.
+    # The offline tools (frames files, area-graph files, errors, offline runs) are
+    # core-level too: no I/O beyond reading and writing files, no transport. The simulator
+    # and its scorer are shared with the demo: one scorer, not a copy per package.
     allowed = (
         "lessmap.core",
         "lessmap.evaluation",
         "lessmap.sim",
         "lessmap.errors",
         "lessmap.frames_file",
+        "lessmap.graph_file",
         "lessmap.offline",
         "lessmap.partition_options",
         "lessmap.flags",
