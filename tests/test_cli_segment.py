@@ -13,7 +13,7 @@ import pytest
 from lessmap.cli import main
 from lessmap.settings import LimitSettings
 from lessmap_schemas.limits import DEFAULT_LIMITS
-from tests.core.helpers import TWO_ROOM_DOOR, two_room_frames
+from tests.core.helpers import TWO_ROOM_DOOR, room_walk, two_room_frames
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -319,3 +319,84 @@ def test_console_script_on_the_dlr_data_set() -> None:
             assert transition["reason"] == "DISCONNECTED"
             assert transition["ncut"] is None
             assert transition["lambda2"] is None
+
+
+def walk_file(path: Path, robots: Sequence[str], *, offset: int = 10**6) -> Path:
+    """A there-and-back walk through three rooms for each robot (feature ids + ``offset``)."""
+    walk = room_walk(2, rooms=3, back=True, stay=(20, 30), door_frames=2, door_share=0.2)
+    lines = [
+        frame_line(robot, seq, [f + offset for f in frame])
+        for seq, frame in enumerate(walk.frames)
+        for robot in robots
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(("shared", "fleet_areas"), [(False, 6), (True, 3)])
+def test_segment_writes_the_area_graphs(
+    shared: bool, fleet_areas: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = walk_file(tmp_path / "walk.frames.jsonl", ["r1", "r2"])
+    out = tmp_path / "graph.json"
+    argv = ["segment", "--method", "areas", "--area-graph", str(out), str(frames)]
+    code, records, err = run([*argv, *(["--shared-features"] if shared else [])], capsys)
+    assert (code, err) == (0, "")
+    summary = records[-1]
+    assert summary["fleet_areas"] == fleet_areas
+    assert summary["area_graph"] == str(out)
+    document = json.loads(out.read_text(encoding="utf-8"))
+    assert document["format"] == "lessmap.area_graph/1"
+    assert document["source"] == "walk.frames.jsonl"
+    assert document["fleet_params"]["shared_features"] is shared
+    for robot in ("r1", "r2"):  # route 0 1 2 1 0: a path of three areas, crossed both ways
+        graph = document["robots"][robot]
+        assert [n["area"] for n in graph["nodes"]] == [0, 1, 2]
+        assert [n["visits"] for n in graph["nodes"]] == [2, 2, 1]
+        assert sum(n["frames"] for n in graph["nodes"]) == summary["frames"] // 2
+        assert [(e["a"], e["b"], e["a_to_b"], e["b_to_a"]) for e in graph["edges"]] == [
+            (0, 1, 1, 1),
+            (1, 2, 1, 1),
+        ]
+    fleet = document["fleet"]
+    assert len(fleet["nodes"]) == fleet_areas
+    if shared:  # the robots walked the same rooms with the same landmark ids
+        assert [n["members"] for n in fleet["nodes"]] == [[["r1", a], ["r2", a]] for a in range(3)]
+        assert [(e["a"], e["b"], e["a_to_b"] + e["b_to_a"]) for e in fleet["edges"]] == [
+            (0, 1, 4),
+            (1, 2, 4),
+        ]
+        assert all(e["robots"] == ["r1", "r2"] for e in fleet["edges"])
+
+
+def test_robots_with_their_own_feature_ids_stay_apart(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = walk_file(tmp_path / "a.frames.jsonl", ["r1"])
+    other = walk_file(tmp_path / "b.frames.jsonl", ["r2"], offset=10**7)  # ids no other robot has
+    frames.write_text(frames.read_text() + other.read_text(), encoding="utf-8")
+    out = tmp_path / "graph.json"
+    argv = ["segment", "--method", "areas", "--area-graph", str(out), "--shared-features"]
+    code, records, _ = run([*argv, str(frames)], capsys)
+    assert code == 0
+    assert records[-1]["fleet_areas"] == 6
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--area-graph", "OUT"], "--area-graph needs --method areas"),
+        (["--method", "areas", "--shared-features"], "--shared-features needs --area-graph"),
+        (["--method", "areas", "--area-graph", "nowhere/OUT"], "nowhere"),
+    ],
+    ids=["paper method", "shared without graph", "unwritable"],
+)
+def test_area_graph_misuse_is_one_line(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = str(write_frames(tmp_path / "rooms.frames.jsonl"))
+    argv = [str(tmp_path / a) if a.endswith("OUT") else a for a in argv]
+    assert main(["segment", frames, *argv]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert message in err

@@ -9,9 +9,11 @@ import json
 import sys
 import time
 from dataclasses import dataclass, field, fields as dataclass_fields
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from lessmap.core import GraphError, Partitioner, Transition
+from lessmap.core.area_graph import MIN_CONTAINMENT, MIN_SHARED, AreaGraph, AreaGraphBuilder
 from lessmap.core.areas import AreaTracker, AreaTransition
 from lessmap.errors import DatasetError
 
@@ -134,14 +136,31 @@ def segment_areas(
     on_change: Callable[[str, AreaTransition], None] | None = None,
 ) -> SegmentSummary:
     """Run the area tracker of each robot over its frames (``--method areas``)."""
+    return segment_area_graphs(frames, params, on_change)[0]
+
+
+def segment_area_graphs(
+    frames: Iterable[FrameRow],
+    params: AreaParams,
+    on_change: Callable[[str, AreaTransition], None] | None = None,
+) -> tuple[SegmentSummary, dict[str, AreaGraph]]:
+    """Run the area trackers as ``segment_areas`` does; also return each robot's area graph."""
     summary = SegmentSummary(areas={})
-    trackers = _run(frames, lambda: AreaTracker(params), on_change, summary)
-    summary.areas = {
-        robot: tracker.area_count
-        for robot, tracker in trackers.items()
-        if isinstance(tracker, AreaTracker)
-    }
-    return summary
+    builders: dict[str, AreaGraphBuilder] = {}
+
+    def feed(robot: str, change: AreaTransition) -> None:
+        builders.setdefault(robot, AreaGraphBuilder()).add(change)
+        if on_change is not None:
+            on_change(robot, change)
+
+    trackers = _run(frames, lambda: AreaTracker(params), feed, summary)
+    graphs: dict[str, AreaGraph] = {}
+    summary.areas = {}
+    for robot, tracker in trackers.items():
+        if isinstance(tracker, AreaTracker):
+            summary.areas[robot] = tracker.area_count
+            graphs[robot] = builders.get(robot, AreaGraphBuilder()).graph(tracker)
+    return summary, graphs
 
 
 def segment(
@@ -170,6 +189,25 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", action="append", help="only this robot (repeatable)")
     parser.add_argument("--summary-only", action="store_true", help="print only the summary")
     add_method_option(parser)
+    graph = parser.add_argument_group(
+        "area graph (--method areas)",
+        "Areas as nodes, passages as edges, per robot and for the fleet, written as one JSON "
+        "object: {format: 'lessmap.area_graph/1', source, fleet_params, robots: {ROBOT: "
+        "{nodes: [{area, frames, visits, first_seq, last_seq, features: [ids]}], edges: [{a, "
+        "b, a_to_b, b_to_a, boundary_features: [[id, passages]]}]}}, fleet: {nodes: [{area, "
+        "members: [[robot, area]], frames, visits, features: count}], edges: [{a, b, a_to_b, "
+        "b_to_a, robots, boundary_features}]}}. Draw it with lessmap plot --area-graph.",
+    )
+    graph.add_argument(
+        "--area-graph", type=Path, metavar="OUT.json", help="write the area graphs to OUT.json"
+    )
+    graph.add_argument(
+        "--shared-features",
+        action="store_true",
+        help="feature ids are global across the robots (fiducials, a shared landmark map): "
+        f"areas of different robots that share at least {MIN_SHARED} features and "
+        f"{MIN_CONTAINMENT:.0%} of the smaller area's are one fleet area",
+    )
     add_partition_options(parser)
     only = frozenset({"max_features_per_frame"})
     skip = frozenset(LimitSettings.model_fields) - only
@@ -178,8 +216,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap segment``: transitions as JSON lines, then the summary."""
-    from pathlib import Path
-
     from pydantic import ValidationError
 
     from lessmap.errors import ConfigError
@@ -187,6 +223,16 @@ def run(args: argparse.Namespace) -> int:
     from lessmap.partition_options import area_params, partition_settings
     from lessmap.settings import LimitSettings
 
+    if args.area_graph is not None and args.method != "areas":
+        msg = "--area-graph needs --method areas (the paper names no areas)"
+        raise ConfigError(msg)
+    if args.shared_features and args.area_graph is None:
+        msg = "--shared-features needs --area-graph OUT.json"
+        raise ConfigError(msg)
+    if args.area_graph is not None and not args.area_graph.resolve().parent.is_dir():
+        # before the run, not after a long file was segmented for nothing
+        msg = f"--area-graph {args.area_graph}: no folder {args.area_graph.parent}"
+        raise ConfigError(msg)
     settings = partition_settings(args)
     params = settings.partition_params()
     given = vars(args).keys() & LimitSettings.model_fields.keys()
@@ -211,14 +257,17 @@ def run(args: argparse.Namespace) -> int:
         if not args.summary_only:
             out.write(json.dumps(area_record(robot, change)) + "\n")
 
+    graphs: dict[str, AreaGraph] = {}
     if args.method == "areas":
         areas = area_params(settings)
-        summary = segment_areas(frames, areas, on_change=emit_area)
+        summary, graphs = segment_area_graphs(frames, areas, on_change=emit_area)
         params = areas.proposal
     else:
         summary = segment(frames, params, on_transition=emit)
     record = summary.as_dict()
     record["file"] = path.name
+    if args.area_graph is not None:
+        record |= _write_graphs(args.area_graph, graphs, args.shared_features, path.name)
     record["params"] = {
         "ncut_min": params.ncut_min,
         "lambda2_min": params.lambda2_min,
@@ -233,3 +282,20 @@ def run(args: argparse.Namespace) -> int:
     out.write(json.dumps(record) + "\n")
     out.flush()
     return 0
+
+
+def _write_graphs(
+    out: Path, graphs: dict[str, AreaGraph], shared_features: bool, source: str
+) -> dict[str, Any]:
+    """Write the robots' and the fleet's area graphs; return the summary's fields about them."""
+    from lessmap.core.area_graph import FleetParams, fleet_graph
+    from lessmap.graph_file import graph_document, write_graph_file
+
+    params = FleetParams(shared_features=shared_features)
+    fleet = fleet_graph(graphs, params)
+    write_graph_file(out, graph_document(graphs, fleet, params, source))
+    return {
+        "area_graph": str(out),
+        "fleet_areas": len(fleet.nodes),
+        "fleet_passages": sum(edge.passages for edge in fleet.edges),
+    }

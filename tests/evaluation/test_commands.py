@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from lessmap.cli import command_parser
+from lessmap.cli import command_parser, main
 from lessmap.errors import ConfigError, DatasetError
 from lessmap.sim.simulator import simulate, write_run
 from tests.evaluation.helpers import write_dataset
@@ -166,3 +166,106 @@ def test_eval_options_reach_the_partitioner_and_h(
 
 def write_sim_copy(folder: Path) -> Path:
     return write_run(simulate(1, rooms=2, robots=1, frames_per_robot=30), folder, "s").frames
+
+
+@pytest.fixture
+def area_graph(sim_frames: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:
+    """The area graphs of the shared sim run, written by segment (global feature ids)."""
+    out = tmp_path / "graph.json"
+    argv = ["segment", "--method", "areas", "--summary-only", "--shared-features"]
+    assert main([*argv, "--area-graph", str(out), str(sim_frames)]) == 0
+    capsys.readouterr()
+    return out
+
+
+@pytest.mark.parametrize("robot", [None, "robot1"])
+def test_plot_draws_an_area_graph(
+    robot: str | None, area_graph: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    pytest.importorskip("matplotlib", reason="lessmap plot needs the eval extra")
+    figure = tmp_path / "graph.png"
+    argv = ["plot", "--area-graph", str(area_graph), "--out", str(figure)]
+    assert main([*argv, *(["--robot", robot] if robot else [])]) == 0
+    assert capsys.readouterr().out == f"wrote {figure}\n"
+    assert figure.read_bytes().startswith(b"\x89PNG")
+
+
+def test_the_robot_figure_differs_from_the_fleet_figure(area_graph: Path, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib", reason="lessmap plot needs the eval extra")
+    fleet, robot = tmp_path / "fleet.png", tmp_path / "robot.png"
+    assert main(["plot", "--area-graph", str(area_graph), "--out", str(fleet)]) == 0
+    argv = ["plot", "--area-graph", str(area_graph), "--out", str(robot), "--robot", "robot0"]
+    assert main(argv) == 0
+    assert fleet.read_bytes() != robot.read_bytes()
+
+
+def graph_inputs(folder: Path, area_graph: Path) -> dict[str, Path]:
+    broken = {
+        "not json": "{",
+        "a list": "[1]",
+        "other format": '{"format": "x/1", "robots": {}, "fleet": {}}',
+        "no fleet": '{"format": "lessmap.area_graph/1", "robots": {}}',
+        "edge to nowhere": json.dumps(
+            {
+                "format": "lessmap.area_graph/1",
+                "robots": {},
+                "fleet": {
+                    "nodes": [],
+                    "edges": [
+                        {
+                            "a": 0,
+                            "b": 1,
+                            "a_to_b": 1,
+                            "b_to_a": 0,
+                            "robots": [],
+                            "boundary_features": [],
+                        }
+                    ],
+                },
+            }
+        ),
+    }
+    paths = {name: folder / f"{name.replace(' ', '_')}.json" for name in broken}
+    for name, text in broken.items():
+        paths[name].write_text(text, encoding="utf-8")
+    return paths | {"missing": folder / "missing.json", "good": area_graph}
+
+
+@pytest.mark.parametrize(
+    ("case", "extra", "message"),
+    [
+        ("missing", [], "missing.json"),
+        ("not json", [], "not JSON"),
+        ("a list", [], "not an area-graph file"),
+        ("other format", [], "format is 'x/1'"),
+        ("no fleet", [], "missing field 'fleet'"),
+        ("edge to nowhere", [], "names an area that is not a node"),
+        ("good", ["--robot", "robot9"], "no robot 'robot9'; it has robot0, robot1"),
+        ("good", ["FRAMES"], "not both"),
+    ],
+)
+def test_plot_refuses_bad_area_graphs_in_one_line(
+    case: str,
+    extra: list[str],
+    message: str,
+    area_graph: Path,
+    sim_frames: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    source = graph_inputs(tmp_path, area_graph)[case]
+    extra = [str(sim_frames) if a == "FRAMES" else a for a in extra]
+    argv = ["plot", *extra, "--area-graph", str(source), "--out", str(tmp_path / "x.png")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("lessmap plot: ")
+    assert err.count("\n") == 1
+    assert message in err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_plot_needs_frames_or_an_area_graph(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["plot", "--out", str(tmp_path)]) == 1
+    assert "give FILE (frames) or --area-graph" in capsys.readouterr().err

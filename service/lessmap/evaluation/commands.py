@@ -21,13 +21,20 @@ from lessmap.partition_options import (
 )
 
 if TYPE_CHECKING:
+    from lessmap.core.area_graph import AreaGraph, FleetGraph
     from lessmap.evaluation.consistency import Consistency, Detection
     from lessmap.evaluation.dataset import Dataset
     from lessmap.sim.simulator import SimTruth
 
 
-def _add_common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", metavar="FILE", type=Path, help="frames file (.frames.jsonl)")
+def _add_common(parser: argparse.ArgumentParser, *, file_optional: bool = False) -> None:
+    parser.add_argument(
+        "file",
+        metavar="FILE",
+        type=Path,
+        nargs="?" if file_optional else None,
+        help="frames file (.frames.jsonl)",
+    )
     parser.add_argument(
         "--robot",
         help="robot to evaluate (needed when a recorded file has several; a simulated run "
@@ -179,7 +186,18 @@ def scale_odometry(dataset: Dataset, scale: float) -> Dataset:
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    """Write the PNG figures of one LESS-mapping run (and of the sweep unless --no-sweep)."""
+    """Write the PNG figures of one LESS-mapping run (and of the sweep unless --no-sweep).
+
+    With ``--area-graph`` draw that file's fleet graph, or ``--robot``'s, instead.
+    """
+    if args.area_graph is not None:
+        if args.file is not None:
+            msg = "give FILE or --area-graph, not both"
+            raise ConfigError(msg)
+        return _plot_area_graph(args.area_graph, args.robot, args.out)
+    if args.file is None:
+        msg = "give FILE (frames) or --area-graph OUT.json"
+        raise ConfigError(msg)
     from lessmap.evaluation.dataset import load_frames
     from lessmap.evaluation.infoloss import landmark_information
     from lessmap.evaluation.plots import write_plots
@@ -201,6 +219,28 @@ def run_plot(args: argparse.Namespace) -> int:
         run, rows = run_lessmap(frames, params), []
     written = write_plots(args.out, frames, run, rows)
     sys.stdout.write("".join(f"wrote {path}\n" for path in written))
+    return 0
+
+
+def _plot_area_graph(source: Path, robot: str | None, out: Path) -> int:
+    """Draw an area-graph file's fleet graph, or one robot's."""
+    from lessmap.evaluation.graph_plot import draw_area_graph
+    from lessmap.graph_file import read_graph_file
+
+    robots, fleet = read_graph_file(source)
+    if robot is None:
+        graph: AreaGraph | FleetGraph = fleet
+        title = f"fleet areas of {source.name} ({len(robots)} robots)"
+    elif robot in robots:
+        graph, title = robots[robot], f"areas of robot {robot} ({source.name})"
+    else:
+        msg = f"{source}: no robot {robot!r}; it has {', '.join(sorted(robots)) or 'none'}"
+        raise ConfigError(msg)
+    if out.is_dir():
+        msg = f"--out {out} is a folder; with --area-graph give the figure's file (FIG.png)"
+        raise ConfigError(msg)
+    written = draw_area_graph(out, graph, title)
+    sys.stdout.write(f"wrote {written}\n")
     return 0
 
 
@@ -266,7 +306,22 @@ def configure_plot(plot: argparse.ArgumentParser) -> None:
     plot.description = (
         "Segment FILE.frames.jsonl with LESS-mapping and write trajectory.png, "
         "ncut_lambda2.png, similarity.png and (unless --no-sweep, which also drops the need "
-        "for the edges and odometry files) sweep.png into DIR."
+        "for the edges and odometry files) sweep.png into DIR. With --area-graph OUT.json "
+        "instead of FILE (written by lessmap segment --method areas --area-graph), draw "
+        "that file's fleet area graph (--robot R: robot R's) into the figure --out names: "
+        "nodes sized by frames, edges as wide as their passages, both labelled."
     )
-    _add_common(plot)
-    plot.add_argument("--out", type=Path, metavar="DIR", required=True, help="output folder")
+    _add_common(plot, file_optional=True)
+    plot.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        required=True,
+        help="output folder (with --area-graph: the figure's file, e.g. FIG.png)",
+    )
+    plot.add_argument(
+        "--area-graph",
+        type=Path,
+        metavar="OUT.json",
+        help="draw this area-graph file (lessmap segment --area-graph) instead of FILE",
+    )
