@@ -107,18 +107,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         rec = recorded(args.dataset, params, args.sweep, max(args.jobs, 1))
         sim = simulated(args.sim, params) if args.sim is not None else None
-        areas = None
+        areas = area_graph = None
         if args.areas_seeds > 0:
             from lessmap.evaluation.areabench import report
 
             areas = report(args.areas_seeds, args.dataset.parent)
+            from lessmap.evaluation.areagraph import CONTAINMENTS, report as graph_report
+
+            area_graph = graph_report(args.areas_seeds, args.dataset.parent, CONTAINMENTS)
     except (DatasetError, FileNotFoundError) as exc:
         sys.stderr.write(f"results: {exc}\n")
         return 1
     out: Path = args.out
     written = write_figures(out / "figures", rec, sim)
     page = render(
-        rec, sim, [path.name for path in written], list(argv or sys.argv[1:]), areas=areas
+        rec,
+        sim,
+        [path.name for path in written],
+        list(argv or sys.argv[1:]),
+        areas=areas,
+        area_graph=area_graph,
     )
     (out / "RESULTS.md").write_text(page, encoding="utf-8")
     elapsed = time.perf_counter() - started

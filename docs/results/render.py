@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from why import why_lines
 
+from lessmap.core.area_graph import MIN_CONTAINMENT, MIN_SHARED
 from lessmap.core.areas import AreaParams
 from lessmap.evaluation.diagnosis import Loss
 from lessmap.evaluation.markdown import (
@@ -358,6 +359,35 @@ def areas_lines(tables: str) -> list[str]:
     ]
 
 
+def area_graph_lines(tables: str) -> list[str]:
+    """The area graph against the simulated door graph, and the fleet merge (issue 18)."""
+    return [
+        "### The area graph",
+        "",
+        "`lessmap segment --method areas FILE --area-graph G.json [--shared-features]` "
+        "writes each robot's area graph (areas as nodes; passages as edges with a count per "
+        "direction and the boundary features seen there) and the fleet's "
+        "(`lessmap.core.area_graph`); `lessmap plot --area-graph G.json --out G.png` draws "
+        "it. With `--shared-features` (feature ids global across the robots) areas of "
+        f"different robots sharing at least {MIN_SHARED} features and "
+        f"{MIN_CONTAINMENT:.0%} of the smaller one's are one fleet area (union-find). Each "
+        "robot area is scored as the true room of most of its frames; an edge is a true "
+        "adjacency when those rooms share a door; *crossed adjacencies found* counts the "
+        "door pairs the robot crossed that some edge maps to, *door-graph adjacencies "
+        "found* all door pairs of the building (a robot need not cross them all); fleet "
+        "precision and recall are over pairs of areas of different robots: same fleet area "
+        "against same room. The threshold was chosen on seeds 0-4 only (the best of the "
+        "sweep on every building); seeds 5-9 are held out. What fails is the fleet "
+        "merge's precision: one wrong link joins two rooms' areas, and union-find carries it "
+        "to every area linked to either, so one link makes several wrong pairs.",
+        "",
+        "`python -m lessmap.evaluation.areagraph --seeds 5` (about a minute) prints these tables.",
+        "",
+        *tables.rstrip().splitlines(),
+        "",
+    ]
+
+
 def render(
     rec: RecordedResults,
     sim: SimResults | None,
@@ -365,12 +395,18 @@ def render(
     argv: Sequence[str],
     *,
     areas: str | None = None,
+    area_graph: str | None = None,
 ) -> str:
-    """Return the whole page (``areas``: the tables of ``lessmap.evaluation.areabench``)."""
+    """Return the whole page (``areas``: the tables of ``lessmap.evaluation.areabench``).
+
+    ``area_graph`` holds those of ``lessmap.evaluation.areagraph``.
+    """
     lines = header_lines(argv) + summary_lines(rec, sim) + recorded_lines(rec, figures)
     if sim is not None:
         lines += sim_lines(sim, figures)
     if areas is not None:
         lines += areas_lines(areas)
+    if area_graph is not None:
+        lines += area_graph_lines(area_graph)
     lines += why_lines(rec, sim, figures)
     return "\n".join(lines).rstrip() + "\n"
