@@ -204,9 +204,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     graph.add_argument(
         "--shared-features",
         action="store_true",
+        # argparse formats help with %: the percent sign is written %%
         help="feature ids are global across the robots (fiducials, a shared landmark map): "
         f"areas of different robots that share at least {MIN_SHARED} features and "
-        f"{MIN_CONTAINMENT:.0%} of the smaller area's are one fleet area",
+        f"{MIN_CONTAINMENT * 100:.0f}%% of the smaller area's are one fleet area",
     )
     add_partition_options(parser)
     only = frozenset({"max_features_per_frame"})
