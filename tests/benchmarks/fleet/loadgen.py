@@ -48,6 +48,9 @@ class LoadSpec:
     instances: int = 1
     kill_after_s: float | None = None  # kill -9 one instance this long into the load
     memory_only: bool = False  # True: `serve --memory-only` (no session checkpoints)
+    # True: the generators run on the last CPU only. Robots publish from their own machines;
+    # here they time-slice with the service on both cores and slow it by evicting its caches.
+    pin_generators: bool = False
     baseline_robots: int = _BASELINE_ROBOTS
     speed_mps: float = 0.5  # the simulator's walking speed (its default)
     dwell_s: tuple[float, float] = (0.0, 3.0)  # pause at each waypoint (the sim's default)

@@ -454,13 +454,17 @@ def _start_generator(
     path.write_text(json.dumps(job), encoding="utf-8")
     log = (work / f"generator-{generator}.log").open("wb")
     with log:
-        return subprocess.Popen(
+        process = subprocess.Popen(
             [sys.executable, "-m", "tests.benchmarks.fleet.orchestrate", str(path)],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=log,
             cwd=REPO_ROOT,  # the generator runs as `python -m tests.benchmarks.fleet...`
         )
+    if spec.pin_generators:
+        # Before its Zenoh threads start (it imports and simulates first); they inherit it.
+        os.sched_setaffinity(process.pid, {max(os.sched_getaffinity(0))})
+    return process
 
 
 def _wait_line(
@@ -659,6 +663,12 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="run the service without session checkpoints (default: checkpoints on)",
     )
+    parser.add_argument(
+        "--pin-generators",
+        action="store_true",
+        help="run the load generators on the last CPU only (default: anywhere); the service "
+        "keeps every CPU",
+    )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument(
         "--find-knee",
@@ -708,6 +718,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         max_batch_frames=args.max_batch_frames,
         batch_linger_ms=args.batch_linger_ms,
         memory_only=args.memory_only,
+        pin_generators=args.pin_generators,
     )
 
 
