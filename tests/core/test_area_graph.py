@@ -224,6 +224,7 @@ def test_the_merge_does_not_depend_on_robot_order(shared: bool) -> None:
     [
         {"min_containment": 0.0},
         {"min_containment": 1.5},
+        {"min_linked_share": 0.0},
         {"min_shared": 0},
         {"max_boundary_features": -1},
     ],
@@ -231,3 +232,47 @@ def test_the_merge_does_not_depend_on_robot_order(shared: bool) -> None:
 def test_bad_fleet_params_are_refused(params: dict[str, float]) -> None:
     with pytest.raises(ValueError, match=next(iter(params))):
         FleetParams(**params)  # type: ignore[arg-type]
+
+
+def shared_fleet(robots: dict[str, AreaGraph]) -> list[tuple[tuple[str, int], ...]]:
+    """The fleet areas' members with shared features; the same for every robot order."""
+    params = FleetParams(shared_features=True)
+    fleet = fleet_graph(robots, params)
+    for order in itertools.permutations(robots):
+        assert fleet_graph({robot: robots[robot] for robot in order}, params) == fleet
+    return [n.members for n in fleet.nodes]
+
+
+def test_links_do_not_chain_ends_that_share_nothing() -> None:
+    # r2's area holds both r1's and r3's (containment 1), which share no feature
+    chain = {
+        "r1": AreaGraph(nodes=(node(0, range(8)),), edges=()),
+        "r2": AreaGraph(nodes=(node(0, range(20)),), edges=()),
+        "r3": AreaGraph(nodes=(node(0, range(10, 20)),), edges=()),
+    }
+    assert shared_fleet(chain) == [(("r1", 0),), (("r2", 0), ("r3", 0))]  # closer pair joins
+
+
+def test_an_area_seeing_into_the_next_room_does_not_join_the_rooms() -> None:
+    room_p, room_q = range(10), range(20, 32)
+    both = {
+        "r1": AreaGraph(nodes=(node(0, room_p), node(1, room_q[:10])), edges=(edge(0, 1),)),
+        "r2": AreaGraph(nodes=(node(0, room_p), node(1, room_q)), edges=(edge(0, 1),)),
+        # a 360° sensor in Q sees P through the door: both rooms' areas are contained in it
+        "r3": AreaGraph(nodes=(node(0, (*room_p, *room_q)),), edges=()),
+    }
+    assert shared_fleet(both) == [
+        (("r1", 0), ("r2", 0)),
+        (("r1", 1), ("r2", 1), ("r3", 0)),  # its larger overlap, with Q
+    ]
+
+
+def test_a_place_one_robot_split_in_two_is_still_one_fleet_area() -> None:
+    # as in mrclam6's arena: r2 and r3 each split it, r1 saw it whole
+    arena = range(15)
+    split = {
+        "r1": AreaGraph(nodes=(node(0, arena),), edges=()),
+        "r2": AreaGraph(nodes=(node(0, arena[8:]), node(1, arena)), edges=(edge(0, 1),)),
+        "r3": AreaGraph(nodes=(node(0, arena[:12]), node(1, arena[6:])), edges=(edge(0, 1),)),
+    }
+    assert len(shared_fleet(split)) == 1
