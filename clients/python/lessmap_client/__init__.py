@@ -21,7 +21,7 @@ from importlib.metadata import version
 from lessmap_client.connection import Connection, connect
 from lessmap_client.errors import SessionClosedError
 from lessmap_client.fleet import FleetClient
-from lessmap_client.robot import RobotPublisher, RobotStatus, new_session_id
+from lessmap_client.robot import RobotPublisher, RobotStatus, close_all, new_session_id
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session, wait_for_service
 from lessmap_client.subscription import Subscription
 
@@ -36,6 +36,7 @@ __all__ = [
     "SessionClosedError",
     "Subscription",
     "__version__",
+    "close_all",
     "connect",
     "new_session_id",
     "open_session",

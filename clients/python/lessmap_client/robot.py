@@ -14,6 +14,8 @@ Invariants of this file:
 - The session id and the numbering change only on the publishing thread (``publish``,
   ``new_session``): a ``SESSION_CLOSED`` report is turned into a flag that the next
   ``publish`` acts on, so frames are never renumbered behind the caller's back mid-call.
+- The publication cache outlives the ``SessionEnd`` until the service confirms the end
+  (``closing.confirm_ends``): it may still need frames from it after a take-over.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
+from lessmap_client.closing import PendingEnd, confirm_ends
 from lessmap_client.errors import SessionClosedError
 from lessmap_client.fencing import current_states
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
@@ -45,7 +48,7 @@ if TYPE_CHECKING:
 
     from lessmap_client.transport import Handle, Host, Transport
 
-__all__ = ["RobotPublisher", "RobotStatus", "SessionClosedError", "new_session_id"]
+__all__ = ["RobotPublisher", "RobotStatus", "SessionClosedError", "close_all", "new_session_id"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +58,10 @@ _INBOX_MAX = 1000  # error reports waiting for the follower thread; more are dro
 _HOLDER_QUERY_S = 1.0  # how long the follower asks who holds the robot after SESSION_CLOSED
 _JOIN_TIMEOUT_S = 5.0
 _UNSERVED_GRACE_S = 2.0  # after this long without an owner since start, warn once
+#: How long ``close`` waits for the service to confirm the end: room for a take-over of the
+#: robot's partition, whose catch-up from the cache the service bounds by ``catchup_wait_s``
+#: (2 s by default).
+DEFAULT_CLOSE_TIMEOUT_S = 5.0
 
 
 def new_session_id() -> str:
@@ -114,7 +121,7 @@ class RobotPublisher:
     Declare one with ``conn.robot(fleet, robot)``. Frames go through an ``AdvancedPublisher``
     with a cache, so a service instance that takes the session over can fetch recent frames
     it missed. ``close`` ends the session explicitly (a ``SessionEnd`` with the last seq), so
-    the service frees it at once.
+    the service frees it at once, and keeps the cache until the service confirms the end.
 
     The publisher follows the service's ``Error`` reports on its own ``errors`` key: each one
     about its sessions is counted in ``status`` and handed to ``on_error`` (on the
@@ -612,13 +619,15 @@ class RobotPublisher:
 
     # -- lifetime --------------------------------------------------------------------------
 
-    def _send_end(self, session_id: str, last_seq: int | None) -> None:
+    def _send_end(self, session_id: str, last_seq: int | None) -> bool:
         end = SessionEnd(session=session_id, last_seq=last_seq, stamp_s=time.time())
         try:
             # Same key as the frames: Zenoh keeps the order of puts on one key.
             self._transport.put(self._key, encode(end), _END_ENCODING)
         except Exception:  # zenoh.ZError, or a transport already closed
             log.warning("could not send the end of session %s", session_id)
+            return False
+        return True
 
     def _release_handles(self) -> None:
         for name in ("_errors_handle", "_instances_handle"):
@@ -635,16 +644,54 @@ class RobotPublisher:
         if self._follower is not threading.current_thread():
             self._follower.join(_JOIN_TIMEOUT_S)
 
-    def close(self) -> None:
-        """End the session explicitly, then release the publisher (idempotent)."""
+    def close(self, timeout_s: float = DEFAULT_CLOSE_TIMEOUT_S) -> None:
+        """End the session, wait until the service confirms the end, then release (idempotent).
+
+        The ``SessionEnd`` (with the last seq) goes out first. The publication cache then
+        stays until the service's ``SessionState`` shows the session closed, or every frame
+        up to the last seq applied: if the robot's partition moves between instances at
+        that moment, the frames queued at the old owner are lost there and the new owner
+        fetches them from this cache. Polls the robot's ``state`` key every 20-250 ms.
+
+        Never raises and never hangs: after ``timeout_s``, or at once when no service
+        instance is alive or the network is closed, it logs one warning and closes anyway.
+        ``timeout_s=0`` closes right after sending the end. Closing many robots: use
+        ``close_all``, which waits for them together.
+        """
+        close_all([self], timeout_s)
+
+    def _end_for_close(self, *, confirm: bool) -> tuple[bool, PendingEnd | None]:
+        """Mark closed and send the end; return (closed by this call, the end to confirm)."""
         with self._lock:
             if self._closed:
-                return
+                return False, None
             self._closed = True
             still_open = self._closed_report is None
             last = self._next_seq - 1 if self._next_seq else None
-        if still_open:
-            self._send_end(self.session_id, last)
+            session_id = self.session_id
+        if not still_open or not self._send_end(session_id, last):
+            return True, None
+        # Only a Zenoh publisher has a cache a service can query: the in-process fake
+        # (lessmap_client.testing) has no service behind it to confirm anything.
+        if not confirm or last is None or not isinstance(self._transport, ZenohTransport):
+            return True, None
+        return True, PendingEnd(
+            fleet=self.fleet,
+            robot=self.robot,
+            session=session_id,
+            last_seq=last,
+            transport=self._transport,
+            route=self._transport.session,
+            served=self._has_live_instance,
+            closed_by_service=lambda: self._closed_report is not None,
+            resend=lambda: self._send_end(session_id, last),
+        )
+
+    def _has_live_instance(self) -> bool:
+        with self._lock:
+            return bool(self._live)
+
+    def _release_after_close(self) -> None:
         self._release_handles()
         self._stop_follower()
         self._publisher.close()
@@ -663,3 +710,41 @@ class RobotPublisher:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def close_all(
+    publishers: Iterable[RobotPublisher], timeout_s: float = DEFAULT_CLOSE_TIMEOUT_S
+) -> None:
+    """Close many robot publishers together: every end first, then one wait for them all.
+
+    ``RobotPublisher.close`` one after the other costs one confirmation latency per robot;
+    this sends every ``SessionEnd``, then polls the states of all the robots at once (one
+    query per Zenoh session and fleet, with a wildcard key when several robots of a fleet
+    wait), then releases every publisher. The rules of ``close`` apply: never raises, at
+    most ``timeout_s`` of waiting, one warning line for the ends left unconfirmed.
+    Publishers already closed are skipped.
+    """
+    closing = []
+    ends = []
+    for publisher in publishers:
+        closed_here, end = publisher._end_for_close(confirm=timeout_s > 0)
+        if closed_here:
+            closing.append(publisher)
+        if end is not None:
+            ends.append(end)
+    try:
+        for left in confirm_ends(ends, timeout_s) if ends else []:
+            names = ", ".join(f"{e.fleet}/{e.robot}" for e in left.ends[:5])
+            more = f" and {len(left.ends) - 5} more" if len(left.ends) > 5 else ""
+            log.warning(
+                "end of %d session(s) not confirmed by the service (%s): %s%s; closing their "
+                "publication caches anyway, frames not applied yet are lost",
+                len(left.ends),
+                left.reason,
+                names,
+                more,
+            )
+    except Exception:  # never raise from a close: the publishers are released below
+        log.exception("confirming the session ends failed")
+    for publisher in closing:
+        publisher._release_after_close()

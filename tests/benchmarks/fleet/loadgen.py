@@ -148,7 +148,7 @@ def generator_main(spec_path: str) -> int:
     alive, reads the start time t0 (Unix seconds) as one line, publishes, ends every session,
     writes the results JSON to ``spec["out"]`` and exits.
     """
-    from lessmap_client import RobotPublisher, open_session
+    from lessmap_client import RobotPublisher, close_all, open_session
 
     job = json.loads(Path(spec_path).read_text(encoding="utf-8"))
     spec = LoadSpec(**{**job["spec"], "dwell_s": tuple(job["spec"]["dwell_s"])})
@@ -192,8 +192,9 @@ def generator_main(spec_path: str) -> int:
                 lateness_max = max(lateness_max, -delay)
                 published[local].append(time.time())
                 publisher.publish(streams[local][k], stamp_s=target)
-        for publisher in publishers:
-            publisher.close()  # SessionEnd with last_seq: the service counts a lost tail
+        # Every SessionEnd (with last_seq: the service counts a lost tail) first, then one
+        # wait for all the confirmations: one close after the other cost a latency per robot.
+        close_all(publishers)
     finally:
         session.close()
     frames = [f for stream in streams for f in stream]
