@@ -429,6 +429,61 @@ def test_late_live_frames_fill_a_hold_without_errors(tmp_path: Path) -> None:
     store.close()
 
 
+def end_of(last_seq: int) -> SessionEnd:
+    return SessionEnd(session=SESSION, last_seq=last_seq, stamp_s=1000.0)
+
+
+def test_an_end_past_the_last_frame_asks_the_cache_before_counting_the_tail_missing(
+    tmp_path: Path,
+) -> None:
+    # A partition moved while the robot ended its session: the former owner dropped 20..29,
+    # the end reached the new owner. The tail is in the robot's cache, not lost.
+    store = open_store(tmp_path)
+    table = catchup_table(store)
+    feed(table, FRAMES[:20])
+    ended = table.handle_batch([(FLEET, ROBOT, end_of(29))], 1.0)
+    assert [(r.after_seq, r.max_frames) for r in ended.catchups] == [(19, 100)]
+    assert not ended.closed  # the end waits for the catch-up
+    assert not errors([ended])
+    recovered = table.recover((FLEET, ROBOT), SESSION, FRAMES[20:30], 1.1)
+    [(final, cause)] = recovered.closed
+    assert cause == "ended"
+    assert (final.frames_applied, final.frames_missing, final.last_seq) == (30, 0, 29)
+    assert not errors([recovered])
+    store.close()
+
+
+def test_an_end_past_what_the_cache_holds_counts_only_the_rest_missing(tmp_path: Path) -> None:
+    store = open_store(tmp_path)
+    table = catchup_table(store)
+    feed(table, FRAMES[:20])
+    ended = table.handle_batch([(FLEET, ROBOT, end_of(29))], 1.0)
+    assert ended.catchups
+    partial = table.recover((FLEET, ROBOT), SESSION, FRAMES[20:25], 1.1)  # 25..29 are gone
+    assert not partial.closed  # more replies may come until the query is done
+    done = table.catchup_done((FLEET, ROBOT), SESSION, 1.2)
+    gaps = [r for r in done.rejections if r.code is ErrorCode.SEQ_GAP]
+    assert [(g.detail, g.seq) for g in gaps] == [("5 frame(s) missing: 25..29", 29)]
+    [(final, cause)] = done.closed
+    assert cause == "ended"
+    assert (final.frames_applied, final.frames_missing) == (25, 5)
+    store.close()
+
+
+def test_an_end_whose_catch_up_never_answers_closes_when_the_hold_expires(
+    tmp_path: Path,
+) -> None:
+    store = open_store(tmp_path)
+    table = catchup_table(store)  # catchup_wait_s=2.0
+    feed(table, FRAMES[:20])
+    assert table.handle_batch([(FLEET, ROBOT, end_of(29))], 1.0).catchups
+    assert not table.release_overdue(2.9).closed  # still waiting
+    late = table.release_overdue(3.1)
+    [(final, _cause)] = late.closed
+    assert (final.frames_applied, final.frames_missing) == (20, 10)
+    store.close()
+
+
 def test_a_frame_both_in_the_cache_reply_and_live_counts_once(tmp_path: Path) -> None:
     # A take-over or a restart while the robot streams: its own put of a frame races the
     # copy of the same frame in its cache's reply. Whichever comes second is dropped

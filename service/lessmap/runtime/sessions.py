@@ -51,7 +51,10 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    cache has answered (``catchup_done``), after ``catchup_wait_s`` (``release_overdue``), or
    when more than ``catchup_max_frames`` frames are held, the hold is released: the held
    frames are applied in seq order and only the seqs no cache returned are reported as
-   SEQ_GAP. One catch-up per session at a time, at most one per ``catchup_wait_s``, so a
+   SEQ_GAP. A ``SessionEnd`` whose ``last_seq`` lies beyond the last seen frame starts a
+   catch-up too (once): the end is held until the cache has answered or the hold expires,
+   so a tail dropped at a former owner during a hand-over is recovered, not counted missing.
+   One catch-up per session at a time, at most one per ``catchup_wait_s``, so a
    robot that skips seqs on purpose costs a bounded number of cache replies. Recovered
    frames that are not needed (already applied, another session, no hold) are dropped
    silently. Held frames are not in a checkpoint: a restart asks the cache for them again.
@@ -600,24 +603,11 @@ class SessionTable:
         seen = session.last_seen_seq
         if seen is not None and frame.seq <= seen:
             return False  # a duplicate: ``_apply_frame`` reports it
-        key = (session.fleet, session.robot)
         if session.hold_until_s is None:
             expected = 0 if seen is None else seen + 1
             if frame.seq == expected or now_s < session.next_catchup_s:
                 return False
-            session.hold_until_s = now_s + self._catchup_wait_s
-            session.next_catchup_s = now_s + self._catchup_wait_s
-            session.recovered = 0
-            self._holding.add(key)
-            out.catchups.append(
-                CatchupRequest(
-                    session.fleet,
-                    session.robot,
-                    session.session,
-                    -1 if seen is None else seen,
-                    self._catchup_max_frames,
-                )
-            )
+            self._start_catchup(session, now_s, out)
         if frame.seq in session.held:
             if self._cache_copy(session, frame.seq):
                 return True
@@ -635,6 +625,23 @@ class SessionTable:
         session.held[frame.seq] = frame  # past catchup_max_frames, _drain_hold releases
         return True
 
+    def _start_catchup(self, session: RobotSession, now_s: float, out: Outcome) -> None:
+        """Hold the session and ask the robot's cache for the frames after the last seen."""
+        seen = session.last_seen_seq
+        session.hold_until_s = now_s + self._catchup_wait_s
+        session.next_catchup_s = now_s + self._catchup_wait_s
+        session.recovered = 0
+        self._holding.add((session.fleet, session.robot))
+        out.catchups.append(
+            CatchupRequest(
+                session.fleet,
+                session.robot,
+                session.session,
+                -1 if seen is None else seen,
+                self._catchup_max_frames,
+            )
+        )
+
     def _drain_hold(self, session: RobotSession, now_s: float, out: Outcome) -> None:
         """Apply the held frames that now follow the last seq without a gap."""
         if session.hold_until_s is None:
@@ -646,11 +653,20 @@ class SessionTable:
             run.append(session.held.pop(expected))
             expected += 1
         self._apply_frames(session, run, out)
-        if not session.held:
+        if not session.held and not self._tail_awaited(session):
             self._finish_hold(session, now_s, out)
         elif len(session.held) > self._catchup_max_frames:
             # Bounded: the cache is slow or does not hold the gap; stop waiting for it.
             self._release(session, out, now_s)
+
+    @staticmethod
+    def _tail_awaited(session: RobotSession) -> bool:
+        """True while a held end names frames not seen yet: the cache's reply may bring more."""
+        end = session.held_end
+        seen = session.last_seen_seq
+        if end is None or end.last_seq is None:
+            return False
+        return seen is None or seen < end.last_seq
 
     def _release(self, session: RobotSession, out: Outcome, now_s: float | None = None) -> None:
         """End a hold: apply what is held in seq order; seqs nobody returned are missing."""
@@ -675,7 +691,7 @@ class SessionTable:
         )
         if session.held_end is not None and now_s is not None:
             end, session.held_end = session.held_end, None
-            self._end(key, end, now_s, out)
+            self._end(key, end, now_s, out, ask_cache=False)  # the cache was asked: done
 
     def recover(
         self, key: RobotKey, session_id: str, frames: Iterable[Frame], now_s: float
@@ -967,7 +983,9 @@ class SessionTable:
 
     # -- closing ---------------------------------------------------------------------------
 
-    def _end(self, key: RobotKey, end: SessionEnd, now_s: float, out: Outcome) -> None:
+    def _end(
+        self, key: RobotKey, end: SessionEnd, now_s: float, out: Outcome, *, ask_cache: bool = True
+    ) -> None:
         current = self._open.get(key)
         if current is None and self._store is not None:
             current = self._resume(key, out, now_s)  # it ended while no instance ran
@@ -979,6 +997,14 @@ class SessionTable:
         seen = current.last_seen_seq
         expected = 0 if seen is None else seen + 1
         if end.last_seq is not None and end.last_seq >= expected:
+            if ask_cache and self._catchup_max_frames:
+                # The tail may wait in the robot's cache: frames dropped at a former owner
+                # when the partition moved, or lost on the way, while the end came through.
+                # Ask for them first; the end closes the session when the catch-up is over,
+                # and only what the cache cannot give is counted missing then.
+                self._start_catchup(current, now_s, out)
+                current.held_end = end
+                return
             self._count_gap(current, expected, end.last_seq, end.last_seq, out)
         self._close(key, "ended", out)
 
