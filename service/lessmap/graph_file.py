@@ -4,7 +4,8 @@ One JSON object (``FORMAT`` names the layout; a reader refuses any other)::
 
     {"format": "lessmap.area_graph/1",
      "source": "run.frames.jsonl",                  # the frames file's name
-     "fleet_params": {"shared_features": false, "min_containment": 0.5, "min_shared": 3},
+     "fleet_params": {"shared_features": false, "min_containment": 0.85, "min_shared": 3,
+                      "min_linked_share": 0.5},
      "robots": {"<robot>": {
          "nodes": [{"area": 0, "frames": 120, "visits": 2, "first_seq": 0, "last_seq": 300,
                     "features": [3, 4, 9]}],       # the area's feature ids, ascending
@@ -53,6 +54,7 @@ def graph_document(
             "shared_features": params.shared_features,
             "min_containment": params.min_containment,
             "min_shared": params.min_shared,
+            "min_linked_share": params.min_linked_share,
         },
         "robots": {
             robot: {
