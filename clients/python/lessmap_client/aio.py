@@ -24,6 +24,7 @@ from contextlib import asynccontextmanager
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from lessmap_client import connection as _sync
+from lessmap_client.robot import DEFAULT_CLOSE_TIMEOUT_S
 from lessmap_client.session import DEFAULT_ENDPOINT
 from lessmap_client.subscription import DEFAULT_MAXSIZE
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
@@ -227,10 +228,14 @@ class AsyncRobotPublisher:
                 self.sync.publish, list(features), stamp_s=stamp_s, pose=pose, seq=seq
             )
 
-    async def close(self) -> None:
-        """Send the ``SessionEnd`` and release the publisher."""
+    async def close(self, timeout_s: float = DEFAULT_CLOSE_TIMEOUT_S) -> None:
+        """End the session and release the publisher; see ``RobotPublisher.close``.
+
+        The wait for the service to confirm the end (at most ``timeout_s``) runs in a
+        worker thread: the event loop goes on meanwhile.
+        """
         async with self._lock:
-            await asyncio.to_thread(self.sync.close)
+            await asyncio.to_thread(self.sync.close, timeout_s)
 
     async def __aenter__(self) -> AsyncRobotPublisher:
         return self
@@ -363,12 +368,19 @@ class AsyncConnection:
         """See ``Connection.wait_for_service``."""
         return await asyncio.to_thread(self.sync.wait_for_service, timeout_s)
 
-    async def close(self) -> None:
-        """Close the connection and everything declared from it."""
-        for sub in self._subs:
-            await sub.close()  # wakes its readers
-        self._subs.clear()
-        await asyncio.to_thread(self.sync.close)
+    async def close(self, timeout_s: float = DEFAULT_CLOSE_TIMEOUT_S) -> None:
+        """Close the connection and everything declared from it; see ``Connection.close``.
+
+        Its robots end together, with one wait of at most ``timeout_s`` for the service to
+        confirm them all, in a worker thread: the event loop goes on meanwhile, and the
+        subscriptions, closed after the robots, still deliver what their last frames produce.
+        """
+        try:
+            await asyncio.to_thread(self.sync.close, timeout_s)
+        finally:
+            subs, self._subs = self._subs, []
+            for sub in subs:
+                await sub.close()  # wakes its readers
 
     async def __aenter__(self) -> AsyncConnection:
         return self

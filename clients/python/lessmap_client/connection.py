@@ -13,7 +13,7 @@ import threading
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from lessmap_client.fencing import current_states
-from lessmap_client.robot import RobotPublisher
+from lessmap_client.robot import DEFAULT_CLOSE_TIMEOUT_S, RobotPublisher, close_all
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.subscription import DEFAULT_MAXSIZE, Subscription
 from lessmap_client.transport import ZenohTransport, wait_for_instances
@@ -303,10 +303,15 @@ class Connection:
         with self._lock:
             self._children.pop(id(child), None)
 
-    def close(self) -> None:
-        """Close every robot (sending its ``SessionEnd``) and subscription, then the network.
+    def close(self, timeout_s: float = DEFAULT_CLOSE_TIMEOUT_S) -> None:
+        """End every robot, close every subscription, then the network (idempotent).
 
-        Idempotent; never hangs.
+        The robots end together, as ``close_all`` ends them: every ``SessionEnd`` first,
+        then one wait of at most ``timeout_s`` for the service to confirm them all, whatever
+        their number (``RobotPublisher.close`` has the rules; ``timeout_s=0`` does not
+        wait). Subscriptions close after the robots, so they still receive what the robots'
+        last frames produce while the ends are confirmed. Never raises; never waits past
+        ``timeout_s`` (plus releasing what was declared).
         """
         with self._lock:
             if self._closed:
@@ -314,7 +319,14 @@ class Connection:
             self._closed = True
             children = list(self._children.values())
             self._children.clear()
+        robots = [child for child in children if isinstance(child, RobotPublisher)]
+        try:
+            close_all(robots, timeout_s)
+        except Exception:
+            log.exception("closing %d robot(s) failed", len(robots))
         for child in children:
+            if isinstance(child, RobotPublisher):
+                continue
             try:
                 child.close()
             except Exception:
