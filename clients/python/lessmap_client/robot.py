@@ -747,4 +747,7 @@ def close_all(
     except Exception:  # never raise from a close: the publishers are released below
         log.exception("confirming the session ends failed")
     for publisher in closing:
-        publisher._release_after_close()
+        try:
+            publisher._release_after_close()
+        except Exception:  # one publisher's failure must not keep the others' threads alive
+            log.exception("releasing %s/%s failed", publisher.fleet, publisher.robot)
