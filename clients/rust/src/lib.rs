@@ -12,7 +12,7 @@
 //! let conn = Connection::connect(&["tcp/127.0.0.1:7447"], Duration::from_secs(10))?;
 //! let robot = conn.robot("warehouse", "amr-7")?;
 //! robot.publish(&[12, 40, 41, 97])?; // seq 0, stamped now
-//! robot.close()?; // SessionEnd with the last seq
+//! robot.close()?; // SessionEnd with the last seq; the cache stays until the service confirms it
 //! # Ok::<(), lessmap_client::ClientError>(())
 //! ```
 
@@ -32,5 +32,7 @@ pub use messages::{
     Transition,
 };
 pub use names::{keys, owner_and_standby, partition_of, ranking, validate_name};
-pub use robot::{RobotOptions, RobotPublisher, RobotStatus};
+pub use robot::{
+    end_progress, EndProgress, RobotOptions, RobotPublisher, RobotStatus, DEFAULT_CLOSE_TIMEOUT,
+};
 pub use subscription::Subscription;

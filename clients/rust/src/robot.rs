@@ -13,6 +13,11 @@
 //!   the next `publish` acts on, so frames are never renumbered behind the caller's back.
 //! * The robot follows the instances' liveliness tokens; `status().owner` ranks them for its
 //!   partition (section 2a).
+//! * Closing keeps the publication cache after the `SessionEnd` until the service confirms
+//!   the end (its `SessionState` shows the session closed, or open with every frame up to the
+//!   last seq applied, then the end is put again): frames dropped at a deposed owner during a
+//!   hand-over are fetched from that cache by the new one (section 6, rules 3, 8 and 9). The
+//!   wait never fails and never outlasts the close timeout; with no live instance it is skipped.
 
 use std::collections::hash_map::RandomState;
 use std::collections::{BTreeMap, BTreeSet};
@@ -30,12 +35,26 @@ use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
 use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
-use crate::connection::{current_states, get_all, ClientError};
+use crate::connection::{current_states, get_all, instances, ClientError};
 use crate::messages::{Error, Frame, Health, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 
 /// Error reports waiting for the follower thread; more are dropped and counted.
 const INBOX_MAX: usize = 1000;
+
+/// How long closing waits by default for the service to confirm the end: room for a take-over
+/// of the robot's partition, whose catch-up from the cache the service bounds by
+/// `catchup_wait_s` (2 s by default).
+pub const DEFAULT_CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Pauses before the state polls of a close, in ms: the first is short (a live end is handled
+/// within a receiver sweep, 10-50 ms); later ones grow, so a slow take-over costs few queries.
+const POLL_DELAYS_MS: [u64; 5] = [20, 50, 100, 200, 250];
+/// A session open with every frame applied gets this long for its end to arrive before the end
+/// is put again (it may have been dropped with the frames queued at a deposed owner).
+const END_GRACE: Duration = Duration::from_millis(300);
+const STATE_QUERY_MAX: Duration = Duration::from_secs(1);
+const INSTANCES_QUERY_MAX: Duration = Duration::from_millis(500);
+const QUERY_MIN: Duration = Duration::from_millis(50);
 
 /// A fresh session id: the start time plus randomness, a valid name.
 pub fn new_session_id() -> String {
@@ -75,6 +94,10 @@ pub struct RobotOptions {
     /// Called with every `Error` the service reports about this publisher's sessions, on the
     /// publisher's own thread (never Zenoh's), so it may block.
     pub on_error: Option<ErrorCallback>,
+    /// How long `close` (and dropping the publisher) waits after the `SessionEnd` for the
+    /// service to confirm it, keeping the publication cache meanwhile (default
+    /// [`DEFAULT_CLOSE_TIMEOUT`]). `Duration::ZERO`: release right after sending the end.
+    pub close_timeout: Duration,
 }
 
 impl Default for RobotOptions {
@@ -84,6 +107,7 @@ impl Default for RobotOptions {
             cache: 1000,
             auto_new_session: true,
             on_error: None,
+            close_timeout: DEFAULT_CLOSE_TIMEOUT,
         }
     }
 }
@@ -166,10 +190,53 @@ impl Shared {
     }
 }
 
+/// What the service's state of a robot says about a session end the robot sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EndProgress {
+    /// The session is closed: the end is confirmed and the cache is no longer needed.
+    Closed,
+    /// Open with every frame up to the last seq applied: only the end is missing (it may have
+    /// been dropped at a deposed owner), so it is put again after a short grace.
+    CaughtUp,
+    /// Frames still to apply, no state yet (a take-over in progress), or the newest state is
+    /// about another session: the cache may still be needed.
+    Pending,
+}
+
+/// Where the end of `session` (last frame `last_seq`) of `fleet`/`robot` stands, per the
+/// `SessionState` replies of its `state` key: of several replies (an old and a new owner),
+/// the highest epoch is current.
+pub fn end_progress(
+    replies: Vec<SessionState>,
+    fleet: &str,
+    robot: &str,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
+    let current = current_states(replies)
+        .into_iter()
+        .find(|state| state.fleet == fleet && state.robot == robot);
+    match current {
+        // Another session is no proof either way: it may be older than this one.
+        Some(state) if state.session == session => {
+            if !state.open {
+                EndProgress::Closed
+            } else if state.last_seq.is_some_and(|seq| seq >= last_seq) {
+                EndProgress::CaughtUp
+            } else {
+                EndProgress::Pending
+            }
+        }
+        _ => EndProgress::Pending,
+    }
+}
+
 /// Publishes the frames of one robot session, numbered from 0, and follows its errors.
 ///
 /// Declare one with `Connection::robot`. `close` (or dropping it) ends the session with a
-/// `SessionEnd` carrying the last seq, so the service frees it at once.
+/// `SessionEnd` carrying the last seq, so the service frees it at once, and keeps the
+/// publication cache until the service confirms the end (at most
+/// [`RobotOptions::close_timeout`]).
 pub struct RobotPublisher {
     fleet: String,
     robot: String,
@@ -177,6 +244,7 @@ pub struct RobotPublisher {
     key: String,
     session: Session,
     auto_new_session: bool,
+    close_timeout: Duration,
     limits: WireLimits,
     shared: Arc<Shared>,
     publisher: Option<AdvancedPublisher<'static>>,
@@ -228,6 +296,7 @@ impl RobotPublisher {
             key,
             session: session.clone(),
             auto_new_session: options.auto_new_session,
+            close_timeout: options.close_timeout,
             limits: WireLimits::default(),
             shared: Arc::clone(&shared),
             publisher: Some(publisher),
@@ -543,13 +612,29 @@ impl RobotPublisher {
         Ok(())
     }
 
-    /// End the session explicitly (a `SessionEnd` with the last seq), then release
-    /// everything. Dropping the publisher does the same, ignoring errors.
+    /// End the session explicitly (a `SessionEnd` with the last seq), wait until the service
+    /// confirms the end, then release everything. Dropping the publisher does the same,
+    /// ignoring errors.
+    ///
+    /// The publication cache stays until the service's `SessionState` shows the session
+    /// closed, or open with every frame up to the last seq applied (then the end is put again
+    /// after 0.3 s): if the robot's partition moves between instances at that moment, the
+    /// frames queued at the old owner are lost there and the new owner fetches them from this
+    /// cache. Polls the robot's `state` key every 20-250 ms, for at most
+    /// [`RobotOptions::close_timeout`]; then, or at once when no service instance is alive or
+    /// a query fails, it logs one warning and releases anyway. An unconfirmed end is never an
+    /// error. No wait when no frame was sent or the service had closed the session.
     pub fn close(mut self) -> Result<(), ClientError> {
-        self.shut()
+        let timeout = self.close_timeout;
+        self.shut(timeout)
     }
 
-    fn shut(&mut self) -> Result<(), ClientError> {
+    /// `close`, waiting at most `timeout` for the confirmation (`Duration::ZERO`: none).
+    pub fn close_within(mut self, timeout: Duration) -> Result<(), ClientError> {
+        self.shut(timeout)
+    }
+
+    fn shut(&mut self, timeout: Duration) -> Result<(), ClientError> {
         let Some(publisher) = self.publisher.take() else {
             return Ok(());
         };
@@ -566,6 +651,12 @@ impl RobotPublisher {
         } else {
             Ok(())
         };
+        // The cache lives with `publisher`, until its undeclare below.
+        if let (true, Ok(()), Some(last)) = (still_open, &ended, last) {
+            if !timeout.is_zero() {
+                self.confirm_end(&session_id, last, timeout);
+            }
+        }
         self.shared.stop.store(true, Ordering::Relaxed);
         if let Some(sub) = self.errors_sub.take() {
             sub.undeclare().wait()?;
@@ -583,9 +674,90 @@ impl RobotPublisher {
     }
 }
 
+impl RobotPublisher {
+    /// Wait until the service confirms the end of `session_id`, at most `timeout`; warn once
+    /// if it does not. Runs before the follower and the liveliness subscriber stop, so a
+    /// `SESSION_CLOSED` report and the instances' tokens still count.
+    fn confirm_end(&self, session_id: &str, last_seq: u64, timeout: Duration) {
+        let label = format!("{}/{}", self.fleet, self.robot);
+        let unconfirmed = |reason: &str| {
+            tracing::warn!(
+                "{label}: end of session {session_id} not confirmed by the service ({reason}); \
+                 closing the publication cache anyway, frames not applied yet are lost"
+            );
+        };
+        let resend = || {
+            if let Err(err) = self.send_end(session_id, Some(last_seq)) {
+                tracing::debug!("{label}: putting the end again: {err}");
+            }
+        };
+        let Ok(key) = keys::state(&self.fleet, &self.robot) else {
+            return; // the names were checked when the publisher was declared
+        };
+        let deadline = Instant::now() + timeout;
+        let mut delays = POLL_DELAYS_MS.iter();
+        let mut caught_up_at: Option<Instant> = None;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            let pause = Duration::from_millis(*delays.next().unwrap_or(&POLL_DELAYS_MS[4]));
+            std::thread::sleep(pause.min(left));
+            if self.shared.lock().closed_report {
+                return; // the service closed it (SESSION_CLOSED): nothing more will apply
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if !self.anyone_alive(left) {
+                unconfirmed("no live lessmap instance");
+                return;
+            }
+            let ask = left.clamp(QUERY_MIN, STATE_QUERY_MAX);
+            let replies = match get_all::<SessionState>(&self.session, &key, ask) {
+                Ok(replies) => replies,
+                Err(err) => {
+                    unconfirmed(&format!("state query failed: {err}"));
+                    return;
+                }
+            };
+            let now = Instant::now();
+            match end_progress(replies, &self.fleet, &self.robot, session_id, last_seq) {
+                EndProgress::Closed => return,
+                EndProgress::Pending => caught_up_at = None,
+                EndProgress::CaughtUp => match caught_up_at {
+                    None => caught_up_at = Some(now),
+                    Some(at) if now.duration_since(at) >= END_GRACE => {
+                        resend(); // ignored by the service if it had the end
+                        return;
+                    }
+                    Some(_) => {}
+                },
+            }
+        }
+        // Out of time: a session with every frame applied lacks only its end; the cache is
+        // not needed for it any more.
+        if caught_up_at.is_some() {
+            resend();
+        } else {
+            unconfirmed(&format!("not confirmed within {timeout:?}"));
+        }
+    }
+
+    /// A live instance per the tokens followed, else per one liveliness query (for a
+    /// publisher closed so soon after it was declared that the tokens had not arrived yet).
+    fn anyone_alive(&self, left: Duration) -> bool {
+        if !self.shared.lock().live.is_empty() {
+            return true;
+        }
+        let ask = left.clamp(QUERY_MIN, INSTANCES_QUERY_MAX);
+        instances(&self.session, ask).is_ok_and(|live| !live.is_empty())
+    }
+}
+
 impl Drop for RobotPublisher {
     fn drop(&mut self) {
-        if let Err(err) = self.shut() {
+        let timeout = self.close_timeout;
+        if let Err(err) = self.shut(timeout) {
             tracing::warn!(
                 "{}/{}: closing the robot publisher: {err}",
                 self.fleet,

@@ -3,15 +3,18 @@
 //! The test plays the service with a Zenoh router session of its own (a liveliness token, a
 //! `Health` and `SessionState` queryables, puts on the errors and transitions keys), so the
 //! client's own rules are checked without a lessmap service: numbering, session ends, a new
-//! session after `SESSION_CLOSED`, epoch fencing, de-duplication, highest epoch of replies.
+//! session after `SESSION_CLOSED`, epoch fencing, de-duplication, highest epoch of replies,
+//! a close that waits for the service to confirm the end.
 
+use std::collections::HashMap;
 use std::net::TcpListener;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use lessmap_client::codec::{decode_inbound, encode, Inbound};
 use lessmap_client::{
-    keys, partition_of, Connection, Error, ErrorCode, Health, Reason, SessionState, SubmapSummary,
-    Transition,
+    keys, partition_of, Connection, Error, ErrorCode, Health, Reason, RobotOptions, SessionState,
+    SubmapSummary, Transition,
 };
 use zenoh::{Session, Wait};
 
@@ -182,7 +185,9 @@ fn robot_numbers_frames_follows_its_errors_and_ends_its_sessions() {
     wait_until("the stale report", || robot.status().reports_stale == 1);
     assert!(!robot.status().closed_by_service);
 
-    robot.close().unwrap();
+    // No `SessionState` queryable here: close without waiting for a confirmation (tested in
+    // robot_close_keeps_the_cache_until_the_service_confirms_the_end).
+    robot.close_within(Duration::ZERO).unwrap();
     let got = take(4);
     assert!(
         matches!(&got[3], Inbound::SessionEnd(e) if e.session == second && e.last_seq == Some(0))
@@ -280,6 +285,174 @@ fn subscription_fences_deduplicates_and_queries_keep_the_highest_epoch() {
     );
     drop(sub);
     drop(queryables);
+    conn.close().unwrap();
+    service.close().wait().unwrap();
+}
+
+/// The `SessionState` a fake service answers for `robot`'s `session`.
+fn session_state(robot: &str, session: &str, open: bool, last_seq: u64) -> SessionState {
+    SessionState {
+        fleet: "fleet".into(),
+        robot: robot.into(),
+        session: session.into(),
+        instance: "fake-a".into(),
+        epoch: 1,
+        open,
+        last_seq: Some(last_seq),
+        frames_applied: last_seq + 1,
+        frames_duplicate: 0,
+        frames_missing: 0,
+        frames_rejected: 0,
+        transitions: 0,
+        current_submap: summary(0),
+        closed_submaps: vec![],
+        nodes: 1,
+        edges: 0,
+    }
+}
+
+fn assert_took(what: &str, took: Duration, min: Duration, max: Duration) {
+    assert!(
+        took >= min && took < max,
+        "{what} took {took:?}, expected {min:?} to {max:?}"
+    );
+}
+
+#[test]
+fn robot_close_keeps_the_cache_until_the_service_confirms_the_end() {
+    let (service, endpoint) = router();
+    let fleet = "fleet";
+    let frames = service
+        .declare_subscriber(keys::frames(fleet, "*").unwrap())
+        .wait()
+        .unwrap();
+    let _token = service
+        .liveliness()
+        .declare_token(keys::instance_token("fake-a").unwrap())
+        .wait()
+        .unwrap();
+    // The fake service's state of each robot, answered on the robot's state key.
+    let states: Arc<Mutex<HashMap<String, SessionState>>> = Arc::default();
+    let answer = Arc::clone(&states);
+    let _state = service
+        .declare_queryable(keys::state(fleet, "*").unwrap())
+        .callback(move |query| {
+            let robot = query.key_expr().as_str().rsplit('/').nth(1).unwrap_or("");
+            let state = answer.lock().unwrap().get(robot).cloned();
+            if let Some(state) = state {
+                query
+                    .reply(query.key_expr().clone(), encode(&state))
+                    .wait()
+                    .unwrap();
+            }
+        })
+        .wait()
+        .unwrap();
+    let mut ends: Vec<String> = Vec::new();
+    let mut ends_of = |session: &str| {
+        while let Ok(Some(sample)) = frames.try_recv() {
+            if let Ok(Inbound::SessionEnd(end)) =
+                decode_inbound(&sample.payload().to_bytes(), &Default::default())
+            {
+                ends.push(end.session);
+            }
+        }
+        ends.iter().filter(|s| *s == session).count()
+    };
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+
+    // Frames still to apply: close waits until the service's state shows the session closed.
+    let robot = conn.robot(fleet, "r3").unwrap();
+    for features in [[1], [2], [3]] {
+        robot.publish(&features).unwrap();
+    }
+    let session = robot.session_id();
+    let state = session_state("r3", &session, true, 1);
+    states.lock().unwrap().insert("r3".into(), state);
+    let closer = {
+        let (states, session) = (Arc::clone(&states), session.clone());
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(400));
+            let state = session_state("r3", &session, false, 2);
+            states.lock().unwrap().insert("r3".into(), state);
+        })
+    };
+    let started = Instant::now();
+    robot.close().unwrap();
+    let (min, max) = (Duration::from_millis(400), Duration::from_secs(3));
+    assert_took("a close confirmed late", started.elapsed(), min, max);
+    closer.join().unwrap();
+    wait_until("the end of r3", || ends_of(&session) == 1);
+
+    // Every frame applied, the end missing: the end is put again after the grace, once.
+    let robot = conn.robot(fleet, "r4").unwrap();
+    robot.publish(&[1]).unwrap();
+    robot.publish(&[2]).unwrap();
+    let session = robot.session_id();
+    let state = session_state("r4", &session, true, 1);
+    states.lock().unwrap().insert("r4".into(), state);
+    let started = Instant::now();
+    robot.close().unwrap();
+    let (min, max) = (Duration::from_millis(300), Duration::from_secs(3));
+    assert_took("a close with the end missing", started.elapsed(), min, max);
+    wait_until("the end of r4 twice", || ends_of(&session) == 2);
+
+    // Never confirmed (no state of the robot: a take-over that does not finish): released
+    // after the timeout, without an error.
+    let options = RobotOptions {
+        close_timeout: Duration::from_millis(600),
+        ..RobotOptions::default()
+    };
+    let robot = conn.robot_with(fleet, "r5", options).unwrap();
+    robot.publish(&[1]).unwrap();
+    let session = robot.session_id();
+    let started = Instant::now();
+    robot.close().unwrap();
+    let (min, max) = (Duration::from_millis(600), Duration::from_secs(2));
+    assert_took("an unconfirmed close", started.elapsed(), min, max);
+    assert_eq!(ends_of(&session), 1);
+
+    // A zero timeout is the old close: the end, then the release.
+    let robot = conn.robot(fleet, "r6").unwrap();
+    robot.publish(&[1]).unwrap();
+    let started = Instant::now();
+    robot.close_within(Duration::ZERO).unwrap();
+    assert_took(
+        "a close without waiting",
+        started.elapsed(),
+        Duration::ZERO,
+        Duration::from_secs(2),
+    );
+    conn.close().unwrap();
+    service.close().wait().unwrap();
+}
+
+#[test]
+fn robot_close_does_not_wait_without_a_live_instance() {
+    let (service, endpoint) = router();
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+    let robot = conn.robot("fleet", "r7").unwrap();
+    robot.publish(&[1]).unwrap();
+    let started = Instant::now();
+    robot.close().unwrap(); // the default 5 s timeout
+    let within = Duration::from_millis(1500);
+    assert_took(
+        "a close with no service",
+        started.elapsed(),
+        Duration::ZERO,
+        within,
+    );
+    // Dropping the publisher closes it the same way.
+    let robot = conn.robot("fleet", "r8").unwrap();
+    robot.publish(&[1]).unwrap();
+    let started = Instant::now();
+    drop(robot);
+    assert_took(
+        "a drop with no service",
+        started.elapsed(),
+        Duration::ZERO,
+        within,
+    );
     conn.close().unwrap();
     service.close().wait().unwrap();
 }

@@ -9,7 +9,10 @@ use std::path::PathBuf;
 
 use lessmap_client::codec::{decode, encode};
 use lessmap_client::names::{partition_of, ranking, score, PARTITIONS};
-use lessmap_client::{Error, Frame, Health, Message, SessionEnd, SessionState, Submap, Transition};
+use lessmap_client::{
+    end_progress, EndProgress, Error, Frame, Health, Message, SessionEnd, SessionState, Submap,
+    Transition,
+};
 use serde_json::Value;
 
 fn vectors_dir() -> PathBuf {
@@ -191,4 +194,62 @@ fn partition_vectors() {
             .collect();
         assert_eq!(ranking(p, &live), expected, "partition {p} over {live:?}");
     }
+}
+
+/// The decoded `SessionState` of the valid vector `name`.
+fn state_vector(name: &str) -> SessionState {
+    let file = load(SessionState::TYPE);
+    let case = file["valid"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|case| case["name"] == name)
+        .unwrap_or_else(|| panic!("no SessionState vector {name:?}"));
+    decode::<SessionState>(&unhex(case["hex"].as_str().unwrap())).expect("a valid vector")
+}
+
+#[test]
+fn close_confirmation_follows_the_newest_state_of_the_session() {
+    use EndProgress::{CaughtUp, Closed, Pending};
+    let open = state_vector("typical"); // open, last_seq 42
+    let closed = state_vector("closed, no frames yet"); // closed, no frame applied
+    assert!(open.open && open.last_seq == Some(42) && !closed.open);
+    let (fleet, robot, session) = (open.fleet.clone(), open.robot.clone(), open.session.clone());
+    let progress = |replies: &[&SessionState], session: &str, last_seq: u64| {
+        let replies = replies.iter().map(|s| (*s).clone()).collect();
+        end_progress(replies, &fleet, &robot, session, last_seq)
+    };
+
+    // Open: caught up once every frame up to the end's last seq is applied.
+    assert_eq!(progress(&[&open], &session, 42), CaughtUp);
+    assert_eq!(progress(&[&open], &session, 7), CaughtUp);
+    assert_eq!(progress(&[&open], &session, 43), Pending);
+    let mut empty = open.clone();
+    empty.last_seq = None;
+    assert_eq!(progress(&[&empty], &session, 0), Pending);
+    // Closed: confirmed whatever was applied.
+    assert_eq!(progress(&[&closed], &session, 99), Closed);
+    // No state (a take-over in progress), another session, another robot: not confirmed.
+    assert_eq!(progress(&[], &session, 0), Pending);
+    assert_eq!(progress(&[&closed], "another-session", 0), Pending);
+    let mut other_robot = closed.clone();
+    other_robot.robot = "amr-8".into();
+    assert_eq!(progress(&[&other_robot], &session, 0), Pending);
+
+    // A hand-over: the newest epoch decides, whatever the order of the replies.
+    let mut deposed_closed = closed.clone();
+    deposed_closed.epoch = open.epoch - 1;
+    let mut current_behind = open.clone();
+    current_behind.last_seq = Some(40);
+    assert_eq!(
+        progress(&[&deposed_closed, &current_behind], &session, 42),
+        Pending
+    );
+    assert_eq!(
+        progress(&[&current_behind, &deposed_closed], &session, 40),
+        CaughtUp
+    );
+    let mut deposed_open = open.clone();
+    deposed_open.epoch = closed.epoch - 1;
+    assert_eq!(progress(&[&deposed_open, &closed], &session, 42), Closed);
 }
