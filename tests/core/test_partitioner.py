@@ -19,7 +19,7 @@ from lessmap.core import (
     Submap,
     Transition,
 )
-from lessmap.core.partitioner import _feature_array
+from lessmap.core.partitioner import _feature_ids
 from tests.core.helpers import (
     TWO_ROOM_DOOR,
     assert_same_state,
@@ -449,11 +449,13 @@ def test_keep_closed_submaps_and_history_bounds() -> None:
     )
 )
 def test_a_list_of_ints_gives_the_array_numpy_would(features: list[Any]) -> None:
-    # The plain-list shortcut of _feature_array against the numpy path (a tuple takes it):
-    # the same distinct sorted int64 array, or the same error.
+    # The plain-list shortcut of _feature_ids against the numpy path (a tuple takes it):
+    # the same distinct sorted IDs, as ints and as int64, or the same error.
     def outcome(values: Iterable[Any]) -> tuple[str, Any]:
         try:
-            return "ok", _feature_array(7, values).tolist()
+            ids, array = _feature_ids(7, values)
+            assert array.dtype == np.int64
+            return "ok", (ids, array.tolist())
         except GraphError as exc:
             return "error", str(exc)
 

@@ -111,7 +111,7 @@ def _plain_ids(features: Iterable[int]) -> list[int] | None:
 
     A decoded frame's features come this way (every frame of a fleet): set and sort them
     in Python, half the cost of numpy's conversion for a frame of ~20. Anything else (bools,
-    floats, IDs beyond int64, arrays) is None, left to ``_feature_array`` and its messages.
+    floats, IDs beyond int64, arrays) is None, left to ``_numpy_ids`` and its messages.
     """
     # ``map(type, …)`` checks the types in C: a generator over the list cost 4 % of a shard.
     if type(features) is list and set(map(type, features)) <= _INT_ONLY:
@@ -121,11 +121,21 @@ def _plain_ids(features: Iterable[int]) -> list[int] | None:
     return None
 
 
-def _feature_array(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
-    """Return the distinct feature IDs as int64, refusing floats, strings and bools."""
+def _feature_ids(seq: int, features: Iterable[int]) -> tuple[list[int], NDArray[np.int64]]:
+    """The distinct feature IDs, ascending, as Python ints and as int64 (both are needed).
+
+    Raises:
+        GraphError: an ID is not an integer in the int64 range (floats, strings, bools).
+    """
     ids = _plain_ids(features)
     if ids is not None:
-        return np.array(ids, dtype=np.int64)
+        return ids, np.array(ids, dtype=np.int64)
+    distinct = _numpy_ids(seq, features)
+    return distinct.tolist(), distinct
+
+
+def _numpy_ids(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
+    """Return the distinct feature IDs as int64, refusing floats, strings and bools."""
     values = features if isinstance(features, np.ndarray) else list(features)
     try:
         array = np.asarray(values)
@@ -246,12 +256,7 @@ class Partitioner:
         if self._last_seq is not None and seq <= self._last_seq:
             msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
             raise StaleFrameError(msg)
-        ids = _plain_ids(features)
-        if ids is None:
-            distinct = _feature_array(seq, features)
-            ids = distinct.tolist()
-        else:
-            distinct = np.array(ids, dtype=np.int64)
+        ids, distinct = _feature_ids(seq, features)
         self._graph.add_frame(seq, ids, distinct=True)
         self._history.append(FrameRecord(seq, distinct))
         if self._submap_first_seq is None:
