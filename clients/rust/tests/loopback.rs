@@ -230,22 +230,9 @@ fn subscription_fences_deduplicates_and_queries_keep_the_highest_epoch() {
 
     // Two instances answer for one robot (a hand-over): the highest epoch is current.
     let state = |epoch: u64, applied: u64| SessionState {
-        fleet: "fleet".into(),
-        robot: "r2".into(),
-        session: "s1".into(),
         instance: format!("i{epoch}"),
         epoch,
-        open: true,
-        last_seq: Some(applied - 1),
-        frames_applied: applied,
-        frames_duplicate: 0,
-        frames_missing: 0,
-        frames_rejected: 0,
-        transitions: 0,
-        current_submap: summary(0),
-        closed_submaps: vec![],
-        nodes: 1,
-        edges: 0,
+        ..session_state("r2", "s1", true, applied - 1)
     };
     let mut queryables = Vec::new();
     for (epoch, applied) in [(7, 10), (3, 90)] {
