@@ -1,0 +1,462 @@
+"""One interface over both segmentation methods, so that a service can run either per session.
+
+``Segmenter`` is what a robot session drives: frames in (``apply``), changes out
+(``decide``), its segments, its area graph and its bytes. ``PaperSegmenter`` wraps the
+paper's ``Partitioner``; ``AreasSegmenter`` wraps an ``AreaTracker`` and the
+``AreaGraphBuilder`` fed its changes. No I/O.
+
+Rules of this file:
+
+1. **The wrapped method decides.** An adapter adds no rule of its own. ``PaperSegmenter``
+   makes the partitioner's calls in the caller's order, so a burst of ``apply`` and one
+   ``decide`` coalesce exactly as on a bare partitioner; ``AreasSegmenter``'s changes are
+   the tracker's, which observes every frame on its own.
+2. **Errors at apply, before any change.** ``apply`` accepts and refuses what
+   ``Partitioner.apply`` does, with the same errors. The tracker's frames go through the
+   partitioner's check first: on its own the tracker takes an ID beyond int64 and fails
+   only when the pool holding it reaches its proposer, half-way through a later frame.
+3. **Changes wait for decide.** The tracker finds a change while it observes a frame; the
+   segmenter holds it until ``decide`` (oldest first), so the caller meets the changes of
+   both methods at one point. Segments, counters and the area graph already include a
+   held change: they describe the frames applied.
+4. **Segments and areas.** A change closes a segment (ids 0, 1, 2, ..., one more per change)
+   and enters an area. Under the paper every segment is its own area (area = segment id,
+   never a revisit); under areas, segments of one area recur (``revisit_of``).
+5. **Bounded.** What an adapter keeps beside its method grows with changes, never frames,
+   and is cut to the method's ``keep_closed_submaps`` closed segments; the paper's boundary
+   features also to ``MAX_BOUNDARY_FEATURES`` per passage, as an area graph keeps them.
+6. **Whole state in bytes.** ``to_bytes`` holds everything a later change or graph depends
+   on, pending frames and held changes included; ``segmenter_from_bytes`` rebuilds a
+   segmenter that goes on exactly as the original (format: ``segmenter_snapshot``). A bare
+   partitioner snapshot, as checkpoints held before segmenters, reads as a paper segmenter
+   whose past passages have no boundary features.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import TYPE_CHECKING, Any, Final, Protocol
+
+from lessmap.core import areas_snapshot, segmenter_snapshot as record, snapshot
+from lessmap.core.area_graph import (
+    MAX_BOUNDARY_FEATURES,
+    AreaEdge,
+    AreaGraph,
+    AreaGraphBuilder,
+    AreaNode,
+)
+from lessmap.core.areas import AreaParams, AreaTracker, AreaTransition
+from lessmap.core.errors import GraphError, StaleFrameError
+from lessmap.core.partitioner import Partitioner, _feature_ids  # rule 2: its own check
+from lessmap.core.submaps import Submap, Transition
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+
+    from lessmap.core.params import PartitionParams
+
+
+class Method(StrEnum):
+    """Which method segments a session."""
+
+    PAPER = "paper"  # LESS-mapping's partitioner: every transition opens a new area
+    AREAS = "areas"  # ``AreaTracker``: confirmed changes, recognised revisits
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SegmentChange:
+    """The robot left one area for another: the segment closed and opened, and the areas."""
+
+    transition: Transition  # closed / opened are segments (rule 4)
+    reason: str  # "SPECTRAL", "DISCONNECTED" or "RECOGNISED" (areas only)
+    area: int  # the area entered
+    left_area: int  # the area left
+    revisit_of: int | None  # == area when the area was known before, else None
+
+
+class Segmenter(Protocol):
+    """What a robot session drives, whichever the method (rules 1-6)."""
+
+    @property
+    def method(self) -> Method:
+        """The method that decides."""
+
+    @property
+    def last_seq(self) -> int | None:
+        """Seq of the last applied frame, None before the first."""
+
+    @property
+    def frames_applied(self) -> int:
+        """Frames applied since the session began."""
+
+    @property
+    def transitions(self) -> int:
+        """Changes found since the session began (held ones included, rule 3)."""
+
+    @property
+    def pending_frames(self) -> int:
+        """Frames applied since the last ``decide``."""
+
+    @property
+    def current_area(self) -> int:
+        """The area of the open segment."""
+
+    @property
+    def node_count(self) -> int:
+        """Nodes of the CovGraph that bounds the session's memory."""
+
+    @property
+    def edge_count(self) -> int:
+        """Edges of that CovGraph."""
+
+    @property
+    def closed_submaps(self) -> Sequence[Submap]:
+        """Closed segments, oldest first (rule 5)."""
+
+    def feature_known(self, feature: int) -> bool:
+        """Whether a feature is a node of that CovGraph."""
+
+    def apply(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """Take one frame (rule 2).
+
+        Raises:
+            StaleFrameError: seq is not greater than the last applied seq.
+            GraphError: a feature ID is not an integer in the int64 range.
+        """
+
+    def decide(self) -> tuple[SegmentChange, ...]:
+        """The changes found since the last ``decide``, oldest first (rules 1, 3)."""
+
+    def current_submap(self) -> Submap:
+        """The open segment."""
+
+    def area_graph(self) -> AreaGraph:
+        """This robot's areas and passages so far."""
+
+    def to_bytes(self) -> bytes:
+        """The whole state (rule 6)."""
+
+
+def make_segmenter(
+    method: Method | str,
+    params: PartitionParams | None = None,
+    area_params: AreaParams | None = None,
+) -> Segmenter:
+    """A new session's segmenter; each method reads its own parameters, not the other's.
+
+    Raises:
+        GraphError: the method is not one of ``Method``.
+    """
+    try:
+        chosen = Method(method)
+    except ValueError:
+        msg = f"unknown segmentation method {method!r}; choose one of {', '.join(Method)}"
+        raise GraphError(msg) from None
+    if chosen is Method.PAPER:
+        return PaperSegmenter(Partitioner(params))
+    return AreasSegmenter(AreaTracker(area_params))
+
+
+def segmenter_from_bytes(data: bytes) -> Segmenter:
+    """Rebuild a segmenter from ``to_bytes``, or a paper one from a partitioner snapshot.
+
+    Raises:
+        GraphError: the bytes are neither, or are damaged.
+    """
+    if not record.is_record(data):
+        if not data.startswith((b"LMSNAP", b"PK")):  # the partitioner snapshot's two forms
+            msg = f"not a segmenter or partitioner snapshot (starts {bytes(data[:8])!r})"
+            raise GraphError(msg)
+        return PaperSegmenter(snapshot.from_bytes(data))
+    found = record.unpack(data)
+    try:
+        if found.method == Method.PAPER:
+            return PaperSegmenter._from_record(found)
+        if found.method == Method.AREAS:
+            return AreasSegmenter._from_record(found)
+    except GraphError:
+        raise
+    except Exception as exc:  # a well-framed record with a malformed part: one error type
+        msg = f"not a segmenter snapshot: {type(exc).__name__}: {exc}"
+        raise GraphError(msg) from exc
+    msg = f"segmenter snapshot of unknown method {found.method!r}"
+    raise GraphError(msg)
+
+
+class PaperSegmenter:
+    """The paper's ``Partitioner`` as a ``Segmenter``."""
+
+    method: Final = Method.PAPER
+
+    def __init__(
+        self,
+        partitioner: Partitioner | None = None,
+        boundaries: Mapping[int, tuple[int, ...]] | None = None,
+    ) -> None:
+        """Wrap a partitioner; ``boundaries`` are its closed segments' boundary features."""
+        self.partitioner = partitioner if partitioner is not None else Partitioner()
+        # closed segment id -> the boundary features of the transition that closed it
+        self._boundaries: dict[int, tuple[int, ...]] = dict(boundaries or {})
+
+    @property
+    def last_seq(self) -> int | None:
+        """Seq of the last applied frame."""
+        return self.partitioner.last_seq
+
+    @property
+    def frames_applied(self) -> int:
+        """Frames applied."""
+        return self.partitioner.frames_applied
+
+    @property
+    def transitions(self) -> int:
+        """Transitions declared."""
+        return self.partitioner.transitions
+
+    @property
+    def pending_frames(self) -> int:
+        """Frames applied since the last ``decide``."""
+        return self.partitioner.pending_frames
+
+    @property
+    def current_area(self) -> int:
+        """The open segment's id: one more per transition, from 0."""
+        return self.partitioner.transitions
+
+    @property
+    def node_count(self) -> int:
+        """Nodes of the partitioner's CovGraph."""
+        return self.partitioner.graph.node_count
+
+    @property
+    def edge_count(self) -> int:
+        """Edges of the partitioner's CovGraph."""
+        return self.partitioner.graph.edge_count
+
+    @property
+    def closed_submaps(self) -> tuple[Submap, ...]:
+        """The partitioner's closed submaps."""
+        return self.partitioner.closed_submaps
+
+    def feature_known(self, feature: int) -> bool:
+        """Whether a feature is a node of the partitioner's CovGraph."""
+        return self.partitioner.graph.count(feature) > 0
+
+    def apply(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """``Partitioner.apply``."""
+        self.partitioner.apply(seq, stamp_s, features)
+
+    def decide(self) -> tuple[SegmentChange, ...]:
+        """``Partitioner.decide``: no change or one."""
+        transition = self.partitioner.decide()
+        if transition is None:
+            return ()
+        closed = transition.closed.id
+        # ascending ids with a count of 1 each: the ones an area graph would keep (rule 5)
+        self._boundaries[closed] = transition.boundary_features[:MAX_BOUNDARY_FEATURES]
+        while len(self._boundaries) > self.partitioner.params.keep_closed_submaps:
+            del self._boundaries[next(iter(self._boundaries))]
+        change = SegmentChange(
+            transition=transition,
+            reason=transition.reason.value,
+            area=transition.opened.id,
+            left_area=closed,
+            revisit_of=None,
+        )
+        return (change,)
+
+    def current_submap(self) -> Submap:
+        """The open submap."""
+        return self.partitioner.current_submap()
+
+    def area_graph(self) -> AreaGraph:
+        """Each remembered segment an area, each transition between two a passage (rule 4)."""
+        closed = self.partitioner.closed_submaps
+        current = self.partitioner.current_submap()
+        segments = [*closed, current] if current.frame_count else list(closed)
+        nodes = tuple(
+            AreaNode(
+                area=s.id,
+                frames=s.frame_count,
+                visits=1,
+                first_seq=s.first_seq,
+                last_seq=s.last_seq,
+                features=s.features,
+            )
+            for s in segments
+        )
+        edges = tuple(
+            AreaEdge(
+                a=s.id,
+                b=s.id + 1,
+                a_to_b=1,
+                b_to_a=0,
+                boundary_features=tuple((f, 1) for f in self._boundaries.get(s.id, ())),
+            )
+            for s in closed
+        )
+        return AreaGraph(nodes=nodes, edges=edges)
+
+    def to_bytes(self) -> bytes:
+        """The partitioner's snapshot and the boundary features (rule 6)."""
+        meta = {"boundaries": [[i, list(f)] for i, f in self._boundaries.items()]}
+        return record.pack(Method.PAPER, meta, snapshot.to_bytes(self.partitioner), {})
+
+    @classmethod
+    def _from_record(cls, found: record.Record) -> PaperSegmenter:
+        boundaries = {int(i): tuple(f) for i, f in found.meta["boundaries"]}
+        return cls(snapshot.from_bytes(found.inner), boundaries)
+
+
+class AreasSegmenter:
+    """An ``AreaTracker`` and its ``AreaGraphBuilder`` as a ``Segmenter``."""
+
+    method: Final = Method.AREAS
+
+    def __init__(
+        self,
+        tracker: AreaTracker | None = None,
+        builder: AreaGraphBuilder | None = None,
+        *,
+        closed: Iterable[Submap] = (),
+        held: Iterable[SegmentChange] = (),
+        pending_frames: int = 0,
+    ) -> None:
+        """Wrap a tracker and the builder fed its changes so far (new ones by default)."""
+        self.tracker = tracker if tracker is not None else AreaTracker()
+        self.builder = builder if builder is not None else AreaGraphBuilder()
+        bound = self.tracker.params.proposal.keep_closed_submaps
+        self._closed: deque[Submap] = deque(closed, maxlen=bound)
+        self._held: list[SegmentChange] = list(held)  # found, not yet decided (rule 3)
+        self._pending_frames = pending_frames
+
+    @property
+    def last_seq(self) -> int | None:
+        """Seq of the last applied frame."""
+        return self.tracker.last_seq
+
+    @property
+    def frames_applied(self) -> int:
+        """Frames applied."""
+        return self.tracker.frames_applied
+
+    @property
+    def transitions(self) -> int:
+        """Changes the tracker found, held ones included."""
+        return self.tracker.transitions
+
+    @property
+    def pending_frames(self) -> int:
+        """Frames applied since the last ``decide``."""
+        return self._pending_frames
+
+    @property
+    def current_area(self) -> int:
+        """The tracker's current area."""
+        return self.tracker.current
+
+    @property
+    def node_count(self) -> int:
+        """Nodes of the proposer's CovGraph (its frames are pools of frames)."""
+        return self.tracker.proposer.graph.node_count
+
+    @property
+    def edge_count(self) -> int:
+        """Edges of the proposer's CovGraph."""
+        return self.tracker.proposer.graph.edge_count
+
+    @property
+    def closed_submaps(self) -> tuple[Submap, ...]:
+        """The segments closed by the changes found, oldest first."""
+        return tuple(self._closed)
+
+    def feature_known(self, feature: int) -> bool:
+        """Whether a feature is a node of the proposer's CovGraph (the open pool's are not)."""
+        return self.tracker.proposer.graph.count(feature) > 0
+
+    def apply(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """Observe one frame at once; hold the change it confirms, if any (rules 2, 3)."""
+        last = self.tracker.last_seq
+        if last is not None and seq <= last:
+            msg = f"frame seq {seq} is not after the last applied seq {last}"
+            raise StaleFrameError(msg)
+        ids, _ = _feature_ids(seq, features)
+        found = self.tracker.observe(seq, float(stamp_s), ids)
+        self._pending_frames += 1
+        if found is not None:
+            self.builder.add(found)
+            self._closed.append(found.transition.closed)
+            self._held.append(_change(found))
+
+    def decide(self) -> tuple[SegmentChange, ...]:
+        """The changes held since the last ``decide``, oldest first."""
+        changes = tuple(self._held)
+        self._held.clear()
+        self._pending_frames = 0
+        return changes
+
+    def current_submap(self) -> Submap:
+        """The tracker's open segment."""
+        return self.tracker.current_segment()
+
+    def area_graph(self) -> AreaGraph:
+        """The builder's graph, the open segment included and merges resolved."""
+        return self.builder.graph(self.tracker)
+
+    def to_bytes(self) -> bytes:
+        """The tracker's snapshot, the builder's sums, the segments and held changes."""
+        rows, arrays = record.submaps_pack(self._closed)
+        meta: dict[str, Any] = {
+            "pending_frames": self._pending_frames,
+            "builder": record.builder_json(self.builder),
+            "closed": rows,
+            "held": [_change_json(change) for change in self._held],
+        }
+        return record.pack(Method.AREAS, meta, areas_snapshot.to_bytes(self.tracker), arrays)
+
+    @classmethod
+    def _from_record(cls, found: record.Record) -> AreasSegmenter:
+        meta = found.meta
+        pending = meta["pending_frames"]
+        if type(pending) is not int or pending < 0:
+            msg = f"segmenter snapshot: pending_frames {pending!r}"
+            raise GraphError(msg)
+        return cls(
+            areas_snapshot.from_bytes(found.inner),
+            record.builder_of(meta["builder"]),
+            closed=record.submaps_unpack(meta["closed"], found.arrays),
+            held=[_change_of(d) for d in meta["held"]],
+            pending_frames=pending,
+        )
+
+
+def _change(found: AreaTransition) -> SegmentChange:
+    return SegmentChange(
+        transition=found.transition,
+        reason=found.reason.value,
+        area=found.area,
+        left_area=found.left_area,
+        revisit_of=found.revisit_of,
+    )
+
+
+def _change_json(change: SegmentChange) -> dict[str, Any]:
+    return {
+        "transition": record.transition_json(change.transition),
+        "reason": change.reason,
+        "area": change.area,
+        "left_area": change.left_area,
+        "revisit_of": change.revisit_of,
+    }
+
+
+def _change_of(d: Mapping[str, Any]) -> SegmentChange:
+    return SegmentChange(
+        transition=record.transition_of(d["transition"]),
+        reason=str(d["reason"]),
+        area=int(d["area"]),
+        left_area=int(d["left_area"]),
+        revisit_of=None if d["revisit_of"] is None else int(d["revisit_of"]),
+    )
