@@ -15,6 +15,7 @@ from lessmap_schemas.keys import KEY_PREFIX, WIRE_VERSION, validate_name
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
 from lessmap_schemas.messages import (
     MESSAGE_TYPES,
+    AreaGraph,
     Error,
     Frame,
     Health,
@@ -34,6 +35,7 @@ __all__ = [
     "MEDIA_TYPE",
     "MESSAGE_TYPES",
     "WIRE_VERSION",
+    "AreaGraph",
     "Error",
     "ErrorCode",
     "Frame",

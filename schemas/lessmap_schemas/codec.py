@@ -6,10 +6,10 @@ Decoding is the service's hot path and its attack surface, so the order of check
 2. msgpack, with every length bounded: an array header claiming n items makes msgpack allocate
    n slots before the items arrive, so unbounded headers would turn a few kilobytes into
    gigabytes (measured with the default bounds: 1023 nested 4096-item headers peak at 34 MB);
-3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (2);
+3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (3);
 4. `Frame.features` length, on the raw list, before pydantic touches it;
 5. pydantic, strict;
-6. limits tighter than the v1 format bounds, if the caller set any.
+6. limits tighter than the format bounds, if the caller set any.
 
 Every failure is a `WireError` carrying an `ErrorCode`; nothing else escapes `decode`.
 
@@ -302,7 +302,9 @@ def _invalid(exc: ValidationError, model: type[Message], limits: WireLimits) -> 
         msg += f" (got {type(value).__name__})"
     if kind == "less_than_equal" and field in _SEQ_FIELDS:
         return WireError(msg, ErrorCode.LIMIT_EXCEEDED, "max_seq")
-    if kind == "less_than_equal" and field in _FEATURE_FIELDS:
+    # In a passage's (feature ID, count) pair, index 1 is a count: INVALID like any count.
+    pair_count = len(loc) >= 2 and isinstance(loc[-2], int) and loc[-1] == 1
+    if kind == "less_than_equal" and field in _FEATURE_FIELDS and not pair_count:
         return WireError(msg, ErrorCode.LIMIT_EXCEEDED, "max_feature_id")
     if kind == "string_too_long" and field == "detail":
         return WireError(msg, ErrorCode.LIMIT_EXCEEDED, "max_detail_len")
@@ -323,9 +325,12 @@ def _check_limits(model: BaseModel, limits: WireLimits, where: str) -> None:
             for index, item in enumerate(value):
                 if isinstance(item, BaseModel):
                     _check_limits(item, limits, f"{path}.{index}")
-            if field in _FEATURE_FIELDS and value and max(value) > limits.max_feature_id:
-                msg = f"{path} holds {max(value)}; max_feature_id={limits.max_feature_id}"
-                raise WireError(msg, ErrorCode.LIMIT_EXCEEDED, "max_feature_id")
+            if field in _FEATURE_FIELDS and value:
+                # A passage's boundary features are (feature ID, count) pairs.
+                top = max(item[0] for item in value) if type(value[0]) is tuple else max(value)
+                if top > limits.max_feature_id:
+                    msg = f"{path} holds {top}; max_feature_id={limits.max_feature_id}"
+                    raise WireError(msg, ErrorCode.LIMIT_EXCEEDED, "max_feature_id")
         elif field in _SEQ_FIELDS and type(value) is int and value > limits.max_seq:
             msg = f"{path}={value} exceeds max_seq={limits.max_seq}"
             raise WireError(msg, ErrorCode.LIMIT_EXCEEDED, "max_seq")

@@ -2,15 +2,16 @@
 
 Layout (all under `KEY_PREFIX`, one chunk per name):
 
-    lessmap/v2/<fleet>/<robot>/frames/<p>      robot -> service  put Frame, SessionEnd
-    lessmap/v2/<fleet>/<robot>/transitions     service -> apps   put Transition
-    lessmap/v2/<fleet>/<robot>/errors          service -> apps   put Error
-    lessmap/v2/<fleet>/<robot>/state           apps -> service   get SessionState
-    lessmap/v2/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
-    lessmap/v2/@/instances/<instance>          service           liveliness token
-    lessmap/v2/@/health/<instance>             apps -> service   get Health
-    lessmap/v2/@/errors/<instance>             service -> ops    put Error (unattributable input)
-    lessmap/v2/@/checkpoints/<p>/<fleet>/<robot>  service <-> service  put, get (session state)
+    lessmap/v3/<fleet>/<robot>/frames/<p>      robot -> service  put Frame, SessionEnd
+    lessmap/v3/<fleet>/<robot>/transitions     service -> apps   put Transition
+    lessmap/v3/<fleet>/<robot>/errors          service -> apps   put Error
+    lessmap/v3/<fleet>/<robot>/state           apps -> service   get SessionState
+    lessmap/v3/<fleet>/<robot>/areas           apps -> service   get AreaGraph
+    lessmap/v3/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
+    lessmap/v3/@/instances/<instance>          service           liveliness token
+    lessmap/v3/@/health/<instance>             apps -> service   get Health
+    lessmap/v3/@/errors/<instance>             service -> ops    put Error (unattributable input)
+    lessmap/v3/@/checkpoints/<p>/<fleet>/<robot>  service <-> service  put, get (session state)
 
 `<p>` is the robot's partition (`partition.partition_of`): a service instance subscribes to the
 frames of the partitions it owns only (`frames_of_partition`), so Zenoh's routers deliver it no
@@ -18,7 +19,7 @@ other robot's frames, or to every partition's (`frames_of_every_partition`, one 
 cheaper to route) and keeps those of the partitions it owns.
 
 Service bookkeeping sits under the `@` chunk: Zenoh never lets `*` or `**` match a chunk that
-starts with `@`, so a fleet-wide `lessmap/v2/**` subscription sees robot traffic only.
+starts with `@`, so a fleet-wide `lessmap/v3/**` subscription sees robot traffic only.
 
 A fleet or robot argument may be `"*"` (any single name) wherever the key is used to subscribe,
 declare a queryable or query; publishers must pass concrete names, which `validate_name` checks.
@@ -32,16 +33,16 @@ from lessmap_schemas.errors import InvalidNameError
 from lessmap_schemas.limits import DEFAULT_LIMITS, MAX_SEQ, WireLimits
 from lessmap_schemas.partition import PARTITIONS, partition_of
 
-WIRE_VERSION = 2
-"""Value of the `v` field of every message and of the `v2` key chunk."""
+WIRE_VERSION = 3
+"""Value of the `v` field of every message and of the `v3` key chunk."""
 KEY_PREFIX = f"lessmap/v{WIRE_VERSION}"
 """First two chunks of every key; the version chunk changes only on a breaking change."""
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$"
 """Names: ASCII letters, digits, `_`, `.`, `-`; not starting with `.` or `-`; 1..64 chars."""
 ANY = "*"
 """Wildcard for exactly one fleet, robot or instance chunk."""
-ROBOT_STREAMS = ("frames", "transitions", "errors", "state")
-"""Streams of `lessmap/v2/<fleet>/<robot>/<stream>` keys; frames and submaps have one more chunk."""
+ROBOT_STREAMS = ("frames", "transitions", "errors", "state", "areas")
+"""Streams of `lessmap/v3/<fleet>/<robot>/<stream>` keys; frames and submaps have one more chunk."""
 
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 _FIRST = re.compile(r"[A-Za-z0-9_]")
@@ -142,6 +143,11 @@ def state(fleet: str, robot: str) -> str:
     return _robot_key(fleet, robot, "state")
 
 
+def areas(fleet: str, robot: str) -> str:
+    """Return the key the service answers with the robot's `AreaGraph`."""
+    return _robot_key(fleet, robot, "areas")
+
+
 def submap(fleet: str, robot: str, submap_id: int) -> str:
     """Return the key the service answers with one `Submap` of the robot's session."""
     if type(submap_id) is not int or not 0 <= submap_id <= MAX_SEQ:
@@ -182,7 +188,7 @@ def checkpoints(partition: int | str = ANY, fleet: str = ANY, robot: str = ANY) 
 
 
 def parse_checkpoint_key(key: str) -> tuple[int, str, str]:
-    """Split a concrete `lessmap/v2/@/checkpoints/<p>/<fleet>/<robot>` key."""
+    """Split a concrete `lessmap/v3/@/checkpoints/<p>/<fleet>/<robot>` key."""
     parts = key.split("/") if type(key) is str else []
     prefix = f"{KEY_PREFIX}/@/checkpoints"
     if len(parts) != 7 or "/".join(parts[:4]) != prefix or _ID.fullmatch(parts[4]) is None:
@@ -202,10 +208,10 @@ def service_errors(instance: str = ANY) -> str:
 
 
 def parse_robot_key(key: str) -> tuple[str, str, str]:
-    """Split a concrete `lessmap/v2/<fleet>/<robot>/<stream>` key.
+    """Split a concrete `lessmap/v3/<fleet>/<robot>/<stream>` key.
 
     Args:
-        key: A key a sample arrived on, e.g. `lessmap/v2/warehouse/amr-7/frames`.
+        key: A key a sample arrived on, e.g. `lessmap/v3/warehouse/amr-7/frames`.
 
     Returns:
         `(fleet, robot, stream)`, stream one of `ROBOT_STREAMS`.
@@ -233,7 +239,7 @@ def parse_robot_key(key: str) -> tuple[str, str, str]:
 
 
 def parse_submap_key(key: str) -> tuple[str, str, int]:
-    """Split a concrete `lessmap/v2/<fleet>/<robot>/submaps/<id>` key.
+    """Split a concrete `lessmap/v3/<fleet>/<robot>/submaps/<id>` key.
 
     Args:
         key: A concrete submap key.

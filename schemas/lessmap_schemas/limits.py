@@ -4,9 +4,9 @@ Two kinds of limits live here:
 
 * Receiver policy (`max_payload_bytes`, `max_features_per_frame`, `max_list_len`): how much a
   reader is willing to accept. A service may raise or lower them (`LESSMAP_LIMITS__<NAME>`).
-* Format bounds (`max_name_len`, `max_seq`, `max_feature_id`, `max_detail_len`): part of the v1
+* Format bounds (`max_name_len`, `max_seq`, `max_feature_id`, `max_detail_len`): part of the
   format itself, fixed in the models and the JSON Schemas so every language agrees. A reader may
-  tighten them, never loosen them: a longer name or a larger seq would not be v1 any more.
+  tighten them, never loosen them: a longer name or a larger seq would not be the format any more.
 """
 
 from __future__ import annotations
@@ -61,12 +61,12 @@ class WireLimits:
                 raise ValueError(msg)
             bound = _FORMAT_BOUNDS.get(field.name)
             if bound is not None and value > bound:
-                msg = f"WireLimits.{field.name}={value} loosens the v1 format bound {bound}"
+                msg = f"WireLimits.{field.name}={value} loosens the format bound {bound}"
                 raise ValueError(msg)
 
     @property
     def tightens_format(self) -> bool:
-        """Return whether any format bound is lower than the v1 format fixes it."""
+        """Return whether any format bound is lower than the format fixes it."""
         return any(getattr(self, name) < bound for name, bound in _FORMAT_BOUNDS.items())
 
 

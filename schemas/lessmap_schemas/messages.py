@@ -14,6 +14,7 @@ against these models, so change them here first):
 
 from __future__ import annotations
 
+from itertools import pairwise
 from typing import Annotated, Literal, Self
 
 from pydantic import (
@@ -33,6 +34,8 @@ from lessmap_schemas.partition import PARTITIONS
 
 __all__ = [
     "MESSAGE_TYPES",
+    "AreaGraph",
+    "AreaNode",
     "Epoch",
     "Error",
     "ErrorCode",
@@ -41,8 +44,10 @@ __all__ = [
     "Health",
     "InvalidNameError",
     "Message",
+    "Method",
     "Name",
     "PartitionId",
+    "Passage",
     "Seq",
     "SessionEnd",
     "SessionState",
@@ -70,6 +75,8 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 """Finite float64; NaN and infinities are rejected."""
 Pose = Annotated[tuple[Finite, Finite, Finite], Strict(False)]
 """(x_m, y_m, theta_rad). Lax only on the container: msgpack arrays decode as lists."""
+Method = Literal["paper", "areas"]
+"""Segmentation method of a session: the paper's LESS-mapping, or areas (revisits named)."""
 
 
 def _error_code(value: object) -> object:
@@ -95,7 +102,7 @@ class Frame(Message):
     """One sensor frame of a robot session: the features it observed (robot -> service)."""
 
     type: Literal["Frame"] = "Frame"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     session: Name
     """Robot-chosen session id; a restarted robot picks a new one and gets a new CovGraph."""
     seq: Seq
@@ -112,7 +119,7 @@ class SessionEnd(Message):
     """The robot ends its session; the service closes it (robot -> service, on `frames`)."""
 
     type: Literal["SessionEnd"] = "SessionEnd"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     session: Name
     """Session being ended."""
     last_seq: Seq | None
@@ -149,7 +156,7 @@ class Transition(Message):
     """The robot left one area for another (service -> apps)."""
 
     type: Literal["Transition"] = "Transition"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -162,18 +169,25 @@ class Transition(Message):
     """Estimated first frame in the new area; boundary_seq <= seq."""
     stamp_s: Finite
     """Stamp of the detection frame, in seconds (the robot's clock)."""
-    reason: Literal["SPECTRAL", "DISCONNECTED"]
-    """SPECTRAL: a normalized cut below threshold; DISCONNECTED: the CovGraph fell apart."""
+    reason: Literal["SPECTRAL", "DISCONNECTED", "RECOGNISED"]
+    """SPECTRAL: a normalized cut below threshold; DISCONNECTED: the CovGraph fell apart;
+    RECOGNISED: the last frames fit an area the robot mapped before (method `areas`)."""
     ncut: Finite | None
-    """Normalized cut of the accepted split; null for DISCONNECTED."""
+    """Normalized cut of the accepted split; null unless the reason is SPECTRAL."""
     lambda2: Finite | None
-    """Second smallest generalized eigenvalue (algebraic connectivity); null for DISCONNECTED."""
+    """Second smallest generalized eigenvalue (algebraic connectivity); null unless SPECTRAL."""
     closed: SubmapSummary
-    """The area left behind; final."""
+    """The submap left behind; final."""
     opened: SubmapSummary
-    """The area entered, with its frames so far."""
+    """The submap entered, with its frames so far."""
     boundary_features: list[FeatureId]
     """Features seen on both sides of the boundary, ascending."""
+    area: Count
+    """Area entered: the id of the `AreaGraph` node the opened submap belongs to."""
+    left_area: Count
+    """Area left: the id of the area the closed submap belongs to; never equal to `area`."""
+    revisit: bool
+    """True when the robot mapped the area entered before in this session (method `areas`)."""
     batch_frames: Annotated[int, Field(ge=1, le=MAX_SEQ)]
     """Frames covered by this decision; above 1 when the service coalesced frames under load."""
     instance: Name
@@ -190,7 +204,10 @@ class Transition(Message):
             raise ValueError(msg)
         spectral = self.reason == "SPECTRAL"
         if (self.ncut is not None) != spectral or (self.lambda2 is not None) != spectral:
-            msg = f"{self.reason}: ncut, lambda2 are set for SPECTRAL, null for DISCONNECTED"
+            msg = f"{self.reason}: ncut, lambda2 are set for SPECTRAL only, null otherwise"
+            raise ValueError(msg)
+        if self.area == self.left_area:
+            msg = f"area {self.area} equals left_area: a transition changes area"
             raise ValueError(msg)
         return self
 
@@ -199,7 +216,7 @@ class Error(Message):
     """A frame or message was rejected, or frames went missing (service -> apps)."""
 
     type: Literal["Error"] = "Error"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     fleet: Name | None
     """Fleet of the key the input arrived on; null if the key could not be parsed."""
     robot: Name | None
@@ -224,7 +241,7 @@ class SessionState(Message):
     """Counters and submaps of a robot's current session (reply to a `state` query)."""
 
     type: Literal["SessionState"] = "SessionState"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -249,6 +266,10 @@ class SessionState(Message):
     """Frames received in order but refused (limits, invalid content)."""
     transitions: Count
     """Transitions published for this session."""
+    method: Method
+    """Segmentation method of the session: `paper` (LESS-mapping as published) or `areas`."""
+    current_area: Count
+    """Area the robot is in (an `AreaGraph` node id)."""
     current_submap: SubmapSummary
     """The submap the robot is in."""
     closed_submaps: list[SubmapSummary]
@@ -263,7 +284,7 @@ class Submap(Message):
     """One submap of a robot's session (reply to a `submaps/<id>` query)."""
 
     type: Literal["Submap"] = "Submap"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -276,11 +297,109 @@ class Submap(Message):
     """True for the submap the robot is in (it still grows)."""
 
 
+class AreaNode(BaseModel):
+    """One area of a robot's session: a node of its `AreaGraph` (nested only)."""
+
+    model_config = _CONFIG
+
+    id: Count
+    """Area id within the session, from 0 in order of opening; a merged id is not reused."""
+    frames: Count
+    """Frames the robot spent in the area, over all its visits."""
+    visits: Annotated[int, Field(ge=1, le=MAX_SEQ)]
+    """Separate stays in the area."""
+    first_seq: Seq
+    """First frame in the area."""
+    last_seq: Seq
+    """Last frame in the area so far; first_seq <= last_seq."""
+    features: list[FeatureId]
+    """Distinct feature IDs of the area, ascending."""
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if self.first_seq > self.last_seq:
+            msg = f"first_seq {self.first_seq} is after last_seq {self.last_seq}"
+            raise ValueError(msg)
+        return self
+
+
+BoundaryCount = Annotated[tuple[FeatureId, Count], Strict(False)]
+"""(feature ID, passages that reported it). Lax only on the container, like `Pose`."""
+
+
+class Passage(BaseModel):
+    """The robot's passages between two areas `a < b`: an edge of its `AreaGraph`."""
+
+    model_config = _CONFIG
+
+    a: Count
+    """Lower area id."""
+    b: Count
+    """Higher area id; a < b."""
+    a_to_b: Count
+    """Passages from a to b."""
+    b_to_a: Count
+    """Passages from b to a."""
+    boundary_features: list[BoundaryCount]
+    """Most reported boundary features of these passages, most frequent first (ties: smaller
+    id); at most 16, and trimmed counts are lower bounds."""
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if self.a >= self.b:
+            msg = f"passage a={self.a} must be below b={self.b}"
+            raise ValueError(msg)
+        if self.a_to_b + self.b_to_a == 0:
+            msg = f"passage {self.a}-{self.b} counts no passage"
+            raise ValueError(msg)
+        return self
+
+
+class AreaGraph(Message):
+    """A robot session's areas and the passages between them (reply to an `areas` query)."""
+
+    type: Literal["AreaGraph"] = "AreaGraph"
+    v: Literal[3] = 3
+    fleet: Name
+    """Fleet of the robot."""
+    robot: Name
+    """Robot of the session."""
+    session: Name
+    """Session the areas belong to (the robot's current one)."""
+    instance: Name
+    """Service instance holding the session."""
+    epoch: Epoch
+    """Ownership epoch of the robot's partition at that instance."""
+    method: Method
+    """Segmentation method of the session; under `paper` every submap is its own area."""
+    areas: list[AreaNode]
+    """Areas by ascending id."""
+    passages: list[Passage]
+    """Passages by ascending (a, b); every a and b is the id of a listed area."""
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Self:
+        ids = [area.id for area in self.areas]
+        if any(later <= earlier for earlier, later in pairwise(ids)):
+            msg = "areas must be listed by strictly ascending id"
+            raise ValueError(msg)
+        known = set(ids)
+        for passage in self.passages:
+            if passage.a not in known or passage.b not in known:
+                msg = f"passage {passage.a}-{passage.b} names an area that is not listed"
+                raise ValueError(msg)
+        pairs = [(p.a, p.b) for p in self.passages]
+        if any(later <= earlier for earlier, later in pairwise(pairs)):
+            msg = "passages must be listed by strictly ascending (a, b)"
+            raise ValueError(msg)
+        return self
+
+
 class Health(Message):
     """Liveness figures of one service instance (reply to a `health` query)."""
 
     type: Literal["Health"] = "Health"
-    v: Literal[2] = 2
+    v: Literal[3] = 3
     instance: Name
     """The instance reporting."""
     version: Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
@@ -303,6 +422,6 @@ class Health(Message):
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
     model.__name__: model
-    for model in (Frame, SessionEnd, Transition, Error, SessionState, Submap, Health)
+    for model in (Frame, SessionEnd, Transition, Error, SessionState, Submap, AreaGraph, Health)
 }
 """Every top-level message by its `type` value."""

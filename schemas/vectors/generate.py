@@ -69,10 +69,13 @@ def edit(base: dict[str, object], **changes: object) -> dict[str, object]:
 
 SUMMARY_A = {"id": 0, "first_seq": 0, "last_seq": 41, "frame_count": 40, "features": [1, 2, 3]}
 SUMMARY_B = {"id": 1, "first_seq": 38, "last_seq": 42, "frame_count": 5, "features": [3, 4]}
+AREA_A = {"id": 0, "frames": 52, "visits": 2, "first_seq": 0, "last_seq": 90, "features": [1, 2]}
+AREA_B = {"id": 2, "frames": 5, "visits": 1, "first_seq": 38, "last_seq": 42, "features": [3, 4]}
+PASSAGE = {"a": 0, "b": 2, "a_to_b": 1, "b_to_a": 1, "boundary_features": [[3, 2], [2, 1]]}
 BASE: dict[str, dict[str, object]] = {
     "Frame": {
         "type": "Frame",
-        "v": 2,
+        "v": 3,
         "session": "run-2024.06_1",
         "seq": 42,
         "stamp_s": 1718000000.25,
@@ -81,14 +84,14 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionEnd": {
         "type": "SessionEnd",
-        "v": 2,
+        "v": 3,
         "session": "run-2024.06_1",
         "last_seq": 42,
         "stamp_s": 1718000100.5,
     },
     "Transition": {
         "type": "Transition",
-        "v": 2,
+        "v": 3,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -101,6 +104,9 @@ BASE: dict[str, dict[str, object]] = {
         "closed": SUMMARY_A,
         "opened": SUMMARY_B,
         "boundary_features": [3],
+        "area": 1,
+        "left_area": 0,
+        "revisit": False,
         "batch_frames": 1,
         "instance": "lessmap-a1",
         "partition": 29,
@@ -108,7 +114,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Error": {
         "type": "Error",
-        "v": 2,
+        "v": 3,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -121,7 +127,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionState": {
         "type": "SessionState",
-        "v": 2,
+        "v": 3,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -134,6 +140,8 @@ BASE: dict[str, dict[str, object]] = {
         "frames_missing": 0,
         "frames_rejected": 1,
         "transitions": 1,
+        "method": "paper",
+        "current_area": 1,
         "current_submap": SUMMARY_B,
         "closed_submaps": [SUMMARY_A],
         "nodes": 43,
@@ -141,16 +149,28 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Submap": {
         "type": "Submap",
-        "v": 2,
+        "v": 3,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
         "summary": SUMMARY_A,
         "open": False,
     },
+    "AreaGraph": {
+        "type": "AreaGraph",
+        "v": 3,
+        "fleet": "warehouse",
+        "robot": "amr-7",
+        "session": "run-2024.06_1",
+        "instance": "lessmap-a1",
+        "epoch": 1718000000123,
+        "method": "areas",
+        "areas": [AREA_A, AREA_B],
+        "passages": [PASSAGE],
+    },
     "Health": {
         "type": "Health",
-        "v": 2,
+        "v": 3,
         "instance": "lessmap-a1",
         "version": "0.1.0",
         "sessions": 12,
@@ -207,14 +227,15 @@ def common(kind: str) -> list[Invalid]:
         ("v nested 1000 deep", pack_map({**base, "v": Raw(deep)}), "UNSUPPORTED_VERSION", None),
         ("missing v", pack(edit(base, v=DROP)), "UNSUPPORTED_VERSION", None),
         ("v is 1 (superseded)", pack(edit(base, v=1)), "UNSUPPORTED_VERSION", None),
-        ("v is 3", pack(edit(base, v=3)), "UNSUPPORTED_VERSION", None),
+        ("v is 2 (superseded)", pack(edit(base, v=2)), "UNSUPPORTED_VERSION", None),
+        ("v is 4", pack(edit(base, v=4)), "UNSUPPORTED_VERSION", None),
         ("v is true", pack(edit(base, v=True)), "UNSUPPORTED_VERSION", None),
-        ("v is a string", pack(edit(base, v="2")), "UNSUPPORTED_VERSION", None),
+        ("v is a string", pack(edit(base, v="3")), "UNSUPPORTED_VERSION", None),
         ("unknown field", pack(edit(base, color="red")), "INVALID", None),
         ("bin value", pack(edit(base, blob=b"\x00\x01")), "INVALID", None),
         ("extension value", pack(edit(base, ext=msgpack.ExtType(5, b"x"))), "INVALID", None),
         ("map of 40 extra entries", pack(many), "INVALID", None),
-        ("key v twice, same value", pack_pairs([*base.items(), ("v", 2)]), "INVALID", None),
+        ("key v twice, same value", pack_pairs([*base.items(), ("v", 3)]), "INVALID", None),
         ("key type twice", pack_pairs([*base.items(), ("type", other)]), "INVALID", None),
         (
             "string of 1025 bytes",
@@ -324,6 +345,12 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("epoch 2**53", "INVALID", epoch=2**53)
         bad(f"partition {PARTITIONS}", "INVALID", partition=PARTITIONS)
         bad("partition missing", "INVALID", partition=DROP)
+        ok("recognised revisit", reason="RECOGNISED", ncut=None, lambda2=None, revisit=True)
+        bad("recognised with ncut", "INVALID", reason="RECOGNISED", lambda2=None)
+        bad("area equals left_area", "INVALID", area=0)
+        bad("area negative", "INVALID", area=-1)
+        bad("revisit as int", "INVALID", revisit=1)
+        bad("revisit missing", "INVALID", revisit=DROP)
     elif kind == "Error":
         ok(
             "nothing known about the sender",
@@ -348,11 +375,55 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("closed_submaps of ints", "INVALID", closed_submaps=[1])
         bad("current_submap null", "INVALID", current_submap=None)
         bad("epoch missing", "INVALID", epoch=DROP)
+        ok("method areas", method="areas", current_area=0)
+        bad("unknown method", "INVALID", method="fancy")
+        bad("current_area missing", "INVALID", current_area=DROP)
     elif kind == "Submap":
         ok("open submap", open=True, summary=SUMMARY_B)
         bad("summary missing features", "INVALID", summary=edit(SUMMARY_A, features=DROP))
         bad("summary negative id", "INVALID", summary={**SUMMARY_A, "id": -1})
         bad("open null", "INVALID", open=None)
+    elif kind == "AreaGraph":
+        ok("paper method, one area", method="paper", areas=[AREA_A], passages=[])
+        ok("passage without boundary features", passages=[{**PASSAGE, "boundary_features": []}])
+        ok(
+            "largest boundary feature id",
+            passages=[{**PASSAGE, "boundary_features": [[2**63 - 1, 1]]}],
+        )
+        ok("no frames yet", areas=[], passages=[])
+        bad("areas out of order", "INVALID", areas=[AREA_B, AREA_A])
+        bad("area listed twice", "INVALID", areas=[AREA_A, AREA_A], passages=[])
+        bad("passage to an unlisted area", "INVALID", passages=[{**PASSAGE, "b": 5}])
+        bad("passage with a >= b", "INVALID", passages=[{**PASSAGE, "a": 2, "b": 0}])
+        bad("passage counting nothing", "INVALID", passages=[{**PASSAGE, "a_to_b": 0, "b_to_a": 0}])
+        bad("passages listed twice", "INVALID", passages=[PASSAGE, PASSAGE])
+        bad("area with 0 visits", "INVALID", areas=[{**AREA_A, "visits": 0}, AREA_B])
+        bad("area first_seq after last_seq", "INVALID", areas=[{**AREA_A, "first_seq": 91}, AREA_B])
+        bad(
+            "boundary pair of 3",
+            "INVALID",
+            passages=[{**PASSAGE, "boundary_features": [[3, 2, 1]]}],
+        )
+        bad("boundary feature bare", "INVALID", passages=[{**PASSAGE, "boundary_features": [3]}])
+        bad(
+            "boundary feature 2**63",
+            "LIMIT_EXCEEDED",
+            "max_feature_id",
+            passages=[{**PASSAGE, "boundary_features": [[2**63, 1]]}],
+        )
+        bad(
+            "boundary count 2**53",
+            "INVALID",
+            passages=[{**PASSAGE, "boundary_features": [[3, 2**53]]}],
+        )
+        bad(
+            "area feature 2**63",
+            "LIMIT_EXCEEDED",
+            "max_feature_id",
+            areas=[{**AREA_A, "features": [2**63]}, AREA_B],
+        )
+        bad("unknown method", "INVALID", method="paper2")
+        bad("epoch 0", "INVALID", epoch=0)
     elif kind == "Health":
         ok("uptime sent as int", canonical=False, uptime_s=0)
         bad("uptime negative", "INVALID", uptime_s=-1.0)

@@ -111,6 +111,7 @@ def access_rules(
         f"{any_robot}/transitions/@adv/**",
         f"{any_robot}/errors",
         f"{any_robot}/state",
+        f"{any_robot}/areas",
         f"{any_robot}/submaps/*",
         f"{P}/@/health/*",
         f"{P}/@/instances/*",
@@ -127,6 +128,7 @@ def access_rules(
                 f"{any_robot}/transitions/@adv/**",
                 f"{any_robot}/errors",
                 f"{any_robot}/state",
+                f"{any_robot}/areas",
                 f"{any_robot}/submaps/*",
                 f"{P}/@/health/*",
                 f"{P}/@/errors/*",
@@ -138,6 +140,7 @@ def access_rules(
             ["declare_queryable", "liveliness_token"],
             [
                 f"{any_robot}/state",
+                f"{any_robot}/areas",
                 f"{any_robot}/submaps/*",
                 f"{any_robot}/transitions/@adv/**",
                 f"{P}/@/health/*",
@@ -175,7 +178,7 @@ def access_rules(
             "see-service",
             "egress",
             ["declare_subscriber", "declare_queryable"],
-            [any_frames, f"{any_robot}/state", f"{any_robot}/submaps/*"],
+            [any_frames, f"{any_robot}/state", f"{any_robot}/areas", f"{any_robot}/submaps/*"],
         )
     )
     subjects: list[dict[str, Any]] = [{"id": "service", subject_kind: list(service_names)}]
@@ -205,6 +208,7 @@ def access_rules(
             f"{robots}/transitions/@adv/**",
             f"{robots}/errors",
             f"{robots}/state",
+            f"{robots}/areas",
             f"{robots}/submaps/*",
             f"{P}/@/health/*",
             f"{P}/@/instances/*",

@@ -1,4 +1,4 @@
-"""Contract v2 in the SDK over a real Zenoh router: fencing by epoch, the current state of
+"""Epochs and partitions in the SDK over a real Zenoh router: fencing by epoch, the current state of
 several replies, partition owners from the instances' liveliness tokens, ``lessmap status``.
 
 The test plays the service with a Zenoh session of its own (tokens, queryables, forged

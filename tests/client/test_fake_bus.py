@@ -9,8 +9,9 @@ import pytest
 
 from lessmap_client import Connection, aio
 from lessmap_client.testing import FakeBus, key_matches, make_error, make_state, make_transition
-from lessmap_schemas import Transition, keys
+from lessmap_schemas import AreaGraph, Transition, keys
 from lessmap_schemas.errors import ErrorCode, InvalidNameError, WireError
+from lessmap_schemas.messages import AreaNode, Passage
 from lessmap_schemas.partition import PARTITIONS
 from tests.conftest import wait_until
 
@@ -181,17 +182,17 @@ async def _take(sub: aio.AsyncSubscription[Transition], n: int):  # type: ignore
 @pytest.mark.parametrize(
     ("pattern", "key", "matches"),
     [
-        ("lessmap/v2/*/*/transitions", "lessmap/v2/f/r/transitions", True),
-        ("lessmap/v2/f/*/transitions", "lessmap/v2/g/r/transitions", False),
-        ("lessmap/v2/**", "lessmap/v2/f/r/errors", True),
-        ("lessmap/v2/*/*/errors", "lessmap/v2/@/errors/i", False),
-        ("lessmap/v2/**", "lessmap/v2/@/errors/i", False),
-        ("lessmap/v2/**", "lessmap/v2/@/instances/i", False),
-        ("lessmap/v2/f/r/submaps/*", "lessmap/v2/f/r/submaps/3", True),
-        ("lessmap/v2/*/*/frames/23", "lessmap/v2/warehouse/amr-7/frames/23", True),
-        ("lessmap/v2/*/*/frames/22", "lessmap/v2/warehouse/amr-7/frames/23", False),
-        ("lessmap/v2/*/*/frames/*", "lessmap/v2/warehouse/amr-7/frames/23", True),
-        ("lessmap/v1/*/*/transitions", "lessmap/v2/f/r/transitions", False),
+        ("lessmap/v3/*/*/transitions", "lessmap/v3/f/r/transitions", True),
+        ("lessmap/v3/f/*/transitions", "lessmap/v3/g/r/transitions", False),
+        ("lessmap/v3/**", "lessmap/v3/f/r/errors", True),
+        ("lessmap/v3/*/*/errors", "lessmap/v3/@/errors/i", False),
+        ("lessmap/v3/**", "lessmap/v3/@/errors/i", False),
+        ("lessmap/v3/**", "lessmap/v3/@/instances/i", False),
+        ("lessmap/v3/f/r/submaps/*", "lessmap/v3/f/r/submaps/3", True),
+        ("lessmap/v3/*/*/frames/23", "lessmap/v3/warehouse/amr-7/frames/23", True),
+        ("lessmap/v3/*/*/frames/22", "lessmap/v3/warehouse/amr-7/frames/23", False),
+        ("lessmap/v3/*/*/frames/*", "lessmap/v3/warehouse/amr-7/frames/23", True),
+        ("lessmap/v1/*/*/transitions", "lessmap/v3/f/r/transitions", False),
     ],
 )
 def test_key_matching_follows_zenoh(pattern: str, key: str, matches: bool) -> None:
@@ -226,7 +227,7 @@ def test_async_robot_follows_its_errors_and_new_sessions() -> None:
     assert first != second
 
 
-def test_the_fake_routes_v2_frames_keys_and_counts_misrouted_ones() -> None:
+def test_the_fake_routes_partitioned_frames_keys_and_counts_misrouted_ones() -> None:
     from lessmap_schemas.codec import encode
     from lessmap_schemas.messages import Frame
     from lessmap_schemas.partition import partition_of
@@ -234,10 +235,10 @@ def test_the_fake_routes_v2_frames_keys_and_counts_misrouted_ones() -> None:
     bus = FakeBus()
     p = partition_of("warehouse", "amr-7")
     payload = encode(Frame(session="s", seq=0, stamp_s=0.0, features=[1]))
-    bus.put(f"lessmap/v2/warehouse/amr-7/frames/{p}", payload)
+    bus.put(f"lessmap/v3/warehouse/amr-7/frames/{p}", payload)
     other = (p + 1) % PARTITIONS
-    bus.put(f"lessmap/v2/warehouse/amr-7/frames/{other}", payload)  # another partition
-    bus.put("lessmap/v2/warehouse/amr-7/frames", payload)  # v1 shape: no partition chunk
+    bus.put(f"lessmap/v3/warehouse/amr-7/frames/{other}", payload)  # another partition
+    bus.put("lessmap/v3/warehouse/amr-7/frames", payload)  # v1 shape: no partition chunk
     assert [f.seq for f in bus.frames("warehouse", "amr-7")] == [0]
     assert bus.misrouted_sent == 2
     with bus.connect() as conn, conn.robot("warehouse", "amr-7") as robot:
@@ -246,12 +247,12 @@ def test_the_fake_routes_v2_frames_keys_and_counts_misrouted_ones() -> None:
     assert bus.misrouted_sent == 2
 
 
-def test_the_fake_emits_v2_events_and_the_sdk_fences_them() -> None:
+def test_the_fake_emits_epoch_stamped_events_and_the_sdk_fences_them() -> None:
     from lessmap_schemas.partition import partition_of
 
     bus = FakeBus()
     t = make_transition("f", "r")
-    assert (t.partition, t.epoch, t.v) == (partition_of("f", "r"), 1, 2)
+    assert (t.partition, t.epoch, t.v) == (partition_of("f", "r"), 1, 3)
     assert make_state("f", "r").epoch == 1
     assert make_error("f", "r").epoch == 1
     assert make_error(None, None, ErrorCode.MALFORMED).epoch is None
@@ -368,3 +369,38 @@ def test_a_robot_waits_until_its_owner_lists_its_partition() -> None:
         assert not robot.wait_for_service(0.3)  # owner, but it has not taken the partition
         bus.set_health(health(list(range(PARTITIONS))))
         assert robot.wait_for_service(0.3)
+
+
+def _area_graph(robot: str, epoch: int, frames: int, instance: str = "i") -> AreaGraph:
+    return AreaGraph(
+        fleet="f",
+        robot=robot,
+        session="s",
+        instance=instance,
+        epoch=epoch,
+        method="areas",
+        areas=[
+            AreaNode(id=0, frames=frames, visits=2, first_seq=0, last_seq=frames, features=[1]),
+            AreaNode(id=1, frames=3, visits=1, first_seq=4, last_seq=6, features=[2, 3]),
+        ],
+        passages=[Passage(a=0, b=1, a_to_b=1, b_to_a=1, boundary_features=[(2, 2)])],
+    )
+
+
+def test_area_graph_queries_answer_what_was_stored_and_keep_the_highest_epoch() -> None:
+    bus = FakeBus()
+    bus.set_area_graph(_area_graph("a", epoch=2, frames=10))
+    bus.set_area_graph(_area_graph("b", epoch=1, frames=5))
+    with bus.connect() as conn:
+        graph = conn.area_graph("f", "a")
+        assert graph is not None
+        assert [(n.id, n.visits) for n in graph.areas] == [(0, 2), (1, 1)]
+        assert graph.passages[0].boundary_features == [(2, 2)]
+        assert sorted(g.robot for g in conn.area_graphs("f")) == ["a", "b"]
+        assert conn.area_graph("f", "nobody") is None
+    from lessmap_client.fencing import current_area_graphs
+
+    old = _area_graph("a", epoch=3, frames=50, instance="old")
+    new = _area_graph("a", epoch=4, frames=10, instance="new")
+    more = _area_graph("a", epoch=4, frames=11, instance="more")
+    assert current_area_graphs([old, new, more]) == [more]

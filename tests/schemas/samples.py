@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from lessmap_schemas import (
+    AreaGraph,
     Error,
     ErrorCode,
     Frame,
@@ -14,6 +15,7 @@ from lessmap_schemas import (
     SubmapSummary,
     Transition,
 )
+from lessmap_schemas.messages import AreaNode, Passage
 
 CLOSED = SubmapSummary(id=0, first_seq=0, last_seq=41, frame_count=40, features=[1, 2, 3])
 OPENED = SubmapSummary(id=1, first_seq=38, last_seq=42, frame_count=5, features=[3, 2**63 - 1])
@@ -48,6 +50,9 @@ def samples() -> list[Message]:
             closed=CLOSED,
             opened=OPENED,
             boundary_features=[3],
+            area=1,
+            left_area=0,
+            revisit=False,
             batch_frames=1,
             instance="lessmap-a1",
             partition=23,
@@ -66,6 +71,9 @@ def samples() -> list[Message]:
             closed=CLOSED,
             opened=OPENED,
             boundary_features=[],
+            area=0,
+            left_area=3,
+            revisit=True,
             batch_frames=4,
             instance="lessmap-a1",
             partition=0,
@@ -106,12 +114,37 @@ def samples() -> list[Message]:
             frames_missing=3,
             frames_rejected=1,
             transitions=1,
+            method="areas",
+            current_area=2,
             current_submap=OPENED,
             closed_submaps=[CLOSED],
             nodes=43,
             edges=310,
         ),
         Submap(fleet="warehouse", robot="amr-7", session="run-1", summary=CLOSED, open=False),
+        AreaGraph(
+            fleet="warehouse",
+            robot="amr-7",
+            session="run-1",
+            instance="lessmap-a1",
+            epoch=7,
+            method="areas",
+            areas=[
+                AreaNode(id=0, frames=40, visits=2, first_seq=0, last_seq=90, features=[1, 2]),
+                AreaNode(id=3, frames=5, visits=1, first_seq=38, last_seq=42, features=[2**63 - 1]),
+            ],
+            passages=[Passage(a=0, b=3, a_to_b=2, b_to_a=1, boundary_features=[(2, 3), (1, 1)])],
+        ),
+        AreaGraph(
+            fleet="warehouse",
+            robot="amr-7",
+            session="run-1",
+            instance="lessmap-a1",
+            epoch=1,
+            method="paper",
+            areas=[],
+            passages=[],
+        ),
         Health(
             instance="lessmap-a1",
             version="0.1.0",

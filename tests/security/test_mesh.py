@@ -34,7 +34,7 @@ from tests.conftest import ServeProcess, free_port, wait_until
 from tests.security.conftest import crossed
 from tests.security.test_certs import DEPLOY, common_name
 from tests.security.test_mtls_e2e import collect, walk_two_rooms
-from tests.security.test_v2_acl import Collector, answer_with, put_until, replies
+from tests.security.test_partition_acl import Collector, answer_with, put_until, replies
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator

@@ -66,6 +66,9 @@ def forged_transition(fleet: str, robot: str) -> Transition:
         closed=closed,
         opened=opened,
         boundary_features=[],
+        area=1,
+        left_area=0,
+        revisit=False,
         batch_frames=1,
         instance="evil",
         partition=partition_of(fleet, robot),
@@ -269,6 +272,8 @@ def test_only_the_service_may_announce_an_instance_or_answer_for_it(
             frames_missing=0,
             frames_rejected=0,
             transitions=0,
+            method="paper",
+            current_area=0,
             current_submap=SubmapSummary(
                 id=0, first_seq=0, last_seq=99, frame_count=100, features=[1]
             ),

@@ -1,4 +1,4 @@
-"""Access control of the v2 keys, on the router alone: frames partitions and checkpoints.
+"""Access control of the partitioned keys, on the router alone: frames partitions and checkpoints.
 
 No ``lessmap serve`` runs: raw Zenoh sessions with the service's certificate play the
 service instances (an owner subscribed per partition, an owner putting checkpoints, a
@@ -86,7 +86,7 @@ def test_a_robot_of_another_fleet_cannot_put_on_this_fleets_frames_partition(
     victim_p = partition_of(site.fleet, "victim")
     own_p = partition_of(site.other, "own")
     owner = session_as("service")
-    # The owner's subscriptions: one per partition it owns (the v2 service's shape).
+    # The owner's subscriptions: one per partition it owns (the service's shape).
     collectors = [Collector(owner, keys.frames_of_partition(p)) for p in {victim_p, own_p}]
 
     def got() -> set[bytes]:

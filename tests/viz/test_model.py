@@ -29,6 +29,9 @@ def transition(robot: str, session: str, boundary: int, opened: int) -> Transiti
             id=opened, first_seq=boundary, last_seq=boundary + 2, frame_count=3, features=[]
         ),
         boundary_features=[],
+        area=opened,
+        left_area=opened - 1,
+        revisit=False,
         batch_frames=1,
         instance="i",
         partition=0,

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     from lessmap_client.robot import RobotPublisher, RobotStatus
     from lessmap_client.subscription import Subscription
     from lessmap_schemas.messages import (
+        AreaGraph,
         Error,
         Health,
         SessionState,
@@ -341,6 +342,16 @@ class AsyncConnection:
     ) -> list[SessionState]:
         """See ``Connection.states``."""
         return await asyncio.to_thread(self.sync.states, fleet, robot, timeout_s)
+
+    async def area_graph(self, fleet: str, robot: str, timeout_s: float = 2.0) -> AreaGraph | None:
+        """See ``Connection.area_graph``."""
+        return await asyncio.to_thread(self.sync.area_graph, fleet, robot, timeout_s)
+
+    async def area_graphs(
+        self, fleet: str = "*", robot: str = "*", timeout_s: float = 2.0
+    ) -> list[AreaGraph]:
+        """See ``Connection.area_graphs``."""
+        return await asyncio.to_thread(self.sync.area_graphs, fleet, robot, timeout_s)
 
     async def submap(
         self, fleet: str, robot: str, submap_id: int, timeout_s: float = 2.0

@@ -12,7 +12,7 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from lessmap_client.fencing import current_states
+from lessmap_client.fencing import current_area_graphs, current_states
 from lessmap_client.robot import DEFAULT_CLOSE_TIMEOUT_S, RobotPublisher, close_all
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.subscription import DEFAULT_MAXSIZE, Subscription
@@ -21,7 +21,7 @@ from lessmap_schemas import keys, partition
 from lessmap_schemas.codec import decode
 from lessmap_schemas.errors import WireError
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
-from lessmap_schemas.messages import Error, Health, SessionState, Submap, Transition
+from lessmap_schemas.messages import AreaGraph, Error, Health, SessionState, Submap, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-M = TypeVar("M", SessionState, Submap, Health)
+M = TypeVar("M", SessionState, Submap, AreaGraph, Health)
 
 #: Recent transitions per robot recovered on joining when ``history=True``.
 DEFAULT_HISTORY = 64
@@ -229,6 +229,20 @@ class Connection:
         ``epoch`` (then the most ``frames_applied``), as ``state`` does.
         """
         return current_states(self._get(keys.state(fleet, robot), SessionState, timeout_s))
+
+    def area_graph(self, fleet: str, robot: str, timeout_s: float = 2.0) -> AreaGraph | None:
+        """Return the areas and passages of the robot's session, None if unknown.
+
+        Of several replies, the highest ``epoch`` is current (as for ``state``).
+        """
+        found = current_area_graphs(self._get(keys.areas(fleet, robot), AreaGraph, timeout_s))
+        return found[0] if found else None
+
+    def area_graphs(
+        self, fleet: str = "*", robot: str = "*", timeout_s: float = 2.0
+    ) -> list[AreaGraph]:
+        """Return the area graph of every robot of a fleet (or of every fleet), one per robot."""
+        return current_area_graphs(self._get(keys.areas(fleet, robot), AreaGraph, timeout_s))
 
     def submap(
         self, fleet: str, robot: str, submap_id: int, timeout_s: float = 2.0

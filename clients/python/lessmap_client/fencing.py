@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-    from lessmap_schemas.messages import SessionState
+    from lessmap_schemas.messages import AreaGraph, SessionState
 
 
 def current_states(states: Iterable[SessionState]) -> list[SessionState]:
@@ -28,3 +28,21 @@ def current_states(states: Iterable[SessionState]) -> list[SessionState]:
         if kept is None or (state.epoch, state.frames_applied) > (kept.epoch, kept.frames_applied):
             best[robot] = state
     return list(best.values())
+
+
+def current_area_graphs(graphs: Iterable[AreaGraph]) -> list[AreaGraph]:
+    """Keep one area graph per robot: the highest ``epoch``, then the most frames.
+
+    Robots stay in the order of their first reply.
+    """
+    best: dict[tuple[str, str], AreaGraph] = {}
+    for graph in graphs:
+        robot = (graph.fleet, graph.robot)
+        kept = best.get(robot)
+        if kept is None or (graph.epoch, _frames(graph)) > (kept.epoch, _frames(kept)):
+            best[robot] = graph
+    return list(best.values())
+
+
+def _frames(graph: AreaGraph) -> int:
+    return sum(area.frames for area in graph.areas)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from lessmap_client.connection import Connection, connect
 from lessmap_client.session import DEFAULT_ENDPOINT
-from lessmap_schemas.messages import Error, Health, SessionState, Submap, Transition
+from lessmap_schemas.messages import AreaGraph, Error, Health, SessionState, Submap, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
@@ -139,6 +139,20 @@ class FleetClient:
         ``frames_applied``.
         """
         return self._conn.states(fleet or self.fleet, "*", timeout_s)
+
+    def area_graph(
+        self, robot: str, fleet: str | None = None, timeout_s: float = 2.0
+    ) -> AreaGraph | None:
+        """Return the robot's areas and the passages between them (``AreaGraph``).
+
+        Under the ``paper`` method every submap is an area of its own; under ``areas`` a
+        revisited area keeps its id.
+        """
+        return self._conn.area_graph(fleet or self._concrete_fleet(), robot, timeout_s)
+
+    def area_graphs(self, fleet: str | None = None, timeout_s: float = 2.0) -> list[AreaGraph]:
+        """Return the area graph of every robot of a fleet (or of every fleet), one per robot."""
+        return self._conn.area_graphs(fleet or self.fleet, "*", timeout_s)
 
     def submap(
         self, robot: str, submap_id: int, fleet: str | None = None, timeout_s: float = 2.0

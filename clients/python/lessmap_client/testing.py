@@ -25,7 +25,7 @@ handlers are still called on their subscription's thread), ``*`` matches one key
 for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
 stored. The fake is no service: publishing frames produces no transitions by itself.
 
-Contract v2: robots put their frames on ``lessmap/v2/<fleet>/<robot>/frames/<partition>``;
+Contract v3: robots put their frames on ``lessmap/v3/<fleet>/<robot>/frames/<partition>``;
 a frames key naming another partition reaches no service and is counted in
 ``misrouted_sent``. The bus's ``instances`` are the live service instances (their liveliness
 tokens): robot publishers follow them (``status.owner``), ``coverage()`` ranks them. Events
@@ -46,6 +46,7 @@ from lessmap_schemas import keys
 from lessmap_schemas.codec import decode_inbound, encode
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.messages import (
+    AreaGraph,
     Error,
     Frame,
     Health,
@@ -201,6 +202,10 @@ class FakeBus:
         """Answer ``submap``/``submaps`` queries for this submap."""
         self._reply(keys.submap(submap.fleet, submap.robot, submap.summary.id), submap)
 
+    def set_area_graph(self, graph: AreaGraph) -> None:
+        """Answer ``area_graph``/``area_graphs`` queries for this robot with ``graph``."""
+        self._reply(keys.areas(graph.fleet, graph.robot), graph)
+
     def set_health(self, health: Health) -> None:
         """Answer ``health`` queries for this instance."""
         self._reply(keys.health(health.instance), health)
@@ -210,7 +215,7 @@ class FakeBus:
         with self._lock:
             self._replies.clear()
 
-    def _reply(self, key: str, message: SessionState | Submap | Health) -> None:
+    def _reply(self, key: str, message: SessionState | Submap | AreaGraph | Health) -> None:
         with self._lock:
             self._replies[key] = encode(message)
 
@@ -424,6 +429,9 @@ def make_transition(
             features=sorted(set(opened_features)),
         ),
         boundary_features=sorted(set(closed_features) & set(opened_features)),
+        area=closed_id + 1,
+        left_area=closed_id,
+        revisit=False,
         batch_frames=1,
         instance=instance,
         partition=partition_of(fleet, robot),
@@ -472,6 +480,8 @@ def make_state(
         frames_missing=0,
         frames_rejected=0,
         transitions=transitions,
+        method="paper",
+        current_area=transitions,
         current_submap=current,
         closed_submaps=closed,
         nodes=0,

@@ -70,6 +70,10 @@ def wire_transition(
         closed=summary_of(transition.closed),
         opened=summary_of(transition.opened),
         boundary_features=list(transition.boundary_features),
+        # The paper's method: every submap is an area of its own, never a known one.
+        area=transition.opened.id,
+        left_area=transition.closed.id,
+        revisit=False,
         batch_frames=transition.batch_frames,
         instance=instance,
         partition=partition_of(session.fleet, session.robot),

@@ -183,6 +183,8 @@ class RobotSession:
             frames_missing=self.frames_missing,
             frames_rejected=self.frames_rejected,
             transitions=p.transitions,
+            method="paper",
+            current_area=p.current_submap().id,  # the paper's areas are its submaps
             current_submap=summary_of(p.current_submap()),
             closed_submaps=[summary_of(s) for s in p.closed_submaps],
             nodes=p.graph.node_count,
