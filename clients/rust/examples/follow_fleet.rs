@@ -72,14 +72,18 @@ fn main() -> Result<(), ClientError> {
                     println!("{}", serde_json::to_string(&t).expect("json"));
                 } else {
                     println!(
-                        "{}: frame {} {} ncut={:?} lambda2={:?} closed submap {} ({} features)",
+                        "{}: frame {} {} ncut={:?} lambda2={:?} closed submap {} ({} features), \
+                         area {} -> {}{}",
                         t.robot,
                         t.seq,
                         t.reason.as_str(),
                         t.ncut,
                         t.lambda2,
                         t.closed.id,
-                        t.closed.features.len()
+                        t.closed.features.len(),
+                        t.left_area,
+                        t.area,
+                        if t.revisit { " (revisit)" } else { "" }
                     );
                 }
             }

@@ -7,7 +7,8 @@
 //!   during a hand-over an old and a new owner answer on the same key, and Zenoh's default
 //!   consolidation would keep one of them, not necessarily the current one.
 //! * Of several `SessionState` replies for one robot, the highest epoch (then the most
-//!   `frames_applied`) is current.
+//!   `frames_applied`) is current; of several `AreaGraph` replies, the highest epoch (then
+//!   the most frames over its areas).
 //! * A reply that does not decode is skipped and logged, never returned.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -18,7 +19,7 @@ use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::{Session, Wait};
 
 use crate::codec::{decode, WireError};
-use crate::messages::{Health, Message, SessionState, Submap, Transition};
+use crate::messages::{AreaGraph, Health, Message, SessionState, Submap, Transition};
 use crate::names::{keys, owner_and_standby, PARTITIONS};
 use crate::robot::{RobotOptions, RobotPublisher};
 use crate::subscription::Subscription;
@@ -252,6 +253,31 @@ impl Connection {
         Ok(by_id.into_values().collect())
     }
 
+    /// The areas of the robot's current session and the passages between them, or `None`.
+    ///
+    /// Under the `paper` method every submap is an area of its own; under `areas` a revisited
+    /// area keeps its id.
+    pub fn area_graph(
+        &self,
+        fleet: &str,
+        robot: &str,
+        timeout: Duration,
+    ) -> Result<Option<AreaGraph>, ClientError> {
+        Ok(self.area_graphs(fleet, robot, timeout)?.into_iter().next())
+    }
+
+    /// One area graph per robot matching `fleet`/`robot` (`"*"` for any), by fleet and robot
+    /// name.
+    pub fn area_graphs(
+        &self,
+        fleet: &str,
+        robot: &str,
+        timeout: Duration,
+    ) -> Result<Vec<AreaGraph>, ClientError> {
+        let found = get_all::<AreaGraph>(&self.session, &keys::areas(fleet, robot)?, timeout)?;
+        Ok(current_area_graphs(found))
+    }
+
     /// The `Health` of every live instance that answers.
     pub fn health(&self, timeout: Duration) -> Result<Vec<Health>, ClientError> {
         get_all::<Health>(&self.session, &keys::health("*")?, timeout)
@@ -359,6 +385,23 @@ pub fn current_states(states: Vec<SessionState>) -> Vec<SessionState> {
                 if (kept.epoch, kept.frames_applied) >= (state.epoch, state.frames_applied) => {}
             _ => {
                 best.insert(robot, state);
+            }
+        }
+    }
+    best.into_values().collect()
+}
+
+/// Keep one area graph per robot: the highest epoch, then the most frames over its areas
+/// ([`AreaGraph::total_frames`]); by fleet and robot name.
+pub fn current_area_graphs(graphs: Vec<AreaGraph>) -> Vec<AreaGraph> {
+    let mut best: BTreeMap<(String, String), AreaGraph> = BTreeMap::new();
+    for graph in graphs {
+        let robot = (graph.fleet.clone(), graph.robot.clone());
+        match best.get(&robot) {
+            Some(kept)
+                if (kept.epoch, kept.total_frames()) >= (graph.epoch, graph.total_frames()) => {}
+            _ => {
+                best.insert(robot, graph);
             }
         }
     }

@@ -1,6 +1,6 @@
 //! A Rust client of lessmap, the online environment-segmentation service, on Eclipse Zenoh.
 //!
-//! It speaks the wire contract v2 (`schemas/README.md` of the lessmap repository): the typed
+//! It speaks the wire contract v3 (`schemas/README.md` of the lessmap repository): the typed
 //! messages and their msgpack codec ([`messages`], [`codec`]), names, keys and partitions
 //! ([`names`]), a robot publisher ([`RobotPublisher`]) and fleet subscriptions and queries,
 //! all declared from one [`Connection`], as in the Python SDK.
@@ -28,8 +28,8 @@ pub use codec::{
 };
 pub use connection::{ClientError, Connection, DEFAULT_ENDPOINT, DEFAULT_HISTORY};
 pub use messages::{
-    Error, Frame, Health, Message, Reason, SessionEnd, SessionState, Submap, SubmapSummary,
-    Transition,
+    AreaGraph, AreaNode, Error, Frame, Health, Message, Method, Passage, Reason, SessionEnd,
+    SessionState, Submap, SubmapSummary, Transition,
 };
 pub use names::{keys, owner_and_standby, partition_of, ranking, validate_name};
 pub use robot::{

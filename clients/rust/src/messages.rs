@@ -1,4 +1,4 @@
-//! The messages of the wire contract v2 (section 5), field for field.
+//! The messages of the wire contract v3 (section 5), field for field.
 //!
 //! Invariants of this file:
 //!
@@ -114,11 +114,23 @@ fn epoch(value: u64, field: &str) -> Result<(), WireError> {
 
 fn features(values: &[u64], field: &str) -> Result<(), WireError> {
     if let Some(big) = values.iter().find(|id| **id > MAX_FEATURE_ID) {
-        return Err(WireError::with_limit(
-            ErrorCode::LimitExceeded,
-            "max_feature_id",
-            format!("{field} holds {big}; max_feature_id={MAX_FEATURE_ID}"),
-        ));
+        return Err(feature_limit(*big, field));
+    }
+    Ok(())
+}
+
+fn feature_limit(id: u64, field: &str) -> WireError {
+    WireError::with_limit(
+        ErrorCode::LimitExceeded,
+        "max_feature_id",
+        format!("{field} holds {id}; max_feature_id={MAX_FEATURE_ID}"),
+    )
+}
+
+/// An integer in 1..2**53-1 (a count that cannot be 0).
+fn positive(value: u64, field: &str) -> Result<(), WireError> {
+    if value == 0 || value > MAX_SEQ {
+        return Err(invalid(format!("{field}={value} is not in 1..2**53-1")));
     }
     Ok(())
 }
@@ -247,6 +259,8 @@ pub enum Reason {
     Spectral,
     /// The CovGraph fell apart.
     Disconnected,
+    /// Method `areas`: the last frames fit an area the robot mapped before.
+    Recognised,
 }
 
 impl Reason {
@@ -255,6 +269,7 @@ impl Reason {
         match self {
             Reason::Spectral => "SPECTRAL",
             Reason::Disconnected => "DISCONNECTED",
+            Reason::Recognised => "RECOGNISED",
         }
     }
 }
@@ -270,7 +285,44 @@ impl<'de> Deserialize<'de> for Reason {
         match String::deserialize(deserializer)?.as_str() {
             "SPECTRAL" => Ok(Reason::Spectral),
             "DISCONNECTED" => Ok(Reason::Disconnected),
+            "RECOGNISED" => Ok(Reason::Recognised),
             other => Err(D::Error::custom(format!("unknown reason {other:?}"))),
+        }
+    }
+}
+
+/// Segmentation method of a session (a service setting, contract section 6a).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// LESS-mapping as published: every submap is an area of its own.
+    Paper,
+    /// Proposed area changes are confirmed on more evidence, and a robot coming back to an
+    /// area it mapped gets that area's id again.
+    Areas,
+}
+
+impl Method {
+    /// The method as written on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Method::Paper => "paper",
+            Method::Areas => "areas",
+        }
+    }
+}
+
+impl Serialize for Method {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for Method {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        match String::deserialize(deserializer)?.as_str() {
+            "paper" => Ok(Method::Paper),
+            "areas" => Ok(Method::Areas),
+            other => Err(D::Error::custom(format!("unknown method {other:?}"))),
         }
     }
 }
@@ -293,22 +345,28 @@ pub struct Transition {
     pub boundary_seq: u64,
     /// Stamp of the detection frame, seconds (the robot's clock).
     pub stamp_s: f64,
-    /// Spectral split or disconnection.
+    /// Spectral split, disconnection, or a recognised area.
     pub reason: Reason,
-    /// Normalized cut of the accepted split; `None` exactly for `Disconnected`.
+    /// Normalized cut of the accepted split; set exactly when the reason is `Spectral`.
     #[serde(deserialize_with = "nullable")]
     pub ncut: Option<f64>,
-    /// Second smallest generalized eigenvalue; `None` exactly for `Disconnected`.
+    /// Second smallest generalized eigenvalue; set exactly when the reason is `Spectral`.
     #[serde(deserialize_with = "nullable")]
     pub lambda2: Option<f64>,
-    /// The area left behind; final.
+    /// The submap left behind; final.
     #[serde(deserialize_with = "nested")]
     pub closed: SubmapSummary,
-    /// The area entered, with its frames so far.
+    /// The submap entered, with its frames so far.
     #[serde(deserialize_with = "nested")]
     pub opened: SubmapSummary,
     /// Features seen on both sides of the boundary, ascending.
     pub boundary_features: Vec<u64>,
+    /// The area entered: an [`AreaGraph`] node id.
+    pub area: u64,
+    /// The area left; never equal to `area`.
+    pub left_area: u64,
+    /// The robot mapped the area entered before in this session (method `areas` only).
+    pub revisit: bool,
     /// Frames covered by this decision (above 1 when the service coalesced frames).
     pub batch_frames: u64,
     /// Service instance that produced it.
@@ -335,12 +393,9 @@ impl Message for Transition {
         self.closed.validate("Transition.closed")?;
         self.opened.validate("Transition.opened")?;
         features(&self.boundary_features, "Transition.boundary_features")?;
-        if self.batch_frames == 0 || self.batch_frames > MAX_SEQ {
-            return Err(invalid(format!(
-                "Transition.batch_frames={} is not in 1..2**53-1",
-                self.batch_frames
-            )));
-        }
+        count(self.area, "Transition.area")?;
+        count(self.left_area, "Transition.left_area")?;
+        positive(self.batch_frames, "Transition.batch_frames")?;
         name(&self.instance, "instance")?;
         partition(self.partition, "Transition.partition")?;
         epoch(self.epoch, "Transition.epoch")?;
@@ -353,8 +408,14 @@ impl Message for Transition {
         let spectral = self.reason == Reason::Spectral;
         if self.ncut.is_some() != spectral || self.lambda2.is_some() != spectral {
             return Err(invalid(format!(
-                "{}: ncut, lambda2 are set for SPECTRAL, null for DISCONNECTED",
+                "{}: ncut, lambda2 are set for SPECTRAL only, null otherwise",
                 self.reason.as_str()
+            )));
+        }
+        if self.area == self.left_area {
+            return Err(invalid(format!(
+                "Transition: area {} equals left_area; a transition changes area",
+                self.area
             )));
         }
         Ok(())
@@ -375,6 +436,9 @@ wire_map!(
         closed,
         opened,
         boundary_features,
+        area,
+        left_area,
+        revisit,
         batch_frames,
         instance,
         partition,
@@ -471,6 +535,10 @@ pub struct SessionState {
     pub frames_rejected: u64,
     /// Transitions published for this session.
     pub transitions: u64,
+    /// Segmentation method of the session.
+    pub method: Method,
+    /// The area the robot is in (an [`AreaGraph`] node id).
+    pub current_area: u64,
     /// The submap the robot is in.
     #[serde(deserialize_with = "nested")]
     pub current_submap: SubmapSummary,
@@ -500,6 +568,7 @@ impl Message for SessionState {
         count(self.frames_missing, "SessionState.frames_missing")?;
         count(self.frames_rejected, "SessionState.frames_rejected")?;
         count(self.transitions, "SessionState.transitions")?;
+        count(self.current_area, "SessionState.current_area")?;
         self.current_submap
             .validate("SessionState.current_submap")?;
         for (index, summary) in self.closed_submaps.iter().enumerate() {
@@ -524,6 +593,8 @@ wire_map!(
         frames_missing,
         frames_rejected,
         transitions,
+        method,
+        current_area,
         current_submap,
         closed_submaps,
         nodes,
@@ -559,6 +630,182 @@ impl Message for Submap {
     }
 }
 wire_map!(Submap, [fleet, robot, session, summary, open]);
+
+/// One area of a robot's session: a node of its [`AreaGraph`] (nested only).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AreaNode {
+    /// Area id within the session, from 0 in order of opening; a merged id is not reused.
+    pub id: u64,
+    /// Frames the robot spent in the area over all its visits (empty frames too).
+    pub frames: u64,
+    /// Separate stays in the area, at least 1.
+    pub visits: u64,
+    /// First frame in the area.
+    pub first_seq: u64,
+    /// Last frame in the area so far; `first_seq <= last_seq`.
+    pub last_seq: u64,
+    /// Distinct feature IDs of the area, ascending.
+    pub features: Vec<u64>,
+}
+
+impl AreaNode {
+    fn validate(&self, at: &str) -> Result<(), WireError> {
+        count(self.id, &format!("{at}.id"))?;
+        count(self.frames, &format!("{at}.frames"))?;
+        positive(self.visits, &format!("{at}.visits"))?;
+        seq(self.first_seq, &format!("{at}.first_seq"))?;
+        seq(self.last_seq, &format!("{at}.last_seq"))?;
+        features(&self.features, &format!("{at}.features"))?;
+        if self.first_seq > self.last_seq {
+            return Err(invalid(format!(
+                "{at}: first_seq {} is after last_seq {}",
+                self.first_seq, self.last_seq
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The robot's passages between two areas `a < b`: an edge of its [`AreaGraph`] (nested only).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Passage {
+    /// The lower area id.
+    pub a: u64,
+    /// The higher area id; `a < b`.
+    pub b: u64,
+    /// Passages from `a` to `b`.
+    pub a_to_b: u64,
+    /// Passages from `b` to `a`; `a_to_b + b_to_a >= 1`.
+    pub b_to_a: u64,
+    /// `(feature ID, passages that reported it)`: the features most often reported on this
+    /// boundary, most frequent first (ties: smaller id); at most 16 (a service setting), and a
+    /// trimmed count is a lower bound. Each pair is a 2-item msgpack array.
+    pub boundary_features: Vec<(u64, u64)>,
+}
+
+impl Passage {
+    fn validate(&self, at: &str) -> Result<(), WireError> {
+        count(self.a, &format!("{at}.a"))?;
+        count(self.b, &format!("{at}.b"))?;
+        count(self.a_to_b, &format!("{at}.a_to_b"))?;
+        count(self.b_to_a, &format!("{at}.b_to_a"))?;
+        for (index, (id, reports)) in self.boundary_features.iter().enumerate() {
+            let field = format!("{at}.boundary_features.{index}");
+            if *id > MAX_FEATURE_ID {
+                return Err(feature_limit(*id, &field));
+            }
+            count(*reports, &field)?;
+        }
+        if self.a >= self.b {
+            return Err(invalid(format!(
+                "{at}: a={} must be below b={}",
+                self.a, self.b
+            )));
+        }
+        // Both are at most 2**53-1 here: the sum cannot overflow.
+        if self.a_to_b + self.b_to_a == 0 {
+            return Err(invalid(format!(
+                "{at}: passage {}-{} counts no passage",
+                self.a, self.b
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The areas of a robot's current session and the passages between them (reply on the
+/// `areas` key).
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AreaGraph {
+    /// Fleet of the robot.
+    pub fleet: String,
+    /// The robot.
+    pub robot: String,
+    /// The session the areas belong to (the robot's current one, open or closed).
+    pub session: String,
+    /// Service instance holding the session.
+    pub instance: String,
+    /// Ownership epoch of the robot's partition at that instance.
+    pub epoch: u64,
+    /// Segmentation method of the session; under `Paper` every submap is its own area.
+    pub method: Method,
+    /// The areas the robot has been in, by strictly ascending id; empty before the first frame.
+    #[serde(deserialize_with = "nested_list")]
+    pub areas: Vec<AreaNode>,
+    /// One per pair of areas the robot passed between, by strictly ascending `(a, b)`; every
+    /// `a` and `b` is the id of a listed area.
+    #[serde(deserialize_with = "nested_list")]
+    pub passages: Vec<Passage>,
+}
+
+impl AreaGraph {
+    /// Frames over every area: of two replies with one epoch, the one with more is current.
+    pub fn total_frames(&self) -> u64 {
+        self.areas
+            .iter()
+            .fold(0u64, |sum, area| sum.saturating_add(area.frames))
+    }
+
+    /// The area with id `id`, if listed (a binary search: a decoded graph lists its areas by
+    /// ascending id).
+    pub fn area(&self, id: u64) -> Option<&AreaNode> {
+        self.areas
+            .binary_search_by_key(&id, |area| area.id)
+            .ok()
+            .map(|index| &self.areas[index])
+    }
+}
+
+impl Message for AreaGraph {
+    const TYPE: &'static str = "AreaGraph";
+
+    fn validate(&self) -> Result<(), WireError> {
+        name(&self.fleet, "fleet")?;
+        name(&self.robot, "robot")?;
+        name(&self.session, "session")?;
+        name(&self.instance, "instance")?;
+        epoch(self.epoch, "AreaGraph.epoch")?;
+        for (index, area) in self.areas.iter().enumerate() {
+            area.validate(&format!("AreaGraph.areas.{index}"))?;
+        }
+        for (index, passage) in self.passages.iter().enumerate() {
+            passage.validate(&format!("AreaGraph.passages.{index}"))?;
+        }
+        if self.areas.windows(2).any(|pair| pair[1].id <= pair[0].id) {
+            return Err(invalid(
+                "AreaGraph: areas must be listed by strictly ascending id".into(),
+            ));
+        }
+        // The ids are sorted now, so `area` may search them.
+        if let Some(passage) = self
+            .passages
+            .iter()
+            .find(|p| self.area(p.a).is_none() || self.area(p.b).is_none())
+        {
+            return Err(invalid(format!(
+                "AreaGraph: passage {}-{} names an area that is not listed",
+                passage.a, passage.b
+            )));
+        }
+        if self
+            .passages
+            .windows(2)
+            .any(|pair| (pair[1].a, pair[1].b) <= (pair[0].a, pair[0].b))
+        {
+            return Err(invalid(
+                "AreaGraph: passages must be listed by strictly ascending (a, b)".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+wire_map!(
+    AreaGraph,
+    [fleet, robot, session, instance, epoch, method, areas, passages]
+);
 
 /// Liveness figures of one service instance (reply on the `@/health/<instance>` key).
 #[derive(Clone, Debug, PartialEq, Deserialize)]

@@ -35,8 +35,8 @@ use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
 use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
-use crate::connection::{current_states, get_all, instances, ClientError};
-use crate::messages::{Error, Frame, Health, Message, SessionEnd, SessionState};
+use crate::connection::{current_area_graphs, current_states, get_all, instances, ClientError};
+use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 
 /// Error reports waiting for the follower thread; more are dropped and counted.
@@ -595,6 +595,21 @@ impl RobotPublisher {
             .into_iter()
             .next()
             .filter(|state| state.session == session_id))
+    }
+
+    /// The areas of the current session and the passages between them, or `None` (as for
+    /// [`RobotPublisher::state`]).
+    pub fn area_graph(&self, timeout: Duration) -> Result<Option<AreaGraph>, ClientError> {
+        let session_id = self.session_id();
+        let found = get_all::<AreaGraph>(
+            &self.session,
+            &keys::areas(&self.fleet, &self.robot)?,
+            timeout,
+        )?;
+        Ok(current_area_graphs(found)
+            .into_iter()
+            .next()
+            .filter(|graph| graph.session == session_id))
     }
 
     fn send_end(&self, session_id: &str, last_seq: Option<u64>) -> Result<(), ClientError> {

@@ -1,10 +1,10 @@
 //! The robot publisher, subscriptions and queries on real Zenoh sessions on loopback.
 //!
-//! The test plays the service with a Zenoh router session of its own (a liveliness token, a
-//! `Health` and `SessionState` queryables, puts on the errors and transitions keys), so the
-//! client's own rules are checked without a lessmap service: numbering, session ends, a new
-//! session after `SESSION_CLOSED`, epoch fencing, de-duplication, highest epoch of replies,
-//! a close that waits for the service to confirm the end.
+//! The test plays the service with a Zenoh router session of its own (a liveliness token,
+//! `Health`, `SessionState` and `AreaGraph` queryables, puts on the errors and transitions
+//! keys), so the client's own rules are checked without a lessmap service: numbering, session
+//! ends, a new session after `SESSION_CLOSED`, epoch fencing, de-duplication, highest epoch of
+//! replies, a close that waits for the service to confirm the end.
 
 use std::collections::HashMap;
 use std::net::TcpListener;
@@ -13,8 +13,8 @@ use std::time::{Duration, Instant};
 
 use lessmap_client::codec::{decode_inbound, encode, Inbound};
 use lessmap_client::{
-    keys, partition_of, Connection, Error, ErrorCode, Health, Reason, RobotOptions, SessionState,
-    SubmapSummary, Transition,
+    keys, partition_of, AreaGraph, AreaNode, Connection, Error, ErrorCode, Health, Method, Passage,
+    Reason, RobotOptions, SessionState, SubmapSummary, Transition,
 };
 use zenoh::{Session, Wait};
 
@@ -71,6 +71,9 @@ fn transition(fleet: &str, robot: &str, closed: u64, epoch: u64) -> Transition {
         closed: summary(closed),
         opened: summary(closed + 1),
         boundary_features: vec![],
+        area: closed + 1,
+        left_area: closed,
+        revisit: false,
         batch_frames: 1,
         instance: "fake-a".into(),
         partition: partition_of(fleet, robot),
@@ -291,6 +294,8 @@ fn session_state(robot: &str, session: &str, open: bool, last_seq: u64) -> Sessi
         frames_missing: 0,
         frames_rejected: 0,
         transitions: 0,
+        method: Method::Paper,
+        current_area: 0,
         current_submap: summary(0),
         closed_submaps: vec![],
         nodes: 1,
@@ -440,6 +445,110 @@ fn robot_close_does_not_wait_without_a_live_instance() {
         Duration::ZERO,
         within,
     );
+    conn.close().unwrap();
+    service.close().wait().unwrap();
+}
+
+/// The `AreaGraph` a fake service instance answers for `robot`: two areas and a passage.
+fn area_graph(robot: &str, instance: &str, epoch: u64, frames: u64) -> AreaGraph {
+    let area = |id: u64, frames: u64, first_seq: u64| AreaNode {
+        id,
+        frames,
+        visits: 1,
+        first_seq,
+        last_seq: first_seq + frames - 1,
+        features: vec![id],
+    };
+    AreaGraph {
+        fleet: "fleet".into(),
+        robot: robot.into(),
+        session: "s9".into(),
+        instance: instance.into(),
+        epoch,
+        method: Method::Areas,
+        areas: vec![area(0, frames, 0), area(1, 1, frames)],
+        passages: vec![Passage {
+            a: 0,
+            b: 1,
+            a_to_b: 1,
+            b_to_a: 0,
+            boundary_features: vec![(0, 1)],
+        }],
+    }
+}
+
+#[test]
+fn area_graph_queries_keep_one_graph_per_robot() {
+    let (service, endpoint) = router();
+    // A hand-over for r9 (the old owner has more frames, the new one a higher epoch), and r10.
+    let answers = [
+        area_graph("r9", "i7", 7, 10),
+        area_graph("r9", "i3", 3, 90),
+        area_graph("r10", "i2", 2, 5),
+    ];
+    let mut queryables = Vec::new();
+    for graph in &answers {
+        let key = keys::areas(&graph.fleet, &graph.robot).unwrap();
+        let reply = encode(graph);
+        let reply_key = key.clone();
+        queryables.push(
+            service
+                .declare_queryable(key)
+                .callback(move |query| {
+                    query
+                        .reply(reply_key.as_str(), reply.clone())
+                        .wait()
+                        .unwrap();
+                })
+                .wait()
+                .unwrap(),
+        );
+    }
+    wait_until("every queryable to answer", || {
+        let replies = service
+            .get(keys::areas("fleet", "*").unwrap())
+            .target(zenoh::query::QueryTarget::All)
+            .consolidation(zenoh::query::ConsolidationMode::None)
+            .timeout(Duration::from_secs(2))
+            .wait()
+            .unwrap();
+        replies
+            .iter()
+            .filter(|reply| reply.result().is_ok())
+            .count()
+            == answers.len()
+    });
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+    let ask = Duration::from_secs(2);
+    let current = conn.area_graph("fleet", "r9", ask).unwrap();
+    assert_eq!(current.as_ref(), Some(&answers[0]));
+    let all: Vec<(String, String)> = conn
+        .area_graphs("fleet", "*", ask)
+        .unwrap()
+        .into_iter()
+        .map(|graph| (graph.robot, graph.instance))
+        .collect();
+    assert_eq!(
+        all,
+        [
+            ("r10".to_owned(), "i2".to_owned()),
+            ("r9".to_owned(), "i7".to_owned())
+        ]
+    );
+    assert_eq!(conn.area_graph("fleet", "r11", ask).unwrap(), None);
+
+    // A robot sees the graph of its own session only.
+    let own = RobotOptions {
+        session_id: Some("s9".into()),
+        ..RobotOptions::default()
+    };
+    let robot = conn.robot_with("fleet", "r9", own).unwrap();
+    assert_eq!(robot.area_graph(ask).unwrap().as_ref(), Some(&answers[0]));
+    robot.close_within(Duration::ZERO).unwrap();
+    let robot = conn.robot("fleet", "r10").unwrap();
+    assert_eq!(robot.area_graph(ask).unwrap(), None);
+    robot.close_within(Duration::ZERO).unwrap();
+    drop(queryables);
     conn.close().unwrap();
     service.close().wait().unwrap();
 }

@@ -8,10 +8,11 @@ use std::collections::BTreeSet;
 use std::path::PathBuf;
 
 use lessmap_client::codec::{decode, encode};
+use lessmap_client::connection::current_area_graphs;
 use lessmap_client::names::{partition_of, ranking, score, PARTITIONS};
 use lessmap_client::{
-    end_progress, EndProgress, Error, Frame, Health, Message, SessionEnd, SessionState, Submap,
-    Transition,
+    end_progress, AreaGraph, EndProgress, Error, Frame, Health, Message, Method, Reason,
+    SessionEnd, SessionState, Submap, Transition,
 };
 use serde_json::Value;
 
@@ -108,6 +109,7 @@ fn every_vector_file_is_checked() {
         Error::TYPE,
         SessionState::TYPE,
         Submap::TYPE,
+        AreaGraph::TYPE,
         Health::TYPE,
         "partition",
     ]
@@ -145,6 +147,11 @@ fn session_state_vectors() {
 #[test]
 fn submap_vectors() {
     assert!(check::<Submap>() > 30);
+}
+
+#[test]
+fn area_graph_vectors() {
+    assert!(check::<AreaGraph>() > 50);
 }
 
 #[test]
@@ -196,16 +203,83 @@ fn partition_vectors() {
     }
 }
 
-/// The decoded `SessionState` of the valid vector `name`.
-fn state_vector(name: &str) -> SessionState {
-    let file = load(SessionState::TYPE);
+/// The decoded message of the valid vector `name` of `M`'s file.
+fn valid_vector<M: Message>(name: &str) -> M {
+    let file = load(M::TYPE);
     let case = file["valid"]
         .as_array()
         .unwrap()
         .iter()
         .find(|case| case["name"] == name)
-        .unwrap_or_else(|| panic!("no SessionState vector {name:?}"));
-    decode::<SessionState>(&unhex(case["hex"].as_str().unwrap())).expect("a valid vector")
+        .unwrap_or_else(|| panic!("no {} vector {name:?}", M::TYPE));
+    decode::<M>(&unhex(case["hex"].as_str().unwrap())).expect("a valid vector")
+}
+
+/// The decoded `SessionState` of the valid vector `name`.
+fn state_vector(name: &str) -> SessionState {
+    valid_vector(name)
+}
+
+#[test]
+fn v3_fields_decode_to_their_types() {
+    let recognised: Transition = valid_vector("recognised revisit");
+    assert_eq!(recognised.reason, Reason::Recognised);
+    assert!(recognised.revisit && recognised.ncut.is_none() && recognised.lambda2.is_none());
+    assert_ne!(recognised.area, recognised.left_area);
+    let state: SessionState = valid_vector("method areas");
+    assert_eq!(state.method, Method::Areas);
+    let graph: AreaGraph = valid_vector("typical");
+    assert_eq!(graph.method, Method::Areas);
+    let ids: Vec<u64> = graph.areas.iter().map(|area| area.id).collect();
+    assert_eq!(ids, [0, 2]); // a merged id is not used again
+    assert_eq!(graph.area(2).map(|area| area.visits), Some(1));
+    assert!(graph.area(1).is_none());
+    assert_eq!(graph.passages[0].boundary_features, [(3, 2), (2, 1)]);
+    assert_eq!(graph.total_frames(), 57);
+    let empty: AreaGraph = valid_vector("no frames yet");
+    assert!(empty.areas.is_empty() && empty.passages.is_empty());
+    assert_eq!(empty.total_frames(), 0);
+}
+
+#[test]
+fn one_area_graph_per_robot_the_highest_epoch_then_the_most_frames() {
+    let typical: AreaGraph = valid_vector("typical");
+    let mut fewer_frames = typical.clone();
+    fewer_frames.areas[0].frames -= 1;
+    fewer_frames.instance = "fewer".into();
+    let mut older = typical.clone();
+    older.epoch -= 1;
+    older.areas[0].frames += 100;
+    older.instance = "older".into();
+    let mut other_robot = older.clone();
+    other_robot.robot = "amr-1".into();
+    let kept = |graphs: &[&AreaGraph]| -> Vec<(String, String)> {
+        current_area_graphs(graphs.iter().map(|g| (*g).clone()).collect())
+            .into_iter()
+            .map(|g| (g.robot, g.instance))
+            .collect()
+    };
+    let robot = typical.robot.clone();
+    let (a1, current) = ("amr-1".to_owned(), typical.instance.clone());
+    // The higher epoch wins over more frames, whatever the order of the replies.
+    assert_eq!(
+        kept(&[&older, &typical]),
+        [(robot.clone(), current.clone())]
+    );
+    assert_eq!(
+        kept(&[&typical, &older]),
+        [(robot.clone(), current.clone())]
+    );
+    // One epoch: more frames win; robots by name.
+    assert_eq!(
+        kept(&[&fewer_frames, &other_robot, &typical]),
+        [
+            (a1.clone(), "older".into()),
+            (robot.clone(), current.clone())
+        ]
+    );
+    assert_eq!(kept(&[&typical, &fewer_frames]), [(robot.clone(), current)]);
+    assert!(kept(&[]).is_empty());
 }
 
 #[test]
