@@ -345,7 +345,17 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("epoch 2**53", "INVALID", epoch=2**53)
         bad(f"partition {PARTITIONS}", "INVALID", partition=PARTITIONS)
         bad("partition missing", "INVALID", partition=DROP)
-        ok("recognised revisit", reason="RECOGNISED", ncut=None, lambda2=None, revisit=True)
+        ok(
+            "recognised revisit",
+            reason="RECOGNISED",
+            ncut=None,
+            lambda2=None,
+            closed={**SUMMARY_A, "id": 2},
+            opened={**SUMMARY_B, "id": 3},
+            area=0,
+            left_area=1,
+            revisit=True,
+        )
         bad("recognised with ncut", "INVALID", reason="RECOGNISED", lambda2=None)
         bad("area equals left_area", "INVALID", area=0)
         bad("area negative", "INVALID", area=-1)
@@ -369,7 +379,26 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("fleet empty", "BAD_NAME", fleet="")
         bad("epoch as float", "INVALID", epoch=1.0)
     elif kind == "SessionState":
-        ok("closed, no frames yet", open=False, last_seq=None, closed_submaps=[])
+        ok(
+            "closed, no frames yet",
+            open=False,
+            last_seq=None,
+            frames_applied=0,
+            frames_duplicate=0,
+            frames_rejected=0,
+            transitions=0,
+            current_area=0,
+            current_submap={
+                "id": 0,
+                "first_seq": 0,
+                "last_seq": 0,
+                "frame_count": 0,
+                "features": [],
+            },
+            closed_submaps=[],
+            nodes=0,
+            edges=0,
+        )
         bad("open as int", "INVALID", open=1)
         bad("negative counter", "INVALID", frames_applied=-1)
         bad("closed_submaps of ints", "INVALID", closed_submaps=[1])
@@ -384,7 +413,7 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("summary negative id", "INVALID", summary={**SUMMARY_A, "id": -1})
         bad("open null", "INVALID", open=None)
     elif kind == "AreaGraph":
-        ok("paper method, one area", method="paper", areas=[AREA_A], passages=[])
+        ok("paper method, one area", method="paper", areas=[{**AREA_A, "visits": 1}], passages=[])
         ok("passage without boundary features", passages=[{**PASSAGE, "boundary_features": []}])
         ok(
             "largest boundary feature id",
@@ -423,6 +452,12 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
             areas=[{**AREA_A, "features": [2**63]}, AREA_B],
         )
         bad("unknown method", "INVALID", method="paper2")
+        bad(
+            "area last_seq 2**53",
+            "LIMIT_EXCEEDED",
+            "max_seq",
+            areas=[{**AREA_A, "last_seq": 2**53}, AREA_B],
+        )
         bad("epoch 0", "INVALID", epoch=0)
     elif kind == "Health":
         ok("uptime sent as int", canonical=False, uptime_s=0)

@@ -105,6 +105,11 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         gt=0.0,
         description="seconds before an idle session is evicted (closed when memory-only)",
     )
+    method: Literal["paper", "areas"] = Field(
+        "paper",
+        description="segmentation of new sessions: paper = LESS-mapping as published; areas = "
+        "confirmed splits, revisits named (a session keeps the method it started with)",
+    )
     max_sessions: int = Field(10_000, ge=1, description="open sessions at most")
     max_nodes_per_session: int = Field(20_000, ge=2, description="CovGraph nodes per session")
     max_batch_frames: int = Field(

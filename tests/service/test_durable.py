@@ -112,7 +112,9 @@ def feed(table: SessionTable, frames: list[Frame], now_s: float = 0.0) -> list[O
 def transitions(outcomes: list[Outcome]) -> list[tuple[int, int, tuple[int, ...]]]:
     """(seq, closed submap id, closed features) of every transition."""
     return [
-        (t.seq, t.closed.id, tuple(t.closed.features)) for o in outcomes for _, t in o.transitions
+        (c.transition.seq, c.transition.closed.id, tuple(c.transition.closed.features))
+        for o in outcomes
+        for _, c in o.transitions
     ]
 
 

@@ -90,7 +90,7 @@ def test_checkpoints_follow_their_transitions_and_stop_at_a_fenced_one(
             outbox.publish(out, 0.0)
             if fenced_at is not None:
                 continue
-            published += [t.seq for _s, t in out.transitions]
+            published += [c.transition.seq for _s, c in out.transitions]
             record = store.load((FLEET, ROBOT))
             assert record is not None
             assert record.last_seq == frame.seq

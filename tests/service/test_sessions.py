@@ -121,7 +121,7 @@ def essentials(transition: Transition) -> tuple[object, ...]:
 
 
 def transitions_of(outcomes: Sequence[Outcome], robot: str = "r1") -> list[Transition]:
-    return [t for o in outcomes for s, t in o.transitions if s.robot == robot]
+    return [c.transition for o in outcomes for s, c in o.transitions if s.robot == robot]
 
 
 # -- sequencing ------------------------------------------------------------------------------
@@ -472,7 +472,8 @@ def test_state_and_submap_queries_for_open_and_closed_sessions() -> None:
     assert table.submap(FLEET, "r1", 0) is None
 
     outcome = table.handle_batch(msgs("r1", *walk_frames(room_walk())), now_s=0.0)
-    [(_, transition)] = outcome.transitions
+    [(_, change)] = outcome.transitions
+    transition = change.transition
 
     state = state_of(table)
     assert state.open
@@ -557,7 +558,8 @@ def test_coalesced_batch_still_finds_the_transition() -> None:
 
     outcome = table.handle_batch(msgs("r1", *walk_frames(walk)), now_s=0.0)
 
-    [(session, found)] = outcome.transitions
+    [(session, change)] = outcome.transitions
+    found = change.transition
     assert session.session == "s1"
     assert found.batch_frames > 1
     assert found.reason is expected.reason

@@ -145,9 +145,9 @@ def outbox_of(shard: Shard) -> RecordingOutbox:
 
 def published_seqs(shard: Shard, robot: str) -> list[int]:
     return [
-        transition.seq
+        change.transition.seq
         for outcome in outbox_of(shard).published
-        for session, transition in outcome.transitions
+        for session, change in outcome.transitions
         if session.robot == robot
     ]
 

@@ -38,7 +38,7 @@ from lessmap_schemas.partition import partition_of
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from lessmap.core import Transition as CoreTransition
+    from lessmap.core.segmenter import SegmentChange
     from lessmap.runtime.metrics import ServiceMetrics
     from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
     from lessmap.runtime.store import CheckpointStore
@@ -54,9 +54,10 @@ _STATE_ENCODING = zenoh.Encoding(encoding(SessionState))
 
 
 def wire_transition(
-    session: RobotSession, transition: CoreTransition, instance: str, epoch: int = 1
+    session: RobotSession, change: SegmentChange, instance: str, epoch: int = 1
 ) -> Transition:
-    """Convert a core transition of a session to the wire message."""
+    """Convert a change of a session's segmenter to the wire message."""
+    transition = change.transition
     return Transition(
         fleet=session.fleet,
         robot=session.robot,
@@ -64,16 +65,15 @@ def wire_transition(
         seq=transition.seq,
         boundary_seq=transition.boundary_seq,
         stamp_s=transition.stamp_s,
-        reason=transition.reason.value,
+        reason=change.reason,
         ncut=transition.ncut,
         lambda2=transition.lambda2,
         closed=summary_of(transition.closed),
         opened=summary_of(transition.opened),
         boundary_features=list(transition.boundary_features),
-        # The paper's method: every submap is an area of its own, never a known one.
-        area=transition.opened.id,
-        left_area=transition.closed.id,
-        revisit=False,
+        area=change.area,
+        left_area=change.left_area,
+        revisit=change.revisit_of is not None,
         batch_frames=transition.batch_frames,
         instance=instance,
         partition=partition_of(session.fleet, session.robot),
@@ -248,12 +248,13 @@ class Outbox:
             state = state.model_copy(update={"epoch": epoch})
         self._put(keys.state(state.fleet, state.robot), encode(state), _STATE_ENCODING)
 
-    def _put_transition(self, session: RobotSession, transition: CoreTransition) -> None:
+    def _put_transition(self, session: RobotSession, change: SegmentChange) -> None:
         epoch = self._fenced(session.fleet, session.robot)
         if epoch is None:
             session.fenced = True  # its checkpoints would skip this transition for good
             return
-        message = wire_transition(session, transition, self._instance, epoch)
+        message = wire_transition(session, change, self._instance, epoch)
+        transition = change.transition
         self.metrics.transitions.labels(reason=message.reason).inc()
         log.debug(
             "->> TRANSITION %s/%s seq=%d %s",

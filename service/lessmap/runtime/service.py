@@ -27,7 +27,9 @@ import zenoh
 from prometheus_client import start_http_server
 
 from lessmap import __version__
+from lessmap.core.segmenter import Method
 from lessmap.errors import ConfigError
+from lessmap.partition_options import area_params
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
@@ -41,7 +43,7 @@ from lessmap.settings import EMBEDDED_ENDPOINT
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import WireError
-from lessmap_schemas.messages import Health, SessionState, Submap
+from lessmap_schemas.messages import AreaGraph, Health, SessionState, Submap
 from lessmap_schemas.partition import PARTITIONS, partition_of
 
 if TYPE_CHECKING:
@@ -140,6 +142,8 @@ class Service:
         for index in range(s.workers):
             table = SessionTable(
                 params,
+                method=Method(s.method),
+                area_params=area_params(s),
                 max_sessions=per_shard_sessions,
                 max_nodes=s.max_nodes_per_session,
                 max_batch_frames=s.max_batch_frames,
@@ -194,6 +198,7 @@ class Service:
             self.metrics_port = server.server_port
         any_robot = f"{keys.KEY_PREFIX}/*/*"
         self._declared.append(session.declare_queryable(f"{any_robot}/state", self._queries.put))
+        self._declared.append(session.declare_queryable(f"{any_robot}/areas", self._queries.put))
         self._declared.append(
             session.declare_queryable(f"{any_robot}/submaps/*", self._queries.put)
         )
@@ -408,6 +413,7 @@ class Service:
             self._reply_checkpoints(query)
             return
         is_submap = "/submaps/" in text
+        is_areas = text.endswith("/areas")
         for shard in self._shards:
             with shard.lock:
                 robots = shard.table.robots()
@@ -417,6 +423,9 @@ class Service:
                     if is_submap:
                         self._reply_submaps(query, shard, fleet, robot)
                         continue
+                    if is_areas:
+                        self._reply_areas(query, shard, fleet, robot)
+                        continue
                     key = keys.state(fleet, robot)
                     if not selector.intersects(zenoh.KeyExpr(key)):
                         continue
@@ -425,6 +434,14 @@ class Service:
                         query.reply(
                             key, encode(state), encoding=zenoh.Encoding(encoding(SessionState))
                         )
+
+    def _reply_areas(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
+        key = keys.areas(fleet, robot)
+        if not query.key_expr.intersects(zenoh.KeyExpr(key)):
+            return
+        graph = shard.table.area_graph(fleet, robot)
+        if graph is not None:
+            query.reply(key, encode(graph), encoding=zenoh.Encoding(encoding(AreaGraph)))
 
     def _reply_submaps(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
         state = shard.table.state(fleet, robot)

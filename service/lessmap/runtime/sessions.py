@@ -34,7 +34,7 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    every ``checkpoint_every_frames`` applied frames or ``checkpoint_interval_s``, whichever
    comes first, when it closes and when the service stops. A session that is not in memory
    is looked up in the store on its next frame and resumes exactly where its checkpoint
-   stands (the partitioner snapshot, its counters and gap ranges). Idle sessions are evicted
+   stands (the segmenter's bytes, its counters and gap ranges). Idle sessions are evicted
    to the store instead of being closed. Without a file, idle sessions close as before.
    Frames at or below the seq a session was restored at are redeliveries (a robot's cache
    answering a catch-up query): counted as duplicates, never reported as errors.
@@ -70,16 +70,28 @@ from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from lessmap.core import GraphError, Partitioner, PartitionParams, snapshot
+from lessmap.core import GraphError, PartitionParams
+from lessmap.core.segmenter import Method, make_segmenter, segmenter_from_bytes
 from lessmap.runtime.budget import pairs_of
 from lessmap.runtime.store import SessionRecord
 from lessmap_schemas.errors import ErrorCode
-from lessmap_schemas.messages import Frame, SessionEnd, SessionState, SubmapSummary
+from lessmap_schemas.messages import (
+    AreaGraph,
+    AreaNode,
+    Frame,
+    Passage,
+    SessionEnd,
+    SessionState,
+    SubmapSummary,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
-    from lessmap.core import Submap, Transition
+    from lessmap.core import Submap
+    from lessmap.core.area_graph import AreaGraph as CoreAreaGraph
+    from lessmap.core.areas import AreaParams
+    from lessmap.core.segmenter import SegmentChange, Segmenter
     from lessmap.runtime.budget import EdgeLedger, SessionAdmission
     from lessmap.runtime.store import CheckpointStore
 
@@ -124,12 +136,12 @@ class CatchupRequest:
 
 @dataclass(slots=True)
 class RobotSession:
-    """One robot session: its partitioner and its counters."""
+    """One robot session: its segmenter (the paper's partitioner, or areas) and its counters."""
 
     fleet: str
     robot: str
     session: str
-    partitioner: Partitioner
+    segmenter: Segmenter
     last_activity_s: float
     frames_duplicate: int = 0
     frames_missing: int = 0
@@ -149,7 +161,7 @@ class RobotSession:
     fenced: bool = False  # a transition of it was not published (rule 5): never checkpointed
 
     def counters(self) -> dict[str, Any]:
-        """The non-partitioner part of the session, for its checkpoint (JSON-ready)."""
+        """The non-segmenter part of the session, for its checkpoint (JSON-ready)."""
         return {
             "frames_duplicate": self.frames_duplicate,
             "frames_missing": self.frames_missing,
@@ -169,7 +181,7 @@ class RobotSession:
 
     def state(self, instance: str, *, is_open: bool, epoch: int = 1) -> SessionState:
         """Return the session's state as the wire message."""
-        p = self.partitioner
+        p = self.segmenter
         return SessionState(
             fleet=self.fleet,
             robot=self.robot,
@@ -183,12 +195,24 @@ class RobotSession:
             frames_missing=self.frames_missing,
             frames_rejected=self.frames_rejected,
             transitions=p.transitions,
-            method="paper",
-            current_area=p.current_submap().id,  # the paper's areas are its submaps
+            method=p.method.value,
+            current_area=p.current_area,
             current_submap=summary_of(p.current_submap()),
             closed_submaps=[summary_of(s) for s in p.closed_submaps],
-            nodes=p.graph.node_count,
-            edges=p.graph.edge_count,
+            nodes=p.node_count,
+            edges=p.edge_count,
+        )
+
+    def area_graph(self, instance: str, *, epoch: int = 1) -> AreaGraph:
+        """Return the session's areas and passages as the wire message."""
+        return wire_area_graph(
+            self.fleet,
+            self.robot,
+            self.session,
+            self.segmenter.area_graph(),
+            method=self.segmenter.method.value,
+            instance=instance,
+            epoch=epoch,
         )
 
 
@@ -207,6 +231,49 @@ def commit_checkpoints(outcome: Outcome, store: CheckpointStore) -> int:
     return withheld
 
 
+def wire_area_graph(
+    fleet: str,
+    robot: str,
+    session: str,
+    graph: CoreAreaGraph,
+    *,
+    method: str,
+    instance: str,
+    epoch: int,
+) -> AreaGraph:
+    """Convert a core area graph to the wire message."""
+    return AreaGraph(
+        fleet=fleet,
+        robot=robot,
+        session=session,
+        instance=instance,
+        epoch=epoch,
+        method=method,
+        areas=[
+            AreaNode(
+                id=node.area,
+                frames=node.frames,
+                # A listed area holds frames, so the robot was there at least once.
+                visits=max(1, node.visits),
+                first_seq=node.first_seq,
+                last_seq=node.last_seq,
+                features=list(node.features),
+            )
+            for node in graph.nodes
+        ],
+        passages=[
+            Passage(
+                a=edge.a,
+                b=edge.b,
+                a_to_b=edge.a_to_b,
+                b_to_a=edge.b_to_a,
+                boundary_features=list(edge.boundary_features),
+            )
+            for edge in graph.edges
+        ],
+    )
+
+
 def summary_of(submap: Submap) -> SubmapSummary:
     """Convert a core submap to its wire summary."""
     return SubmapSummary(
@@ -222,7 +289,7 @@ def summary_of(submap: Submap) -> SubmapSummary:
 class Outcome:
     """What one batch produced, for the transport layer to publish."""
 
-    transitions: list[tuple[RobotSession, Transition]] = field(default_factory=list)
+    transitions: list[tuple[RobotSession, SegmentChange]] = field(default_factory=list)
     rejections: list[Rejection] = field(default_factory=list)
     opened: list[RobotSession] = field(default_factory=list)
     resumed: list[RobotSession] = field(default_factory=list)  # restored from the store
@@ -260,6 +327,8 @@ class SessionTable:
         self,
         params: PartitionParams,
         *,
+        method: Method = Method.PAPER,
+        area_params: AreaParams | None = None,
         max_sessions: int,
         max_nodes: int,
         max_batch_frames: int,
@@ -281,6 +350,8 @@ class SessionTable:
         epoch_of: Callable[[str, str], int] | None = None,
     ) -> None:
         self._params = params
+        self._method = method  # of new sessions; a resumed one keeps the method it had
+        self._area_params = area_params
         # Epoch of a robot's partition at this instance, for states and checkpoints.
         self._epoch_of = epoch_of if epoch_of is not None else (lambda _fleet, _robot: 1)
         self._max_pairs = max_pairs_per_frame  # 0: no budget
@@ -313,6 +384,7 @@ class SessionTable:
         # Closed sessions leave only their final state (the CovGraph is freed), kept for
         # state and submap queries until max_sessions newer ones push it out.
         self._final_states: OrderedDict[RobotKey, SessionState] = OrderedDict()
+        self._final_graphs: dict[RobotKey, AreaGraph] = {}  # the same robots' area graphs
 
     def __len__(self) -> int:
         return len(self._open)
@@ -388,6 +460,40 @@ class SessionTable:
         if record is None or "state" not in record.meta:
             return None
         return SessionState.model_validate(record.meta["state"])
+
+    def area_graph(self, fleet: str, robot: str) -> AreaGraph | None:
+        """Return the area graph of a robot's open session, else of its last closed one."""
+        key = (fleet, robot)
+        session = self._open.get(key)
+        if session is not None:
+            return session.area_graph(self._instance, epoch=self._epoch_of(fleet, robot))
+        final = self._final_graphs.get(key)
+        if final is not None or self._store is None:
+            return final
+        try:
+            record = self._store.load(key)
+        except sqlite3.Error:
+            return None
+        if record is None:
+            return None
+        if "area_graph" in record.meta:  # closed
+            return AreaGraph.model_validate(record.meta["area_graph"])
+        if record.snapshot is None:
+            return None
+        try:  # an evicted session: its graph is in its snapshot
+            segmenter = segmenter_from_bytes(record.snapshot)
+        except GraphError as exc:
+            log.warning("checkpoint of %s/%s unreadable for its areas: %s", fleet, robot, exc)
+            return None
+        return wire_area_graph(
+            fleet,
+            robot,
+            record.session,
+            segmenter.area_graph(),
+            method=segmenter.method.value,
+            instance=self._instance,
+            epoch=self._epoch_of(fleet, robot),
+        )
 
     def submap(
         self, fleet: str, robot: str, submap_id: int
@@ -524,7 +630,8 @@ class SessionTable:
             if refusal is not None:
                 out.reject(fleet, robot, session_id, ErrorCode.SESSION_LIMIT, refusal, run[0].seq)
                 return
-            current = RobotSession(fleet, robot, session_id, Partitioner(self._params), now_s)
+            segmenter = make_segmenter(self._method, self._params, self._area_params)
+            current = RobotSession(fleet, robot, session_id, segmenter, now_s)
             self._phase_checkpoints(current, now_s)
             self._open[key] = current
             out.opened.append(current)
@@ -748,10 +855,19 @@ class SessionTable:
 
     # -- durable sessions ------------------------------------------------------------------
 
-    def _record(self, session: RobotSession, status: str, *, is_open: bool) -> SessionRecord:
+    def _record(
+        self,
+        session: RobotSession,
+        status: str,
+        *,
+        is_open: bool,
+        final_graph: AreaGraph | None = None,
+    ) -> SessionRecord:
         closed_ids = list(self._closed_ids.get((session.fleet, session.robot), ()))
         keep_graph = status != "closed"
         epoch = self._epoch_of(session.fleet, session.robot)
+        # A closed session keeps no snapshot: its area graph is stored for queries instead.
+        graph = {} if final_graph is None else {"area_graph": final_graph.model_dump(mode="json")}
         return SessionRecord(
             fleet=session.fleet,
             robot=session.robot,
@@ -765,8 +881,9 @@ class SessionTable:
                 "state": session.state(self._instance, is_open=is_open, epoch=epoch).model_dump(
                     mode="json"
                 ),
+                **graph,
             },
-            snapshot=snapshot.to_bytes(session.partitioner) if keep_graph else None,
+            snapshot=session.segmenter.to_bytes() if keep_graph else None,
             updated_s=self._wall_clock(),
         )
 
@@ -817,8 +934,8 @@ class SessionTable:
             return None
         try:
             assert record.snapshot is not None, "an open record without a snapshot"
-            partitioner = snapshot.from_bytes(record.snapshot)
-            session = RobotSession(fleet, robot, record.session, partitioner, now_s)
+            segmenter = segmenter_from_bytes(record.snapshot)
+            session = RobotSession(fleet, robot, record.session, segmenter, now_s)
             session.restore_counters(record.meta)
         except Exception as exc:  # a damaged checkpoint must cost only its own session
             log.error("checkpoint of %s/%s %s unreadable: %s", fleet, robot, record.session, exc)
@@ -834,12 +951,12 @@ class SessionTable:
             return None
         self._phase_checkpoints(session, now_s)
         self._open[key] = session
-        self._set_edges(session, partitioner.graph.edge_count)
+        self._set_edges(session, segmenter.edge_count)
         out.resumed.append(session)
         return session
 
     def _apply_frame(self, session: RobotSession, frame: Frame, out: Outcome) -> bool:
-        p = session.partitioner
+        p = session.segmenter
         seen = session.last_seen_seq
         if seen is not None and frame.seq <= seen:
             if self._cache_copy(session, frame.seq):
@@ -880,8 +997,8 @@ class SessionTable:
             session.frames_rejected += 1
             out.reject(session.fleet, session.robot, session.session, *refusal, frame.seq)
             return False
-        if p.graph.node_count + len(frame.features) > self._max_nodes and (
-            p.graph.node_count + sum(1 for f in set(frame.features) if p.graph.count(f) == 0)
+        if p.node_count + len(frame.features) > self._max_nodes and (
+            p.node_count + sum(1 for f in set(frame.features) if not p.feature_known(f))
             > self._max_nodes
         ):  # counting the new features only when the cheap bound says it could matter
             session.frames_rejected += 1
@@ -932,7 +1049,7 @@ class SessionTable:
         if (self._max_edges and session.edges + pairs > self._max_edges) or (
             ledger is not None and ledger.total() + pairs > ledger.max_edges_total
         ):
-            self._set_edges(session, session.partitioner.graph.edge_count)
+            self._set_edges(session, session.segmenter.edge_count)
             if self._max_edges and session.edges + pairs > self._max_edges:
                 return (
                     ErrorCode.GRAPH_LIMIT,
@@ -966,14 +1083,13 @@ class SessionTable:
         )
 
     def _decide(self, session: RobotSession, out: Outcome) -> None:
-        batch = session.partitioner.pending_frames
+        batch = session.segmenter.pending_frames
         started = self._clock()
-        transition = session.partitioner.decide()
+        changes = session.segmenter.decide()
         out.decisions.append((self._clock() - started, batch))
         if self._max_edges or self._ledger is not None:
-            self._set_edges(session, session.partitioner.graph.edge_count)
-        if transition is not None:
-            out.transitions.append((session, transition))
+            self._set_edges(session, session.segmenter.edge_count)
+        out.transitions.extend((session, change) for change in changes)
 
     def _count_on_closed(self, key: RobotKey, session_id: str, frames: int) -> None:
         """Count frames refused as SESSION_CLOSED on the closed session's final state."""
@@ -1015,7 +1131,7 @@ class SessionTable:
         session.held_end = None
         self._release(session, out)  # frames held for a catch-up are applied, gaps counted
         del self._open[key]
-        if session.partitioner.pending_frames:
+        if session.segmenter.pending_frames:
             self._decide(session, out)
         self._set_edges(session, 0)
         ids = self._closed_ids.setdefault(key, deque(maxlen=_CLOSED_IDS_KEPT))
@@ -1026,13 +1142,21 @@ class SessionTable:
         final = session.state(
             self._instance, is_open=False, epoch=self._epoch_of(session.fleet, session.robot)
         )
+        final_graph = self._final_graph(session)
         if self._store is not None:
-            out.checkpoints.append((session, self._record(session, "closed", is_open=False)))
+            record = self._record(session, "closed", is_open=False, final_graph=final_graph)
+            out.checkpoints.append((session, record))
         self._final_states[key] = final
         self._final_states.move_to_end(key)
+        self._final_graphs[key] = final_graph
         while len(self._final_states) > self._max_sessions:
-            self._final_states.popitem(last=False)
+            gone, _ = self._final_states.popitem(last=False)
+            self._final_graphs.pop(gone, None)
         out.closed.append((final, cause))
+
+    def _final_graph(self, session: RobotSession) -> AreaGraph:
+        epoch = self._epoch_of(session.fleet, session.robot)
+        return session.area_graph(self._instance, epoch=epoch)
 
     def expire_idle(self, now_s: float) -> Outcome:
         """Evict (with a store) or close (without) every session idle past the timeout."""
@@ -1067,7 +1191,7 @@ class SessionTable:
             self._release(session, out, session.last_activity_s)
             if self._open.get(key) is not session:
                 continue  # an end that waited for the catch-up closed it
-            if session.partitioner.pending_frames:
+            if session.segmenter.pending_frames:
                 self._decide(session, out)
             self._checkpoint(session, "open", session.last_activity_s, out)
             epoch = self._epoch_of(session.fleet, session.robot)
