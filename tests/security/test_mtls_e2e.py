@@ -114,6 +114,9 @@ def test_a_robot_and_an_app_of_one_fleet_work_end_to_end(
         "the state query to see all 40 frames",
     )
     assert [h.instance for h in app.health()] == [service.instance]
+    graph = app.area_graph(site.fleet, "amr-1")  # the areas key passes the access control
+    assert graph is not None
+    assert [a.id for a in graph.areas] == [0, 1]
     # The robot follows its own session through the SDK (errors subscription, state query).
     state = robot.state()
     assert state is not None
@@ -245,7 +248,10 @@ def test_an_app_of_another_fleet_can_neither_query_nor_follow_this_fleet(
     assert spy.state(site.fleet, "amr-1") is None
     assert spy.states(site.fleet) == []
     assert spy.submaps(site.fleet, "amr-1") == []
+    assert app.area_graph(site.fleet, "amr-1") is not None  # positive control
+    assert spy.area_graph(site.fleet, "amr-1") is None
     assert list(spy_raw.get(keys.state("*", "*"), timeout=1.0)) == []
+    assert list(spy_raw.get(keys.areas("*", "*"), timeout=1.0)) == []
 
 
 def test_only_the_service_may_announce_an_instance_or_answer_for_it(

@@ -21,6 +21,7 @@ class RobotRow:
     robot: str
     session: str = ""
     submap: int = 0
+    area: int = 0
     frames: int | None = None  # from state queries; None until one answered
     transitions: int = 0
     last_seq: int | None = None
@@ -50,18 +51,21 @@ class FleetView:
         row = self._row(t.fleet, t.robot)
         if row.session != t.session:
             row.session, row.transitions = t.session, 0
-        row.submap = t.opened.id
+        row.submap, row.area = t.opened.id, t.area
         row.transitions += 1
         row.last_seq, row.last_reason, row.ncut, row.lambda2 = t.seq, t.reason, t.ncut, t.lambda2
         figures = (
             f"Ncut {t.ncut:.3f} λ2 {t.lambda2:.3f}"
             if t.ncut is not None and t.lambda2 is not None
+            else "recognised"
+            if t.reason == "RECOGNISED"
             else "graph fell apart"
         )
+        entered = f"area {t.area} again" if t.revisit else f"area {t.area}"
         line = (
             f"{t.fleet}/{t.robot}: frame {t.seq} (boundary {t.boundary_seq}) {t.reason} "
             f"{figures}; closed submap {t.closed.id} ({len(t.closed.features)} features, "
-            f"{t.closed.frame_count} frames) -> submap {t.opened.id}"
+            f"{t.closed.frame_count} frames) -> submap {t.opened.id}, {entered}"
         )
         self.log.append(line)
         del self.log[:-200]
@@ -76,21 +80,21 @@ class FleetView:
             return  # an older session's final state: the row follows the newer one
         row.session = state.session
         row.frames = state.frames_applied
-        row.submap = state.current_submap.id
+        row.submap, row.area = state.current_submap.id, state.current_area
         row.transitions = state.transitions
         row.open = state.open
 
     def table(self) -> str:
         """Render the rows as a fixed-width table."""
         header = (
-            f"{'robot':<24} {'session':<14} {'submap':>6} {'frames':>7} {'trans':>5} "
+            f"{'robot':<24} {'session':<14} {'submap':>6} {'area':>5} {'frames':>7} {'trans':>5} "
             f"{'last':>6} {'reason':<12} {'Ncut':>6} {'λ2':>6}"
         )
         lines = [header, "-" * len(header)]
         for (fleet, robot), row in sorted(self.rows.items()):
             name = f"{fleet}/{robot}"[:24]
             lines.append(
-                f"{name:<24} {row.session[-14:]:<14} {row.submap:>6} "
+                f"{name:<24} {row.session[-14:]:<14} {row.submap:>6} {row.area:>5} "
                 f"{'-' if row.frames is None else row.frames:>7} {row.transitions:>5} "
                 f"{'-' if row.last_seq is None else row.last_seq:>6} {row.last_reason:<12} "
                 f"{_num(row.ncut):>6} {_num(row.lambda2):>6}" + ("" if row.open else "  (closed)")

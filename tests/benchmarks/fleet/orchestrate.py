@@ -669,6 +669,11 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         help="run the load generators on the last CPU only (default: anywhere); the service "
         "keeps every CPU",
     )
+    parser.add_argument(
+        "--method",
+        choices=["paper", "areas"],
+        help="segmentation method of the service's sessions (default: its own, paper)",
+    )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument(
         "--find-knee",
@@ -719,6 +724,7 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         batch_linger_ms=args.batch_linger_ms,
         memory_only=args.memory_only,
         pin_generators=args.pin_generators,
+        method=args.method,
     )
 
 

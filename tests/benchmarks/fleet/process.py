@@ -238,6 +238,8 @@ class ServiceProcess:
             args += ["--max-batch-frames", str(spec.max_batch_frames)]
         if spec.batch_linger_ms is not None:
             args += ["--batch-linger-ms", str(spec.batch_linger_ms)]
+        if spec.method is not None:
+            args += ["--method", spec.method]
         # Checkpoints go to the run's own folder (one per instance), never to the user's.
         args += (
             ["--memory-only"]

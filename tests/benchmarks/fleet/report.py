@@ -360,7 +360,8 @@ def format_report(r: LoadReport) -> str:
         f"{r.load_after[0]:.2f} after (1 min)",
         f"service: {s.instances} instance(s); {_own(s.workers)} shard(s), max batch frames "
         f"{_own(s.max_batch_frames)}, batch linger {_own(s.batch_linger_ms)} ms, "
-        f"{'memory only' if s.memory_only else 'session checkpoints on'}"
+        f"{'memory only' if s.memory_only else 'session checkpoints on'}, "
+        f"method {s.method or 'paper'}"
         + ("; generators pinned to the last CPU" if s.pin_generators else ""),
         "",
         f"frames      offered {r.offered}  applied {r.applied}  LOST {r.lost}  missing "
