@@ -134,7 +134,8 @@ def test_a_paper_table_is_unchanged_and_its_areas_are_its_submaps() -> None:
     feed(table, frames)
     graph = table.area_graph(FLEET, ROBOT)
     state = table.state(FLEET, ROBOT)
-    assert graph is not None and state is not None
+    assert graph is not None
+    assert state is not None
     assert state.method == "paper"
     assert [a.id for a in graph.areas] == list(range(state.transitions + 1))
     assert [(p.a, p.b, p.a_to_b, p.b_to_a) for p in graph.passages] == [
@@ -192,7 +193,8 @@ def test_a_closed_session_keeps_its_area_graph(method: Method, tmp_path: Path) -
     end = SessionEnd(session="s1", last_seq=frames[-1].seq, stamp_s=99.0)
     table.handle_batch([(FLEET, ROBOT, end)], 0.0)
     state = table.state(FLEET, ROBOT)
-    assert state is not None and not state.open
+    assert state is not None
+    assert not state.open
     assert table.area_graph(FLEET, ROBOT) == graph
     # A new instance on the same store answers from the closed record.
     store.close()
