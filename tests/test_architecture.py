@@ -160,6 +160,8 @@ def test_evaluation_builds_on_the_core_and_the_simulator_only(path: Path) -> Non
         "lessmap.offline",
         "lessmap.partition_options",
         "lessmap.flags",
+        # The fleet merge: one rule for fleet apps (over the bus) and the offline tools.
+        "lessmap_client.fleet_areas",
     )
     assert all(within(m, *allowed) for m in project_imports(path)), project_imports(path)
     assert "zenoh" not in roots(imported_modules(path))

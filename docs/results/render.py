@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING
 
 from why import why_lines
 
-from lessmap.core.area_graph import MIN_CONTAINMENT, MIN_LINKED_SHARE, MIN_SHARED
 from lessmap.core.areas import AreaParams
 from lessmap.evaluation.diagnosis import Loss
 from lessmap.evaluation.markdown import (
@@ -27,6 +26,7 @@ from lessmap.evaluation.markdown import (
     ratio,
     table,
 )
+from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_LINKED_SHARE, MIN_SHARED
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

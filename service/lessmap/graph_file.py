@@ -17,7 +17,8 @@ One JSON object (``FORMAT`` names the layout; a reader refuses any other)::
          "edges": [{"a": 0, "b": 1, "a_to_b": 2, "b_to_a": 1, "robots": ["<robot>"],
                     "boundary_features": [[9, 3]]}]}}
 
-Node and edge fields are those of ``lessmap.core.area_graph`` (its docstring defines them).
+Node and edge fields are those of ``lessmap.core.area_graph`` and, for the fleet,
+``lessmap_client.fleet_areas`` (their docstrings define them).
 """
 
 from __future__ import annotations
@@ -25,16 +26,9 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
-from lessmap.core.area_graph import (
-    AreaEdge,
-    AreaGraph,
-    AreaNode,
-    FleetEdge,
-    FleetGraph,
-    FleetNode,
-    FleetParams,
-)
+from lessmap.core.area_graph import AreaEdge, AreaGraph, AreaNode
 from lessmap.errors import DatasetError
+from lessmap_client.fleet_areas import FleetEdge, FleetGraph, FleetNode, FleetParams
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

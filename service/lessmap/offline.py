@@ -13,9 +13,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from lessmap.core import GraphError, Partitioner, Transition
-from lessmap.core.area_graph import MIN_CONTAINMENT, MIN_SHARED, AreaGraph, AreaGraphBuilder
+from lessmap.core.area_graph import AreaGraph, AreaGraphBuilder
 from lessmap.core.areas import AreaTracker, AreaTransition
 from lessmap.errors import DatasetError
+from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_SHARED
 
 if TYPE_CHECKING:
     import argparse
@@ -289,8 +290,8 @@ def _write_graphs(
     out: Path, graphs: dict[str, AreaGraph], shared_features: bool, source: str
 ) -> dict[str, Any]:
     """Write the robots' and the fleet's area graphs; return the summary's fields about them."""
-    from lessmap.core.area_graph import FleetParams, fleet_graph
     from lessmap.graph_file import graph_document, write_graph_file
+    from lessmap_client.fleet_areas import FleetParams, fleet_graph
 
     params = FleetParams(shared_features=shared_features)
     fleet = fleet_graph(graphs, params)

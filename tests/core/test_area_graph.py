@@ -1,4 +1,5 @@
-"""Area graphs: nodes and passages from an AreaTracker's changes, and the fleet merge."""
+"""Area graphs: nodes and passages from an AreaTracker's changes, and the fleet merge of them
+(``lessmap_client.fleet_areas`` reads the core's graphs as it reads the wire's)."""
 
 from __future__ import annotations
 
@@ -6,16 +7,10 @@ import itertools
 
 import pytest
 
-from lessmap.core.area_graph import (
-    AreaEdge,
-    AreaGraph,
-    AreaGraphBuilder,
-    AreaNode,
-    FleetParams,
-    fleet_graph,
-)
+from lessmap.core.area_graph import AreaEdge, AreaGraph, AreaGraphBuilder, AreaNode
 from lessmap.core.areas import AreaTracker, AreaTransition
 from lessmap.core.submaps import Reason, Submap, Transition
+from lessmap_client.fleet_areas import FleetParams, fleet_graph
 from tests.core.helpers import Frames, room_walk
 
 

@@ -27,18 +27,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lessmap.core.area_graph import (
-    MIN_CONTAINMENT,
-    MIN_SHARED,
-    AreaGraph,
-    AreaGraphBuilder,
-    FleetParams,
-    fleet_graph,
-)
+from lessmap.core.area_graph import AreaGraph, AreaGraphBuilder
 from lessmap.core.areas import AreaTracker
 from lessmap.evaluation.areabench import SPARSE_SPACING_M, rows
 from lessmap.frames_file import read_frames
 from lessmap.sim.simulator import simulate
+from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_SHARED, FleetParams, fleet_graph
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

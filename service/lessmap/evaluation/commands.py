@@ -21,10 +21,11 @@ from lessmap.partition_options import (
 )
 
 if TYPE_CHECKING:
-    from lessmap.core.area_graph import AreaGraph, FleetGraph
+    from lessmap.core.area_graph import AreaGraph
     from lessmap.evaluation.consistency import Consistency, Detection
     from lessmap.evaluation.dataset import Dataset
     from lessmap.sim.simulator import SimTruth
+    from lessmap_client.fleet_areas import FleetGraph
 
 
 def _add_common(parser: argparse.ArgumentParser, *, file_optional: bool = False) -> None:

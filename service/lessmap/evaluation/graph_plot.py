@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from lessmap.core.area_graph import AreaGraph, FleetGraph
+    from lessmap.core.area_graph import AreaGraph
+    from lessmap_client.fleet_areas import FleetGraph
 
 NODE_AREA_PT2 = (200.0, 2400.0)  # marker areas of the smallest and the largest node
 
