@@ -60,3 +60,15 @@ def test_decisions_on_the_benchmark_streams_equal_the_exact_dense_solver(stream:
     exact = core_bench.decisions(stream, params, exact=True)
     assert fast == exact
     assert any(len(decision) > 4 for decision in fast)  # at least one transition compared
+
+
+def test_decisions_with_the_dense_store_above_dense_max_nodes_equal_the_exact_dense_solver() -> (
+    None
+):
+    # 120 of 300 landmarks a frame: most pairs are edges, so above 100 nodes the graph is
+    # held in the dense store and handed to ARPACK as CSR (71 of the 75 decisions).
+    stream = core_bench.visual(frames_per_room=25, alive=120, pool=300, warmup=5)
+    params = core_bench.params_of(stream, dense_max_nodes=100)
+    fast = core_bench.decisions(stream, params, exact=False)
+    assert fast == core_bench.decisions(stream, params, exact=True)
+    assert any(len(decision) > 4 for decision in fast)

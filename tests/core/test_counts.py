@@ -233,3 +233,58 @@ def test_evaluation_and_transition_come_from_the_same_decision(params: Partition
                 assert not always_solve
                 assert evaluation.ncut is None
                 assert evaluation.lambda2 is None
+
+
+@given(frames=FRAMES, reads=st.sets(st.integers(0, 29)))
+@EXAMPLES
+def test_the_dense_stores_csr_is_the_sparse_stores_array_for_array(
+    frames: list[list[int]], reads: set[int]
+) -> None:
+    dense, sparse_store = Driver(STORES[0]), Driver(STORES[1])
+    for k, frame in enumerate(frames):
+        dense.add(frame)
+        sparse_store.add(frame)
+        if k in reads:
+            dense.refresh()
+            sparse_store.refresh()
+            a, b = dense.store.similarity_csr(), sparse_store.store.similarity_csr()
+            assert a.indptr.dtype == b.indptr.dtype
+            assert a.indices.dtype == b.indices.dtype
+            assert np.array_equal(a.indptr, b.indptr)
+            assert np.array_equal(a.indices, b.indices)
+            assert a.data.tobytes() == b.data.tobytes()
+
+
+def test_a_dense_store_grows_by_an_eighth_past_its_doubling_limit() -> None:
+    store = DenseCounts(0, 100, UpperCounts.empty(), doubling_max=20)
+    sides = []
+    for n in range(1, 101):
+        store.resize(n)
+        sides.append(store.similarity_array().base.shape[0])  # type: ignore[union-attr]
+        if n >= 2:
+            store.add_frame(np.array([n - 2, n - 1], dtype=np.int64))
+    assert sorted(set(sides)) == [
+        16,
+        20,
+        22,
+        24,
+        27,
+        30,
+        33,
+        37,
+        41,
+        46,
+        51,
+        57,
+        64,
+        72,
+        81,
+        91,
+        100,
+    ]
+    store.refresh(np.full(100, 2, dtype=np.int64), np.ones(100, dtype=bool))
+    assert store.edge_count() == 99
+    assert store.pair_count(0, 1) == store.pair_count(98, 99) == 1
+    csr = store.similarity_csr()
+    assert csr.nnz == 198
+    assert np.all(csr.data == 0.5)

@@ -13,9 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from lessmap.core import GraphError, Partitioner, PartitionParams, SeedMode, Transition
+from lessmap.core import GraphError, Partitioner, PartitionParams, SeedMode, Transition, covgraph
 from lessmap.core.snapshot import SNAPSHOT_VERSION, from_bytes, to_bytes
 from tests.core.helpers import assert_same_state, observe_all, room_walk, two_room_frames
+from tests.core.test_dense_path import dense_frames
 
 V1_FIXTURE = Path(__file__).parent / "data" / "snapshot_v1.npz"
 
@@ -246,3 +247,24 @@ def observe_pairs(partitioner: Partitioner, frames: list[tuple[int, list[int]]])
 def test_garbage_is_a_graph_error(data: bytes) -> None:
     with pytest.raises(GraphError):
         from_bytes(data)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_dense_graph_above_dense_max_nodes_restores_into_the_store_its_state_implies(
+    seed: int,
+) -> None:
+    frames = dense_frames(seed, pool=60, seen=30, frames=90)
+    params = PartitionParams(dense_max_nodes=20)  # ARPACK above 20 nodes
+    rng = np.random.default_rng(seed)
+    cuts = {int(c) for c in rng.choice(len(frames), size=8, replace=False)} | {44, 45, 46}
+    expected = run_with_restores(frames, params, set())
+    assert expected
+    assert run_with_restores(frames, params, cuts) == expected
+    partitioner = Partitioner(params)
+    for seq, frame in enumerate(frames[:30]):
+        partitioner.observe(seq, float(seq), frame)
+    graph = from_bytes(to_bytes(partitioner)).graph
+    n, edges = graph.node_count, graph.edge_count
+    assert n > 20
+    assert graph.dense_store == (200 * edges >= covgraph.DENSE_ENTER_PERCENT * n * (n - 1))
+    assert graph.dense_store  # this stream: most pairs are edges

@@ -3,11 +3,13 @@
 ``CovGraph`` owns the nodes (feature IDs, n_i, first sightings, which nodes a frame touched)
 and hands the edges to a ``CountStore``. Two stores implement the same interface:
 
-- ``DenseCounts`` keeps a dense symmetric count matrix and a dense W for small graphs (at
-  most ``dense_max_nodes`` nodes, the size of a room's features): a frame adds to its k x k
-  block, and a refresh recomputes only the touched rows and columns of W. On graphs of tens
-  of nodes this avoids rebuilding scipy.sparse containers at every decision, which cost
-  several times the eigen-solve itself (profiled under fleet load).
+- ``DenseCounts`` keeps a dense symmetric count matrix and a dense W: for small graphs (at
+  most ``dense_max_nodes`` nodes, the size of a room's features) and for dense graphs above
+  that (most pairs are edges, up to ``DENSE_STORE_MAX_NODES`` nodes). A frame adds to its
+  k x k block, and a refresh recomputes only the touched rows and columns of W. On graphs
+  of tens of nodes this avoids rebuilding scipy.sparse containers at every decision, which
+  cost several times the eigen-solve itself (profiled under fleet load); on a dense graph
+  of a thousand nodes it replaces merging each frame's pairs into the sorted keys.
 - ``SparseCounts`` keeps the upper-triangular (i < j) entries as one sorted key array (the
   CSR order) with int64 counts and W aligned to it. Frames append their pairs in O(pairs)
   vectorized numpy and the pending pairs are merged before anything reads the edges: known
@@ -43,6 +45,16 @@ INITIAL_CAPACITY = 16
 #: Up to this many nodes the dense store recomputes all of W at each refresh rather than the
 #: touched rows: cheaper below ~90 nodes at a frame of 20 touched (measured at 40, 64 and 96 nodes).
 FULL_REFRESH_MAX_NODES = 64
+
+#: Above ``FULL_REFRESH_MAX_NODES``, the dense store also recomputes all of W when more than
+#: this share of the rows was touched (a frame of hundreds of features): one pass over the
+#: block costs less than gathering those rows and scattering them and their transpose.
+FULL_REFRESH_SHARE = 0.5
+
+#: Past its doubling limit (``dense_max_nodes``: a small graph's capacity grows by doubling)
+#: a dense store grows by this fraction of its side, so its spare capacity stays small: at
+#: most (1 + 1/8)² = 1.27 times the n x n block it holds.
+GROWTH_ABOVE_DOUBLING = 8
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,7 +209,11 @@ class CountStore(Protocol):
 
 
 class DenseCounts:
-    """Dense symmetric a_ij (int32, zero diagonal) and W, for graphs up to ``limit`` nodes."""
+    """Dense symmetric a_ij (int32, zero diagonal) and W, for graphs up to ``limit`` nodes.
+
+    Memory: 12 B per cell of its (side x side) matrices (int32 count, float64 W), i.e. 24 B
+    per pair of nodes whether or not it is an edge, plus 8 B per cell of n x n at a mark.
+    """
 
     def __init__(
         self,
@@ -206,10 +222,16 @@ class DenseCounts:
         upper: UpperCounts,
         *,
         full_refresh_max_nodes: int = FULL_REFRESH_MAX_NODES,
+        doubling_max: int | None = None,
     ) -> None:
-        """Hold ``upper`` (edges among its nodes) in a graph of ``nodes`` <= ``limit`` nodes."""
+        """Hold ``upper`` (edges among its nodes) in a graph of ``nodes`` <= ``limit`` nodes.
+
+        The capacity doubles up to ``doubling_max`` nodes (default ``limit``) and grows by
+        1/``GROWTH_ABOVE_DOUBLING`` above.
+        """
         side = min(max(INITIAL_CAPACITY, nodes), limit)
         self._limit = limit
+        self._doubling_max = limit if doubling_max is None else doubling_max
         self._full_refresh_max_nodes = full_refresh_max_nodes
         self._nodes = nodes
         self._counts = np.zeros((side, side), dtype=np.int32)
@@ -225,11 +247,17 @@ class DenseCounts:
         self._all_stale = True  # every row of W is computed on the first refresh
 
     def resize(self, nodes: int) -> None:
-        """Grow the matrices by doubling (capped at the limit) when ``nodes`` exceeds their side."""
+        """Grow the matrices (capped at the limit) when ``nodes`` exceeds their side."""
         side = self._counts.shape[0]
         if nodes > side:
-            # Doubling keeps the copies amortized; the limit caps the last step.
-            side = min(2 * side, self._limit)
+            # Doubling keeps the copies amortized; past the doubling limit a smaller step
+            # keeps the spare capacity of a large matrix small (the copies stay amortized:
+            # one per side/8 new nodes). The limit caps the last step.
+            if side < self._doubling_max:
+                grown = min(2 * side, self._doubling_max)
+            else:
+                grown = side + side // GROWTH_ABOVE_DOUBLING
+            side = min(max(grown, nodes), self._limit)
             counts = np.zeros((side, side), dtype=np.int32)
             rates = np.zeros((side, side), dtype=np.float64)
             old = self._counts.shape[0]
@@ -272,7 +300,16 @@ class DenseCounts:
             self._all_stale = False
         else:
             rows_of = np.flatnonzero(touched)
-        if rows_of.size:
+        if rows_of.size > FULL_REFRESH_SHARE * n:
+            # Most rows moved (a frame of hundreds of features): the whole block at once,
+            # same integers, same division, so the rows that did not move keep their values
+            # (n_i as float64 are the same integers: a quarter cheaper than int64 minima).
+            as_float = counts.astype(np.float64)
+            np.divide(
+                self._counts[:n, :n], np.minimum.outer(as_float, as_float), out=self._rates[:n, :n]
+            )
+            self._moved[:n] = True
+        elif rows_of.size:
             self._moved[rows_of] = True
             rows = self._counts[rows_of, :n] / np.minimum(counts[rows_of, None], counts[None, :])
             self._rates[rows_of, :n] = rows
@@ -283,9 +320,24 @@ class DenseCounts:
         return self.similarity_array()
 
     def similarity_csr(self) -> sparse.csr_array:
-        """W as a symmetric CSR float64 matrix (a copy)."""
+        """W as a symmetric CSR float64 matrix (a copy): the sparse store's, array for array.
+
+        The edges are the nonzero counts, in row-major order (sorted columns), with int64
+        index arrays like ``SparseCounts.similarity_csr``: the same CSR, so the same ARPACK
+        solve. Built from flat positions (about a third of ``csr_array(dense)``'s cost).
+        """
         n = self._nodes
-        return sparse.csr_array(self._rates[:n, :n])
+        side = self._counts.shape[1]
+        # The first n rows are contiguous and hold no edge beyond column n, so the flat
+        # positions of their nonzero counts are the edges' cells in row-major order.
+        edges = self._counts[:n].reshape(-1) != 0
+        per_row = np.count_nonzero(edges.reshape(n, side), axis=1)
+        indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(per_row, out=indptr[1:])
+        at = np.flatnonzero(edges)
+        data = self._rates.reshape(-1).take(at)
+        cols = at - np.repeat(np.arange(0, n * side, side, dtype=np.int64), per_row)
+        return sparse.csr_array((data, cols, indptr), shape=(n, n))
 
     def similarity_array(self) -> NDArray[np.float64]:
         """W as a dense read-only (n, n) view."""

@@ -5,10 +5,13 @@ Invariants kept by this module:
 - Node i is a feature; ``counts[i]`` = n_i, the number of frames in which it was seen.
 - Edge counts a_ij and the CovRate values W_ij = a_ij / min(n_i, n_j) (Eq. 1) live in a
   ``CountStore`` (``lessmap.core.counts``): ``DenseCounts`` for graphs of at most
-  ``dense_max_nodes`` nodes, ``SparseCounts`` above. ``_fit_store`` is the only place that
-  picks the form; a graph that outgrows the limit switches to the sparse form for good
-  (``keep_only`` and ``from_state`` may switch back). Both forms hold the same integer
-  counts and compute W with the same formula, so the form never changes a decision.
+  ``dense_max_nodes`` nodes and for dense graphs above (most pairs are edges, at most
+  ``DENSE_STORE_MAX_NODES`` nodes), ``SparseCounts`` otherwise. ``_fit_store`` is the only
+  place that picks the store (see there for the rule and its hysteresis). Both stores hold
+  the same integer counts, compute W with the same formula and hand over the same CSR, and
+  W reaches the solver as a dense array exactly when the graph has at most
+  ``dense_max_nodes`` nodes (``is_dense``), whichever store holds it: the store never
+  changes a decision.
 - A frame changes n_i and a_ij only for its own features; the graph marks those nodes as
   touched and the store recomputes only the entries of W with a touched endpoint, the next
   time W is read (so a burst of frames coalesced under load is counted cheaply).
@@ -27,6 +30,20 @@ import numpy as np
 from lessmap.core.counts import INITIAL_CAPACITY, DenseCounts, SparseCounts, UpperCounts
 from lessmap.core.errors import GraphError
 
+#: Dense graphs are held in the dense store up to this many nodes (if ``dense_max_nodes`` >
+#: 0). The decision's floor may factorize a dense n x n matrix up to the same size
+#: (``lessmap.core.drift.PROOF_MAX_NODES``): 12 B per cell, 201 MB at the limit.
+DENSE_STORE_MAX_NODES = 4096
+
+#: Above ``dense_max_nodes`` nodes, a graph enters the dense store when at least this share
+#: of its n(n-1)/2 pairs (in percent) are edges, and leaves it below ``DENSE_STAY_PERCENT``.
+#: The dense store holds 24 B per pair against the sparse store's 24 B per edge, so it
+#: holds at most 100/``DENSE_STAY_PERCENT`` times the sparse store's bytes per edge (times
+#: its spare capacity, at most 1.27). The gap between the two keeps a graph near the
+#: threshold from being converted back and forth.
+DENSE_ENTER_PERCENT = 75
+DENSE_STAY_PERCENT = 60
+
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
@@ -35,6 +52,11 @@ if TYPE_CHECKING:
 
     from lessmap.core.counts import BlockChanges, Changes, CountStore
     from lessmap.core.spectral import Similarity
+
+
+def _edge_share_at_least(edges: int, nodes: int, percent: int) -> bool:
+    """Whether ``edges`` are at least ``percent`` % of the n(n-1)/2 pairs (exact integers)."""
+    return 200 * edges >= percent * nodes * (nodes - 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +81,7 @@ class CovGraph:
             dense_max_nodes: hold the edges densely up to this many nodes (0: never).
         """
         self._dense_max = dense_max_nodes
+        self._settled = 0  # nodes whose pairs were all counted: those before the frame
         self._index: dict[int, int] = {}
         self._ids = np.zeros(INITIAL_CAPACITY, dtype=np.int64)
         self._counts = np.zeros(INITIAL_CAPACITY, dtype=np.int64)
@@ -71,24 +94,67 @@ class CovGraph:
 
     # -- storage form ----------------------------------------------------------------------
 
-    def _fit_store(self, nodes: int, upper: UpperCounts | None = None) -> None:
-        """Hold the edges in the form that suits ``nodes`` nodes: the one place that picks it.
+    def _fit_store(
+        self, nodes: int, upper: UpperCounts | None = None, *, counted: bool = False
+    ) -> None:
+        """Hold the edges in the store that suits the graph: the one place that picks it.
 
-        Dense up to ``dense_max_nodes`` nodes (0: never), sparse above. With ``upper`` (a
-        state being loaded) the store is rebuilt from it. Without, the graph is growing by a
-        node and the store changes form only when it crosses the limit, which growth does
-        once, from dense to sparse, in the middle of a frame (the sparse store then counts
-        that frame's pairs).
+        The rule, on n nodes and e edges (``dense_max_nodes`` = 0: sparse always):
+
+        - n <= ``dense_max_nodes``: dense (the solver gets a dense array);
+        - n > ``DENSE_STORE_MAX_NODES``: sparse;
+        - between: dense when e >= ``DENSE_ENTER_PERCENT`` % of n(n-1)/2, or when the dense
+          store holds the graph already and e >= ``DENSE_STAY_PERCENT`` % (hysteresis).
+
+        It is applied with ``upper`` (a state being loaded: entering, so the store follows
+        from the state alone) and with ``counted`` (every pair of the frames so far is
+        counted: at a frame's start, where only a dense store is checked, and before W is
+        read). Otherwise the graph is growing by a node in the middle of a frame, whose
+        pairs are not counted yet: a sparse store stays sparse, a dense one goes sparse past
+        ``DENSE_STORE_MAX_NODES``, and a graph that crosses ``dense_max_nodes`` stays dense
+        only when the graph at the frame's start was dense enough to enter. A new store
+        starts without a mark.
         """
-        dense = self._dense_max > 0 and nodes <= self._dense_max
+        held = upper is None and isinstance(self._store, DenseCounts)
+        if upper is not None:
+            dense = self._dense_enough(nodes, int(upper.counts.size), entering=True)
+        elif counted:
+            dense = self._dense_enough(nodes, self._store.edge_count(), entering=not held)
+        elif not held:
+            dense = False
+        elif nodes <= self._dense_max:
+            dense = True
+        elif nodes > DENSE_STORE_MAX_NODES:
+            dense = False
+        elif nodes == self._dense_max + 1 and self._settled >= 2:
+            dense = _edge_share_at_least(
+                self._store.edge_count(), self._settled, DENSE_ENTER_PERCENT
+            )
+        else:
+            dense = True
         if upper is None:
-            if dense == isinstance(self._store, DenseCounts):
+            if dense == held:
                 self._store.resize(nodes)
                 return
             upper = self._store.upper()
+        limit = max(self._dense_max, DENSE_STORE_MAX_NODES)
         self._store = (
-            DenseCounts(nodes, self._dense_max, upper) if dense else SparseCounts(nodes, upper)
+            DenseCounts(nodes, limit, upper, doubling_max=self._dense_max)
+            if dense
+            else SparseCounts(nodes, upper)
         )
+        self._rates_stale = True  # a new store computes W in full at its first refresh
+
+    def _dense_enough(self, nodes: int, edges: int, *, entering: bool) -> bool:
+        """The store rule of ``_fit_store`` on n nodes and e edges."""
+        if self._dense_max <= 0:
+            return False
+        if nodes <= self._dense_max:
+            return True
+        if nodes > DENSE_STORE_MAX_NODES:
+            return False
+        percent = DENSE_ENTER_PERCENT if entering else DENSE_STAY_PERCENT
+        return _edge_share_at_least(edges, nodes, percent)
 
     # -- size ------------------------------------------------------------------------------
 
@@ -99,7 +165,17 @@ class CovGraph:
 
     @property
     def is_dense(self) -> bool:
-        """Whether the graph is held in the dense small-graph form."""
+        """Whether the graph is in the dense small-graph form: W is handed over as an array.
+
+        True exactly when the graph has at most ``dense_max_nodes`` nodes (> 0). A dense
+        graph above that size may also be held in the dense store (``dense_store``), but its
+        W is handed over as CSR, to the same solver as from the sparse store.
+        """
+        return self._size <= self._dense_max and isinstance(self._store, DenseCounts)
+
+    @property
+    def dense_store(self) -> bool:
+        """Whether the edges are held in the dense store (``is_dense`` or a dense graph)."""
         return isinstance(self._store, DenseCounts)
 
     @property
@@ -147,6 +223,11 @@ class CovGraph:
         Returns:
             The node indices of the frame's distinct features, sorted ascending.
         """
+        self._settled = self._size
+        if self._size > self._dense_max and isinstance(self._store, DenseCounts):
+            # Between decisions (coalesced frames) too: a graph that thinned out leaves the
+            # dense store at a frame's start, so its spare memory lasts one frame at most.
+            self._fit_store(self._size, counted=True)
         if distinct and type(features) is list:
             nodes = self._intern_distinct(features, seq)
         else:
@@ -205,6 +286,8 @@ class CovGraph:
         if not self._rates_stale:
             return
         n = self._size
+        if n > self._dense_max:
+            self._fit_store(n, counted=True)  # every pair is counted: the store may change
         self._store.refresh(self._counts[:n], self._touched[:n])
         self._touched[:n] = False
         self._rates_stale = False
@@ -218,7 +301,9 @@ class CovGraph:
         containers, which cost more than the eigen-solve at tens of nodes.
         """
         self._refresh()
-        return self._store.similarity()
+        if self.is_dense:
+            return self._store.similarity_array()
+        return self._store.similarity_csr()
 
     def degrees(self) -> NDArray[np.float64]:
         """Return the row sums d of W (Eq. 1), shape (n,), without building W's matrix."""
@@ -236,9 +321,9 @@ class CovGraph:
         The sparse form lists the changed entries (``Changes``), the dense form hands over
         the rows that may have moved (``BlockChanges``).
 
-        A mark lasts until the graph is reshaped (``keep_only``, a load) or changes storage
-        form (growing past ``dense_max_nodes``); node indices never change in between, so
-        the nodes added since the mark are the last ones.
+        A mark lasts until the graph is reshaped (``keep_only``, a load) or changes store
+        (``_fit_store``); node indices never change in between, so the nodes added since
+        the mark are the last ones.
         """
         self._refresh()
         return self._store.changes()
