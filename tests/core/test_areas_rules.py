@@ -23,6 +23,7 @@ from lessmap.core.areas import (
     profile,
     rate_overlap,
 )
+from lessmap.core.areas_rules import blind_run
 from lessmap.core.areas_snapshot import from_bytes, to_bytes
 from lessmap.core.params import PartitionParams
 from tests.core.helpers import room_walk
@@ -78,7 +79,7 @@ def test_a_room_reached_blind_is_no_transition(seed: int) -> None:
     tracker, found = track(frames)
     assert found == []
     assert set(tracker.area_features(0)) == A | B  # one area, both sides
-    _, blind_allowed = track(frames, AreaParams(blind_frames=0))
+    _, blind_allowed = track(frames, AreaParams(blind_frames=0, blind_span=0))
     assert [c.transition.reason for c in blind_allowed] == [Reason.DISCONNECTED]
     assert [c.reason for c in blind_allowed] == [AreaReason.DISCONNECTED]
     assert 30 <= blind_allowed[0].transition.boundary_seq <= 33
@@ -86,6 +87,35 @@ def test_a_room_reached_blind_is_no_transition(seed: int) -> None:
     rng = np.random.default_rng(seed)
     _, door = track([*stay(rng, A, 30), *stay(rng, B, 30)])
     assert moves(door) == [(0, 1)]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_room_reached_blind_after_a_glimpse_is_no_transition(seed: int) -> None:
+    # Blind for three frames, then two frames of the room left (a wall glimpsed on the way):
+    # the boundary follows no empty frame, but a run of blind_span lies within blind_margin
+    # non-empty frames before it.
+    rng = np.random.default_rng(seed)
+    frames = [*stay(rng, A, 30), [], [], [], *stay(rng, A, 2), *stay(rng, B, 30)]
+    p = AreaParams()
+    assert p.blind_span == 3
+    assert p.blind_margin >= 2
+    tracker, found = track(frames)
+    assert found == []
+    assert set(tracker.area_features(0)) == A | B
+    _, allowed = track(frames, AreaParams(blind_span=0))
+    assert moves(allowed) == [(0, 1)]
+    assert allowed[0].transition.boundary_seq == 35  # B's first frame: no empty frame before
+    # with no margin the run must reach the boundary: two non-empty frames keep it apart
+    _, no_margin = track(frames, AreaParams(blind_margin=0))
+    assert moves(no_margin) == [(0, 1)]
+
+
+def test_blind_run_counts_from_the_margin_on() -> None:
+    frames = [(0, (1,)), (1, ()), (2, ()), (3, (1,)), (4, (2,)), (5, ()), (6, (2,))]
+    assert blind_run(frames, 4, 0) == 1  # frame 5, after the boundary
+    assert blind_run(frames, 4, 1) == 1  # from frame 3 on
+    assert blind_run(frames, 4, 2) == 2  # from frame 0 on: frames 1, 2
+    assert blind_run(frames, 4, 9) == 2  # fewer non-empty frames than the margin: all
 
 
 # -- rule 3c: a proposal inside the current area is dropped --------------------------------
@@ -356,6 +386,8 @@ def test_restoring_at_every_frame_keeps_recognition_and_merges(seed: int) -> Non
     ("field", "value"),
     [
         ("blind_frames", -1),
+        ("blind_span", -1),
+        ("blind_margin", -1),
         ("stay_share", 0.0),
         ("familiar_rate", 0.0),
         ("familiar_rate", 1.5),

@@ -23,8 +23,10 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
       distinct features (else the proposal is dropped: no closed area is that small), and
       the frames from the boundary on hold as many within ``confirm_frames`` frames of the
       proposal (else it expires);
-   b. the boundary does not follow ``blind_frames`` empty frames: a robot that saw nothing
-      saw no boundary (a room wider than the sensor's range, crossed blind);
+   b. the boundary does not follow ``blind_frames`` empty frames, and no run of
+      ``blind_span`` empty frames lies in the frames from ``blind_margin`` non-empty frames
+      before the boundary on: a robot that saw nothing saw no boundary (a room wider than
+      the sensor's range, crossed blind, perhaps glimpsing a wall on the way);
    c. the frames from the boundary on are not the current area's own: when ``stay_share``
       of their sightings are of features *familiar* to the current area (seen in
       ``familiar_rate`` of its non-empty frames, or in ``familiar_relative`` times the mean
@@ -251,7 +253,7 @@ class AreaTracker:
             margin=p.familiar_margin_frames,
             relative=p.familiar_relative,
         )
-        if rules.blind_before(self.frames, boundary, p.blind_frames) or share >= p.stay_share:
+        if self._blind(boundary) or share >= p.stay_share:
             self.candidate = None
             return None
         known, overlap = rules.known_area(
@@ -290,7 +292,7 @@ class AreaTracker:
         minimum = self.params.min_area_features
         if len(before) < minimum or len(after) < minimum:
             return None
-        if rules.blind_before(self.frames, boundary, self.params.blind_frames):
+        if self._blind(boundary):
             return None
         if self._merges_with(best, after, moved):
             return None
@@ -304,6 +306,15 @@ class AreaTracker:
         )
         overlap = rules.seen_share(self.areas[best], after)
         return self._enter(candidate, seq, best, overlap, Rule.RECOGNISED)
+
+    def _blind(self, boundary: int) -> bool:
+        """Whether the robot reached the new side blind (rule 3b)."""
+        p = self.params
+        if rules.blind_before(self.frames, boundary, p.blind_frames):
+            return True
+        return bool(p.blind_span) and (
+            rules.blind_run(self.frames, boundary, p.blind_margin) >= p.blind_span
+        )
 
     def _profile(self, area: int) -> Profile | None:
         if area not in self._profiles:

@@ -48,6 +48,28 @@ def blind_before(frames: Iterable[Frame], boundary: int, blind_frames: int) -> b
     return empty >= blind_frames
 
 
+def blind_run(frames: Sequence[Frame], boundary: int, margin: int) -> int:
+    """Longest run of empty frames from ``margin`` non-empty frames before the boundary on.
+
+    Rule 3b: the run may also lie after the boundary (a pool may start on empty frames).
+    """
+    start = boundary
+    if margin:
+        earlier = [s for s, features in frames if features and s < boundary]
+        if earlier:
+            start = earlier[-min(margin, len(earlier))]
+    best = run = 0
+    for frame_seq, features in frames:
+        if frame_seq < start:
+            continue
+        if features:
+            run = 0
+        else:
+            run += 1
+            best = max(best, run)
+    return best
+
+
 def familiar_share(
     frames: Sequence[Frame],
     counts: dict[int, int],
