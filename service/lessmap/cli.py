@@ -65,6 +65,10 @@ COMMANDS: dict[str, Command] = {
         "configure_watch",
         "run_watch",
     ),
+    "areas": Command(
+        "lessmap.fleet_areas_cli",
+        "a running fleet's places: its robots' area graphs merged into fleet areas",
+    ),
     "sim": Command(
         "lessmap.sim.command",
         "simulate a fleet in a building; write frames and ground truth, or publish live",

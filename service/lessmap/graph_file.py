@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     from collections.abc import Mapping
     from pathlib import Path
 
+    from lessmap_schemas.messages import AreaGraph as WireAreaGraph
+
 FORMAT = "lessmap.area_graph/1"
 
 
@@ -81,6 +83,33 @@ def graph_document(
             "edges": [_edge(e) | {"robots": list(e.robots)} for e in fleet.edges],
         },
     }
+
+
+def area_graph_from_wire(message: WireAreaGraph) -> AreaGraph:
+    """A robot's graph as the service answered it (the ``areas`` query), in the file's terms."""
+    return AreaGraph(
+        nodes=tuple(
+            AreaNode(
+                area=area.id,
+                frames=area.frames,
+                visits=area.visits,
+                first_seq=area.first_seq,
+                last_seq=area.last_seq,
+                features=tuple(area.features),
+            )
+            for area in message.areas
+        ),
+        edges=tuple(
+            AreaEdge(
+                a=passage.a,
+                b=passage.b,
+                a_to_b=passage.a_to_b,
+                b_to_a=passage.b_to_a,
+                boundary_features=tuple((f, n) for f, n in passage.boundary_features),
+            )
+            for passage in message.passages
+        ),
+    )
 
 
 def _edge(edge: AreaEdge | FleetEdge) -> dict[str, Any]:

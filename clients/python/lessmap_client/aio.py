@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from collections.abc import AsyncIterator, Callable, Iterable, Sequence
     from types import TracebackType
 
+    from lessmap_client.fleet_areas import FleetGraph, FleetParams
     from lessmap_client.robot import RobotPublisher, RobotStatus
     from lessmap_client.subscription import Subscription
     from lessmap_schemas.messages import (
@@ -352,6 +353,12 @@ class AsyncConnection:
     ) -> list[AreaGraph]:
         """See ``Connection.area_graphs``."""
         return await asyncio.to_thread(self.sync.area_graphs, fleet, robot, timeout_s)
+
+    async def fleet_area_graph(
+        self, fleet: str, params: FleetParams | None = None, timeout_s: float = 2.0
+    ) -> FleetGraph:
+        """See ``Connection.fleet_area_graph``."""
+        return await asyncio.to_thread(self.sync.fleet_area_graph, fleet, params, timeout_s)
 
     async def submap(
         self, fleet: str, robot: str, submap_id: int, timeout_s: float = 2.0

@@ -13,6 +13,7 @@ import threading
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from lessmap_client.fencing import current_area_graphs, current_states
+from lessmap_client.fleet_areas import FleetGraph, FleetParams, fleet_graph_of
 from lessmap_client.robot import DEFAULT_CLOSE_TIMEOUT_S, RobotPublisher, close_all
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.subscription import DEFAULT_MAXSIZE, Subscription
@@ -243,6 +244,24 @@ class Connection:
     ) -> list[AreaGraph]:
         """Return the area graph of every robot of a fleet (or of every fleet), one per robot."""
         return current_area_graphs(self._get(keys.areas(fleet, robot), AreaGraph, timeout_s))
+
+    def fleet_area_graph(
+        self, fleet: str, params: FleetParams | None = None, timeout_s: float = 2.0
+    ) -> FleetGraph:
+        """Return the places of one fleet: its robots' area graphs merged (``fleet_areas``).
+
+        With ``FleetParams(shared_features=True)`` (the fleet's feature ids are global:
+        fiducials, a shared landmark map) areas of different robots that hold the same
+        features are one fleet area, and ``area_of[(robot, area)]`` names it; without, each
+        robot area is a fleet area of its own. The graphs come from whichever instances own
+        the robots now (one query for the fleet, the highest epoch per robot), so a fleet
+        spread over several instances merges as one. Fleet ids name this graph's areas only:
+        compare ``members`` across calls.
+        """
+        if "*" in fleet:
+            msg = f"fleet_area_graph merges one fleet, not {fleet!r}"
+            raise ValueError(msg)
+        return fleet_graph_of(self.area_graphs(fleet, "*", timeout_s), params)
 
     def submap(
         self, fleet: str, robot: str, submap_id: int, timeout_s: float = 2.0

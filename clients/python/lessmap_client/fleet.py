@@ -13,6 +13,7 @@ import time
 from typing import TYPE_CHECKING
 
 from lessmap_client.connection import Connection, connect
+from lessmap_client.fleet_areas import FleetGraph, FleetParams
 from lessmap_client.session import DEFAULT_ENDPOINT
 from lessmap_schemas.messages import AreaGraph, Error, Health, SessionState, Submap, Transition
 
@@ -153,6 +154,24 @@ class FleetClient:
     def area_graphs(self, fleet: str | None = None, timeout_s: float = 2.0) -> list[AreaGraph]:
         """Return the area graph of every robot of a fleet (or of every fleet), one per robot."""
         return self._conn.area_graphs(fleet or self.fleet, "*", timeout_s)
+
+    def fleet_area_graph(
+        self,
+        fleet: str | None = None,
+        *,
+        shared_features: bool = False,
+        params: FleetParams | None = None,
+        timeout_s: float = 2.0,
+    ) -> FleetGraph:
+        """Return the fleet's places: every robot's areas merged (``Connection.fleet_area_graph``).
+
+        ``shared_features=True`` when the fleet's feature ids are global (fiducials, a shared
+        landmark map): robots that have been in the same place then share its fleet area.
+        ``params`` sets every threshold of the merge (``lessmap_client.fleet_areas``).
+        """
+        if params is None:
+            params = FleetParams(shared_features=shared_features)
+        return self._conn.fleet_area_graph(fleet or self._concrete_fleet(), params, timeout_s)
 
     def submap(
         self, robot: str, submap_id: int, fleet: str | None = None, timeout_s: float = 2.0
