@@ -70,6 +70,13 @@ def test_wire_graphs_of_robots_in_one_room_share_a_fleet_area() -> None:
     assert [n.members for n in fleet.nodes] == [(("r1", 0),), (("r1", 1), ("r2", 0))]
     assert fleet.area_of["r2", 0] == fleet.area_of["r1", 1] == 1
     assert fleet.robots_in(1) == ("r1", "r2")
+    assert fleet.key_of("r2", 0) == ("r1", 1)
+    # A robot that comes first in name order renumbers the fleet ids, not the keys.
+    more = fleet_graph_of(
+        [*graphs, wire("a0", (0, range(500, 520)))], FleetParams(shared_features=True)
+    )
+    assert more.area_of["r2", 0] != fleet.area_of["r2", 0]
+    assert more.key_of("r2", 0) == ("r1", 1)
     assert [(e.a, e.b, e.a_to_b, e.robots) for e in fleet.edges] == [(0, 1, 1, ("r1",))]
     alone = fleet_graph_of(graphs)  # ids are per robot: no merge without shared features
     assert len(alone.nodes) == 3

@@ -27,7 +27,9 @@ Rules:
 4. **Ids.** Fleet ids count from 0 in the order of each fleet area's first member, members
    ordered by (robot name, area id): the result does not depend on the order robots are
    given in. They name the areas of *this* graph: a later graph, with more areas or more
-   robots, may number them otherwise. Compare members, not ids, across graphs.
+   robots, may number them otherwise. Across graphs a fleet area is named by its first
+   member (``FleetGraph.key_of``), which a later graph keeps unless the area merged with
+   one whose first member is lower.
 5. **Passages.** Each robot passage between two different fleet areas counts, per
    direction; the boundary features add up over robots and the ``max_boundary_features``
    most frequent are kept (ties: smaller id). A passage inside one fleet area is dropped.
@@ -175,6 +177,15 @@ class FleetGraph:
     nodes: tuple[FleetNode, ...]
     edges: tuple[FleetEdge, ...]
     area_of: Mapping[Member, int]
+
+    def key_of(self, robot: str, area: int) -> Member:
+        """The name of the robot area's fleet area that outlives this graph (rule 4).
+
+        The fleet area's first member, ``(robot, area id)``: later graphs keep it while the
+        fleet area exists, and when two fleet areas are found to be one the lower member
+        names both (as a robot's merged areas keep the lower id).
+        """
+        return self.nodes[self.area_of[robot, area]].members[0]
 
     def members_of(self, area: int) -> tuple[Member, ...]:
         """The robot areas of fleet area ``area``."""
