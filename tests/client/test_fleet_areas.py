@@ -143,6 +143,7 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
             )
 
         wait_until(all_closed, 120.0, "both sessions closed with every frame applied")
+        current = {s.robot: s.current_area for s in client.states()}
         replies = client.area_graphs()
         fleet = client.fleet_area_graph(shared_features=True)
     assert {g.instance for g in replies} == {s.instance for s in services}  # one fleet, two hosts
@@ -153,10 +154,6 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
             segmenter.apply(f["seq"], f["stamp"], list(f["features"]))
             segmenter.decide()
         offline[name] = segmenter.area_graph()
-    params = FleetParams(shared_features=True)
-    assert fleet == fleet_graph(offline, params)
-    # The two robots walked the same rooms: some fleet areas hold areas of both.
-    assert any(len(fleet.robots_in(n.area)) == 2 for n in fleet.nodes)
     for reply in replies:
         expected = wire_area_graph(
             FLEET,
@@ -167,7 +164,11 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
             instance=reply.instance,
             epoch=reply.epoch,
         )
-        assert reply == expected
+        assert reply == expected, services[0].log() + services[1].log()
+    params = FleetParams(shared_features=True)
+    assert fleet == fleet_graph(offline, params)
+    # The two robots walked the same rooms: some fleet areas hold areas of both.
+    assert any(len(fleet.robots_in(n.area)) == 2 for n in fleet.nodes)
 
     # The command line: the same graph, as the file `lessmap plot --area-graph` draws.
     out = tmp_path / "fleet.json"
@@ -194,15 +195,18 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
     assert plotted.returncode == 0, plotted.stderr
     assert figure.stat().st_size > 0
 
-
-def test_areas_command_without_robots_is_one_line(router: str) -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "lessmap", "areas", "--fleet", "nobody", "-e", router],
-        capture_output=True,
-        text=True,
-        timeout=60,
+    # The live view names each robot's place: its current area's fleet area.
+    watch = ["watch", "--fleet", FLEET, "--shared-features", "--duration", "2", "-e", router]
+    watched = subprocess.run(
+        [sys.executable, "-m", "lessmap", *watch], capture_output=True, text=True, timeout=60
     )
-    assert done.returncode == 1
-    assert done.stderr.strip().splitlines() == [
-        f"lessmap areas: no robot of fleet 'nobody' answered at {router} within 2 s"
-    ]
+    assert watched.returncode == 0, watched.stderr
+    lines = watched.stdout.strip().splitlines()  # transitions as they come, then the table
+    at = next(i for i, line in enumerate(lines) if line.startswith("robot "))
+    header, rows = lines[at], lines[at + 2 :]
+    assert header.split()[-1] == "place"
+    assert len(rows) == 2
+    for line in rows:
+        name = line.split()[0].split("/")[1]
+        robot, area = fleet.key_of(name, current[name])
+        assert line.removesuffix("(closed)").split()[-1] == f"{robot}:{area}"

@@ -83,6 +83,20 @@ def configure_watch(watch: argparse.ArgumentParser) -> None:
     watch.add_argument("--fleet", default="*", help="fleet to follow (default: all)")
     watch.add_argument("--duration", type=float, help="stop after this many seconds")
     watch.add_argument("--interval", type=float, default=1.0, help="refresh period, seconds")
+    watch.add_argument(
+        "--shared-features",
+        action="store_true",
+        help="the fleet's feature ids are global: show each robot's place (its fleet area, "
+        "named robot:area by its first member) and the places robots share, from "
+        "fleet_area_graph every --places-interval seconds (needs one --fleet)",
+    )
+    watch.add_argument(
+        "--places-interval",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="seconds between two fleet area queries (default 5)",
+    )
     add_zenoh_options(watch)
 
 
@@ -225,12 +239,22 @@ def run_watch(args: argparse.Namespace) -> int:
     from lessmap_client.session import open_session
     from lessmap_client.watch import FleetView
 
+    if args.shared_features and "*" in args.fleet:
+        sys.stderr.write("lessmap watch: --shared-features follows one fleet: give --fleet\n")
+        return 1
     view = FleetView()
     with (
         open_session(endpoints(args), args.mode) as session,
         FleetClient(args.fleet, session=session) as client,
     ):
-        follow(client, view, args.duration, args.interval, title=f"lessmap watch {args.fleet}")
+        follow(
+            client,
+            view,
+            args.duration,
+            args.interval,
+            title=f"lessmap watch {args.fleet}",
+            places_every_s=args.places_interval if args.shared_features else None,
+        )
     sys.stdout.write(view.table() + "\n")
     return 0
 
@@ -242,11 +266,18 @@ def follow(
     interval_s: float,
     title: str,
     fleet: str | None = None,
+    places_every_s: float | None = None,
 ) -> None:
-    """Feed the view from the client until ``duration_s`` passes (or Ctrl-C)."""
+    """Feed the view from the client until ``duration_s`` passes (or Ctrl-C).
+
+    With ``places_every_s``, also the fleet's places (``fleet_area_graph`` with shared
+    features) that often: a query for every robot's graph, so less often than states.
+    """
+    from lessmap_client.fleet_areas import FleetParams
+
     tty = sys.stdout.isatty()
     deadline = None if duration_s is None else time.monotonic() + duration_s
-    next_refresh = 0.0
+    next_refresh = next_places = 0.0
     try:
         while deadline is None or time.monotonic() < deadline:
             transition = client.next_transition(timeout_s=0.1)
@@ -260,6 +291,13 @@ def follow(
                 next_refresh = now + interval_s
                 for state in client.states(fleet, timeout_s=0.5):
                     view.add_state(state)
+                if places_every_s is not None and now >= next_places:
+                    next_places = now + places_every_s
+                    places = fleet or client.fleet
+                    graph = client.fleet_area_graph(
+                        places, params=FleetParams(shared_features=True), timeout_s=0.5
+                    )
+                    view.add_fleet_graph(places, graph)
                 if tty:
                     sys.stdout.write("\x1b[2J\x1b[H" + view.screen(title) + "\n")
                     sys.stdout.flush()

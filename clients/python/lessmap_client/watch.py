@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from lessmap_client.fleet_areas import FleetGraph
     from lessmap_schemas.messages import SessionState, Transition
 
 
@@ -29,6 +30,7 @@ class RobotRow:
     ncut: float | None = None
     lambda2: float | None = None
     open: bool = True
+    place: str | None = None  # the fleet area of ``area`` (its first member), when followed
 
 
 class FleetView:
@@ -39,6 +41,7 @@ class FleetView:
         self.log: list[str] = []  # one line per transition, newest last (bounded)
         self.transitions: list[Transition] = []  # every transition seen (bounded)
         self.started_s = time.monotonic()
+        self.shared_places: list[str] = []  # fleet areas several robots have been in
 
     def _row(self, fleet: str, robot: str) -> RobotRow:
         key = (fleet, robot)
@@ -84,11 +87,26 @@ class FleetView:
         row.transitions = state.transitions
         row.open = state.open
 
+    def add_fleet_graph(self, fleet: str, graph: FleetGraph) -> None:
+        """Record the fleet's places (``fleet_area_graph``): each robot's current one."""
+        for (row_fleet, robot), row in self.rows.items():
+            if row_fleet == fleet and (robot, row.area) in graph.area_of:
+                place_robot, place_area = graph.key_of(robot, row.area)
+                row.place = f"{place_robot}:{place_area}"
+        self.shared_places = [
+            f"{fleet} place {node.members[0][0]}:{node.members[0][1]}: "
+            + ", ".join(f"{robot}:{area}" for robot, area in node.members)
+            for node in graph.nodes
+            if len(graph.robots_in(node.area)) > 1
+        ]
+
     def table(self) -> str:
         """Render the rows as a fixed-width table."""
+        places = any(row.place is not None for row in self.rows.values())
         header = (
             f"{'robot':<24} {'session':<14} {'submap':>6} {'area':>5} {'frames':>7} {'trans':>5} "
             f"{'last':>6} {'reason':<12} {'Ncut':>6} {'λ2':>6}"
+            + (f" {'place':<16}" if places else "")
         )
         lines = [header, "-" * len(header)]
         for (fleet, robot), row in sorted(self.rows.items()):
@@ -97,7 +115,9 @@ class FleetView:
                 f"{name:<24} {row.session[-14:]:<14} {row.submap:>6} {row.area:>5} "
                 f"{'-' if row.frames is None else row.frames:>7} {row.transitions:>5} "
                 f"{'-' if row.last_seq is None else row.last_seq:>6} {row.last_reason:<12} "
-                f"{_num(row.ncut):>6} {_num(row.lambda2):>6}" + ("" if row.open else "  (closed)")
+                f"{_num(row.ncut):>6} {_num(row.lambda2):>6}"
+                + (f" {row.place or '-':<16}" if places else "")
+                + ("" if row.open else "  (closed)")
             )
         return "\n".join(lines)
 
@@ -106,6 +126,9 @@ class FleetView:
         elapsed = time.monotonic() - self.started_s
         parts = [f"{title}   ({elapsed:5.1f} s)", "", self.table(), "", "recent transitions:"]
         parts += [f"  {line}" for line in self.log[-recent:]] or ["  (none yet)"]
+        if self.shared_places:
+            parts += ["", "places shared by several robots (robot:area):"]
+            parts += [f"  {line}" for line in self.shared_places[-recent:]]
         return "\n".join(parts)
 
 
