@@ -210,3 +210,27 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
         name = line.split()[0].split("/")[1]
         robot, area = fleet.key_of(name, current[name])
         assert line.removesuffix("(closed)").split()[-1] == f"{robot}:{area}"
+
+
+def test_areas_command_without_robots_is_one_line(router: str) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "lessmap", "areas", "--fleet", "nobody", "-e", router],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines() == [
+        f"lessmap areas: no robot of fleet 'nobody' answered at {router} within 2 s"
+    ]
+
+
+def test_watch_places_need_one_fleet() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "lessmap", "watch", "--shared-features"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 1
+    assert done.stderr.strip() == "lessmap watch: --shared-features follows one fleet: give --fleet"
