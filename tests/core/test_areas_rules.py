@@ -8,6 +8,7 @@ changed, and asserts the difference, so a test fails when its rule stops working
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -23,7 +24,7 @@ from lessmap.core.areas import (
     profile,
     rate_overlap,
 )
-from lessmap.core.areas_rules import blind_run
+from lessmap.core.areas_rules import blind_run, seam
 from lessmap.core.areas_snapshot import from_bytes, to_bytes
 from lessmap.core.params import PartitionParams
 from tests.core.helpers import room_walk
@@ -152,7 +153,7 @@ def test_the_doorway_before_a_boundary_is_not_the_area_s_own() -> None:
             *[seen(rng, A, 0.8) + seen(rng, B, 0.6) for _ in range(3)],
             *stay(rng, B, 30),
         ]
-        _, changes = track(frames)
+        _, changes = track(frames, AreaParams(seam_frames=0))  # the area boundary reported
         assert moves(changes) == [(0, 1)]
         assert 12 <= changes[0].transition.boundary_seq <= 16
         found += len(changes)
@@ -203,16 +204,16 @@ def doorway(rng: np.random.Generator) -> Frames:
 
 
 def test_a_weak_proposal_waits_for_its_new_side_to_last() -> None:
-    p = AreaParams()
+    p = AreaParams(seam_frames=0)  # the area boundary reported, not the segments' seam
     early = 0
     for seed in range(10):
-        _, found = track(doorway(np.random.default_rng(seed)))
+        _, found = track(doorway(np.random.default_rng(seed)), p)
         assert moves(found) == [(0, 1)]
         for change in found:
             t = change.transition
             if t.ncut is not None and t.ncut > p.weak_ncut:
                 assert t.seq - t.boundary_seq >= p.weak_frames
-        _, off = track(doorway(np.random.default_rng(seed)), AreaParams(weak_frames=0))
+        _, off = track(doorway(np.random.default_rng(seed)), replace(p, weak_frames=0))
         assert moves(off) == [(0, 1)]
         early += sum(c.transition.seq - c.transition.boundary_seq < p.weak_frames for c in off)
     assert early >= 5  # without the rule, most of these doors are confirmed sooner
@@ -350,6 +351,48 @@ def test_every_sighting_belongs_to_exactly_one_area(seed: int) -> None:
             assert change.area == tracker.current != change.left_area
 
 
+def test_the_seam_is_where_the_two_sides_share_most_features() -> None:
+    frames: list[tuple[int, tuple[int, ...]]] = [(0, (1, 2, 3)), (1, (1, 2, 3)), (2, (1, 2, 3))]
+    frames += [(3, (1, 2, 3))]
+    frames += [(4, (1, 2, 3, 4, 5)), (5, (1, 2, 4, 5)), (6, (4, 5, 6))]
+    frames += [(7, (4, 5, 6)), (8, (4, 5, 6)), (9, (4, 5, 6))]
+    counts = dict(Counter(f for _, features in frames for f in features))
+    # shared within 2 frames: 3 at frame 4 ({1, 2, 3}), 4 at 5 ({1, 2, 4, 5}), 2 at 6
+    assert seam(frames, counts, 4, 2, 3) == 5
+    assert seam(frames, counts, 4, 0, 3) == 4  # off
+    assert seam(frames, counts, 4, 2, 6) == 4  # 5 would leave 5 features on either side
+    # from 6: 2 at 6, 3 at 7 and 8 (the earliest wins); never frame 5 (4), before it
+    assert seam(frames, counts, 6, 2, 3) == 7
+    assert seam(frames, counts, 9, 2, 3) == 9  # nothing kept after the last frame
+    assert seam(frames, counts, 42, 2, 3) == 42  # not a kept frame
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_segments_meet_at_the_seam_and_areas_at_the_boundary(seed: int) -> None:
+    # A 360° door: B's frames still see A, fading. The area entered takes the frames from
+    # the boundary on; the segment entered starts at the seam, after the frames that see
+    # most of both rooms, so the two segments share more features.
+    rng = np.random.default_rng(seed)
+    frames = [*stay(rng, A, 40), *wide_door(rng, B, A), *stay(rng, B, 30)]
+    width = AreaParams().seam_frames
+    assert width > 0
+    tracker, found = track(frames)
+    plain, unseamed = track(frames, AreaParams(seam_frames=0))
+    assert moves(found) == moves(unseamed) == [(0, 1)]
+    assert tracker.areas == plain.areas  # the area model does not move
+    assert tracker.area_frames == plain.area_frames
+    t, u = found[0].transition, unseamed[0].transition
+    assert t.seq == u.seq
+    assert u.boundary_seq <= t.boundary_seq <= min(u.boundary_seq + width, t.seq)
+    assert t.opened.first_seq == t.boundary_seq == t.closed.last_seq + 1
+    assert (
+        t.closed.frame_count + t.opened.frame_count == u.closed.frame_count + u.opened.frame_count
+    )
+    assert tracker.current_segment().first_seq == t.boundary_seq
+    shared = len(set(t.closed.features) & set(t.opened.features))
+    assert shared >= len(set(u.closed.features) & set(u.opened.features))
+
+
 # -- rule 8: snapshots ---------------------------------------------------------------------
 
 
@@ -397,6 +440,7 @@ def test_restoring_at_every_frame_keeps_recognition_and_merges(seed: int) -> Non
         ("recognise_frames", -1),
         ("recognise_llr", -1.0),
         ("merge_overlap", 0.0),
+        ("seam_frames", -1),
     ],
 )
 def test_invalid_rule_params_are_named(field: str, value: float) -> None:

@@ -58,7 +58,13 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
 7. **Area model.** Each area keeps, per feature, the number of its frames that saw it, and
    its number of non-empty frames. On a transition the frames from the boundary on move
    from the area left to the area entered. Area ids count from 0 per tracker, in order of
-   opening; a merged id is never reused.
+   opening; a merged id is never reused. The *segment* entered (the submap reported:
+   ``Transition.boundary_seq``, ``opened``) starts at the *seam*: of the frames from the
+   boundary to ``seam_frames`` frames after it, the one with the most features seen both in
+   the ``seam_frames`` frames before it and in those from it on (the earliest of equals;
+   both segments keep ``min_area_features``). The frames between boundary and seam are the
+   area entered's but the segment closed's: two submaps share the landmarks their robot saw
+   at the door (Eq. 5 counts a landmark in every submap that saw it).
 8. **State.** Everything that influences a later decision is in ``AreaTracker``'s fields and
    round-trips through ``lessmap.core.areas_snapshot`` bit for bit; the proposer is a
    ``Partitioner``, so its state is the paper's snapshot. Cached profiles are derived from
@@ -72,6 +78,7 @@ No I/O, no clock, no logging: frames in, ``AreaTransition`` out. The parameters 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from lessmap.core import areas_rules as rules
@@ -355,8 +362,7 @@ class AreaTracker:
     ) -> AreaTransition:
         """Close the segment at the boundary, move its new frames to the area entered."""
         boundary = candidate.boundary_seq
-        after, before, moved_nonempty = rules.sides(self.frames, self.segment_counts, boundary)
-        moved = [frame for frame in self.frames if frame[0] >= boundary]
+        after, _, moved_nonempty = rules.sides(self.frames, self.segment_counts, boundary)
         left = self.current
         if known is None:
             self.areas.append({})
@@ -367,6 +373,17 @@ class AreaTracker:
         move(self.areas, self.area_frames, left, area, after, moved_nonempty)
         self._profiles.pop(left, None)
         self._profiles.pop(area, None)
+        # the segments (submaps) meet at the seam, at or after the area boundary
+        p = self.params
+        seam = rules.seam(
+            self.frames, self.segment_counts, boundary, p.seam_frames, p.min_area_features
+        )
+        if seam != boundary:
+            candidate = replace(candidate, boundary_seq=seam)
+            after, before, _ = rules.sides(self.frames, self.segment_counts, seam)
+        else:
+            before = without(self.segment_counts, after)
+        moved = [frame for frame in self.frames if frame[0] >= seam]
         first = self.segment_first_seq if self.segment_first_seq is not None else seq
         transition = segment_transition(
             candidate,
@@ -378,7 +395,7 @@ class AreaTracker:
         self.frames.clear()
         self.frames.extend(moved)
         self.segment_id += 1
-        self.segment_first_seq = boundary
+        self.segment_first_seq = seam
         self.segment_frame_count = len(moved)
         self.segment_counts = dict(after)
         self.current = area

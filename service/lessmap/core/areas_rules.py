@@ -6,6 +6,7 @@ the tracker decides what to do with their answers.
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from typing import TYPE_CHECKING
 
 from lessmap.core.areas_profile import tally, without
@@ -68,6 +69,39 @@ def blind_run(frames: Sequence[Frame], boundary: int, margin: int) -> int:
             run += 1
             best = max(best, run)
     return best
+
+
+def seam(
+    frames: Sequence[Frame], segment_counts: dict[int, int], boundary: int, width: int, least: int
+) -> int:
+    """Where the segment entered starts: at most ``width`` frames after the boundary (rule 7).
+
+    Of the kept frames from ``boundary`` to ``width`` frames after it, the one with the most
+    features seen both in the ``width`` frames before it and in the ``width`` frames from it
+    on (ties: the earliest), among those that leave ``least`` distinct features on each
+    side of the segment; ``boundary`` when ``width`` is 0 or no other frame qualifies.
+    """
+    if not width:
+        return boundary
+    seqs = [frame_seq for frame_seq, _ in frames]
+    at = bisect_left(seqs, boundary)
+    if at >= len(seqs) or seqs[at] != boundary:
+        return boundary
+    kept = [features for _, features in frames]
+
+    def shared(i: int) -> int:
+        left = {f for features in kept[max(0, i - width) : i] for f in features}
+        right = {f for features in kept[i : i + width] for f in features}
+        return len(left & right)
+
+    order = sorted(range(at, min(len(seqs) - 1, at + width) + 1), key=lambda i: (-shared(i), i))
+    for i in order:
+        if i == at:
+            return boundary
+        after, before, _ = sides(frames, segment_counts, seqs[i])
+        if len(after) >= least and len(before) >= least:
+            return seqs[i]
+    return boundary
 
 
 def familiar_share(

@@ -7,7 +7,7 @@ are summed in) and the kept frames, and ``meta`` is a UTF-8 JSON document of the
 the areas' frame counts and the merged areas. The version number changes whenever the layout
 does (2: frame counts per area and merges, for recognition and merging; 3: the parameter
 ``familiar_relative``; 4: ``weak_ncut`` and ``weak_frames``; 5: ``blind_span`` and
-``blind_margin``).
+``blind_margin``; 6: ``seam_frames``).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from lessmap.core.areas import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.submaps import Reason
 
-AREAS_SNAPSHOT_VERSION = 5
+AREAS_SNAPSHOT_VERSION = 6
 
 _POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
 _INT_FIELDS = (
