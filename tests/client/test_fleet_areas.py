@@ -12,7 +12,8 @@ import itertools
 import json
 import subprocess
 import sys
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -25,12 +26,12 @@ from lessmap_client import FleetClient, RobotPublisher
 from lessmap_client.fleet_areas import FleetParams, fleet_graph, fleet_graph_of
 from lessmap_client.testing import FakeBus
 from lessmap_schemas import partition
+from lessmap_schemas.codec import decode
 from lessmap_schemas.messages import AreaGraph, AreaNode, Passage
 from tests.conftest import wait_until
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-    from pathlib import Path
 
     import zenoh
 
@@ -96,6 +97,53 @@ def test_fake_bus_answers_the_fleet_area_graph() -> None:
     with FleetClient(FLEET, session=bus.connect()) as client:
         fleet = client.fleet_area_graph(shared_features=True)
     assert [n.members for n in fleet.nodes] == [(("r1", 0), ("r2", 0)), (("r1", 1),)]
+
+
+VECTORS = Path(__file__).resolve().parents[2] / "schemas" / "vectors" / "fleet_areas.json"
+
+
+@pytest.mark.parametrize(
+    "case",
+    json.loads(VECTORS.read_text(encoding="utf-8"))["cases"],
+    ids=lambda case: case["name"],
+)
+def test_fleet_area_vector(case: dict[str, Any]) -> None:
+    # The same file the Rust client checks (clients/rust/tests/vectors.rs): one merge.
+    graphs = [decode(bytes.fromhex(h), AreaGraph) for h in case["graphs_hex"]]
+    fleet = fleet_graph_of(graphs, FleetParams(**case["params"]))
+    want = case["fleet"]
+    assert [
+        {
+            "area": n.area,
+            "members": [list(m) for m in n.members],
+            "frames": n.frames,
+            "visits": n.visits,
+            "features": n.features,
+        }
+        for n in fleet.nodes
+    ] == want["nodes"]
+    assert [
+        {
+            "a": e.a,
+            "b": e.b,
+            "a_to_b": e.a_to_b,
+            "b_to_a": e.b_to_a,
+            "robots": list(e.robots),
+            "boundary_features": [list(p) for p in e.boundary_features],
+        }
+        for e in fleet.edges
+    ] == want["edges"]
+    assert [[r, a, f] for (r, a), f in sorted(fleet.area_of.items())] == want["area_of"]
+
+
+def test_fleet_area_vectors_cover_each_rule() -> None:
+    cases = {c["name"]: c for c in json.loads(VECTORS.read_text(encoding="utf-8"))["cases"]}
+    shared = cases["robots in one room share a fleet area"]["fleet"]["nodes"]
+    assert any(len({m[0] for m in n["members"]}) > 1 for n in shared)
+    apart = cases["ids are per robot without shared features"]["fleet"]["nodes"]
+    assert all(len(n["members"]) == 1 for n in apart)
+    trimmed = cases["boundary features trimmed to the most frequent over robots"]
+    assert all(len(e["boundary_features"]) == 4 for e in trimmed["fleet"]["edges"])
 
 
 def robot_names(instances: list[str]) -> list[str]:

@@ -29,8 +29,9 @@ def cases(group: str) -> list[Any]:
 
 
 def test_one_vector_file_per_message_type() -> None:
-    # One file per message type, and partition.json (section 2a; tests/schemas/test_partition.py).
-    expected = sorted([*MESSAGE_TYPES, "partition"])
+    # One file per message type, partition.json (section 2a; tests/schemas/test_partition.py)
+    # and fleet_areas.json (the SDKs' fleet merge; tests/client/test_fleet_areas.py).
+    expected = sorted([*MESSAGE_TYPES, "partition", "fleet_areas"])
     assert sorted(path.stem for path in VECTORS.glob("*.json")) == expected
     for kind in MESSAGE_TYPES:
         data = load(kind)
