@@ -256,8 +256,8 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
     assert len(rows) == 2
     for line in rows:
         name = line.split()[0].split("/")[1]
-        robot, area = fleet.key_of(name, current[name])
-        assert line.removesuffix("(closed)").split()[-1] == f"{robot}:{area}"
+        first_robot, first_area = fleet.key_of(name, current[name])
+        assert line.removesuffix("(closed)").split()[-1] == f"{first_robot}:{first_area}"
 
 
 def test_areas_command_without_robots_is_one_line(router: str) -> None:
