@@ -19,6 +19,7 @@ use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::{Session, Wait};
 
 use crate::codec::{decode, WireError};
+use crate::fleet_areas::{fleet_graph, FleetGraph, FleetMergeError, FleetParams};
 use crate::messages::{AreaGraph, Health, Message, SessionState, Submap, Transition};
 use crate::names::{keys, owner_and_standby, PARTITIONS};
 use crate::robot::{RobotOptions, RobotPublisher};
@@ -42,6 +43,8 @@ pub enum ClientError {
     SessionClosed(String),
     /// The object was already closed.
     Closed,
+    /// The robots' area graphs could not be merged into the fleet's.
+    FleetMerge(FleetMergeError),
 }
 
 impl fmt::Display for ClientError {
@@ -51,6 +54,7 @@ impl fmt::Display for ClientError {
             ClientError::Zenoh(err) => write!(f, "zenoh: {err}"),
             ClientError::Connect(msg) | ClientError::SessionClosed(msg) => f.write_str(msg),
             ClientError::Closed => f.write_str("already closed"),
+            ClientError::FleetMerge(err) => write!(f, "{err}"),
         }
     }
 }
@@ -276,6 +280,26 @@ impl Connection {
     ) -> Result<Vec<AreaGraph>, ClientError> {
         let found = get_all::<AreaGraph>(&self.session, &keys::areas(fleet, robot)?, timeout)?;
         Ok(current_area_graphs(found))
+    }
+
+    /// The places of one fleet: every robot's area graph (one query for the fleet, wherever
+    /// each robot's session lives) merged by [`fleet_graph`]. With
+    /// [`FleetParams::shared`] (global feature ids) robots that have been in the same place
+    /// share its fleet area; fleet ids name this answer's areas, [`FleetGraph::key_of`] names
+    /// them across answers.
+    pub fn fleet_area_graph(
+        &self,
+        fleet: &str,
+        params: &FleetParams,
+        timeout: Duration,
+    ) -> Result<FleetGraph, ClientError> {
+        if fleet.contains('*') {
+            return Err(ClientError::FleetMerge(FleetMergeError::SeveralFleets(
+                vec![fleet.to_owned()],
+            )));
+        }
+        let graphs = self.area_graphs(fleet, "*", timeout)?;
+        fleet_graph(&graphs, params).map_err(ClientError::FleetMerge)
     }
 
     /// The `Health` of every live instance that answers.

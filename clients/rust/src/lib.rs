@@ -3,7 +3,8 @@
 //! It speaks the wire contract v3 (`schemas/README.md` of the lessmap repository): the typed
 //! messages and their msgpack codec ([`messages`], [`codec`]), names, keys and partitions
 //! ([`names`]), a robot publisher ([`RobotPublisher`]) and fleet subscriptions and queries,
-//! all declared from one [`Connection`], as in the Python SDK.
+//! all declared from one [`Connection`], as in the Python SDK, and the fleet merge of the
+//! robots' area graphs ([`fleet_areas`]).
 //!
 //! ```no_run
 //! use std::time::Duration;
@@ -18,6 +19,7 @@
 
 pub mod codec;
 pub mod connection;
+pub mod fleet_areas;
 pub mod messages;
 pub mod names;
 pub mod robot;
@@ -27,6 +29,9 @@ pub use codec::{
     decode, decode_inbound, encode, encoding, ErrorCode, Inbound, WireError, WireLimits,
 };
 pub use connection::{ClientError, Connection, DEFAULT_ENDPOINT, DEFAULT_HISTORY};
+pub use fleet_areas::{
+    fleet_graph, FleetEdge, FleetGraph, FleetMergeError, FleetNode, FleetParams,
+};
 pub use messages::{
     AreaGraph, AreaNode, Error, Frame, Health, Message, Method, Passage, Reason, SessionEnd,
     SessionState, Submap, SubmapSummary, Transition,

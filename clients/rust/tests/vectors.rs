@@ -9,6 +9,7 @@ use std::path::PathBuf;
 
 use lessmap_client::codec::{decode, encode};
 use lessmap_client::connection::current_area_graphs;
+use lessmap_client::fleet_areas::{fleet_graph, FleetParams};
 use lessmap_client::names::{partition_of, ranking, score, PARTITIONS};
 use lessmap_client::{
     end_progress, AreaGraph, EndProgress, Error, Frame, Health, Message, Method, Reason,
@@ -112,6 +113,7 @@ fn every_vector_file_is_checked() {
         AreaGraph::TYPE,
         Health::TYPE,
         "partition",
+        "fleet_areas",
     ]
     .into_iter()
     .map(String::from)
@@ -326,4 +328,93 @@ fn close_confirmation_follows_the_newest_state_of_the_session() {
     let mut deposed_open = open.clone();
     deposed_open.epoch = closed.epoch - 1;
     assert_eq!(progress(&[&deposed_open, &closed], &session, 42), Closed);
+}
+
+#[test]
+fn fleet_area_vectors() {
+    // The Python SDK checks the same file (tests/client/test_fleet_areas.py): one merge.
+    let file = load("fleet_areas");
+    let cases = file["cases"].as_array().unwrap();
+    assert!(cases.len() >= 10);
+    for case in cases {
+        let name = case["name"].as_str().unwrap();
+        let p = &case["params"];
+        let params = FleetParams {
+            shared_features: p["shared_features"].as_bool().unwrap(),
+            min_containment: p["min_containment"].as_f64().unwrap(),
+            min_shared: p["min_shared"].as_u64().unwrap(),
+            min_linked_share: p["min_linked_share"].as_f64().unwrap(),
+            max_boundary_features: usize::try_from(p["max_boundary_features"].as_u64().unwrap())
+                .unwrap(),
+        };
+        let graphs: Vec<AreaGraph> = case["graphs_hex"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|h| decode::<AreaGraph>(&unhex(h.as_str().unwrap())).expect(name))
+            .collect();
+        let fleet = fleet_graph(&graphs, &params).expect(name);
+        let nodes: Vec<Value> = fleet
+            .nodes
+            .iter()
+            .map(|n| {
+                serde_json::json!({
+                    "area": n.area,
+                    "members": n.members.iter().map(|(r, a)| serde_json::json!([r, a])).collect::<Vec<_>>(),
+                    "frames": n.frames,
+                    "visits": n.visits,
+                    "features": n.features,
+                })
+            })
+            .collect();
+        assert_eq!(Value::from(nodes), case["fleet"]["nodes"], "{name}: nodes");
+        let edges: Vec<Value> = fleet
+            .edges
+            .iter()
+            .map(|e| {
+                serde_json::json!({
+                    "a": e.a,
+                    "b": e.b,
+                    "a_to_b": e.a_to_b,
+                    "b_to_a": e.b_to_a,
+                    "robots": e.robots,
+                    "boundary_features": e.boundary_features.iter().map(|(f, n)| serde_json::json!([f, n])).collect::<Vec<_>>(),
+                })
+            })
+            .collect();
+        assert_eq!(Value::from(edges), case["fleet"]["edges"], "{name}: edges");
+        let area_of: Vec<Value> = fleet
+            .area_of
+            .iter()
+            .map(|((r, a), f)| serde_json::json!([r, a, f]))
+            .collect();
+        assert_eq!(
+            Value::from(area_of),
+            case["fleet"]["area_of"],
+            "{name}: area_of"
+        );
+    }
+}
+
+#[test]
+fn fleet_merge_refuses_mixed_input() {
+    let file = load("fleet_areas");
+    let case = &file["cases"][0];
+    let graph: AreaGraph = decode(&unhex(case["graphs_hex"][0].as_str().unwrap())).unwrap();
+    let twice = [graph.clone(), graph.clone()];
+    let err = fleet_graph(&twice, &FleetParams::default()).unwrap_err();
+    assert!(
+        err.to_string().contains("two area graphs for robot"),
+        "{err}"
+    );
+    let mut other = graph.clone();
+    other.fleet = "elsewhere".to_owned();
+    other.robot = "r9".to_owned();
+    let err = fleet_graph(&[graph, other], &FleetParams::default()).unwrap_err();
+    assert!(err.to_string().contains("several fleets"), "{err}");
+    let bad = FleetParams {
+        min_containment: 0.0,
+        ..FleetParams::shared()
+    };
+    assert!(fleet_graph(&[], &bad).is_err());
 }
