@@ -177,7 +177,23 @@ def test_a_fleet_over_two_instances_merges_as_the_segmenter_offline(
     }
     session = client_session(router)
     with FleetClient(FLEET, session=session) as client:
-        wait_until(lambda: len(client.instances()) == 2, 60.0, "two instances", services[0].log)
+
+        def settled() -> bool:
+            # Both alive and each serving the partitions it owns: the robots then publish to
+            # their final owners (hand-overs mid-stream are the failover tests' subject).
+            owned: dict[str, set[int]] = {s.instance: set() for s in services}
+            for p, (owner, _) in client.coverage().items():
+                if owner in owned:
+                    owned[owner].add(p)
+            serving = {h.instance: set(h.partitions) for h in client.health()}
+            return all(owned[i] and serving.get(i) == owned[i] for i in owned)
+
+        wait_until(
+            settled,
+            60.0,
+            "two instances serving their partitions",
+            lambda: services[0].log() + services[1].log(),
+        )
         for name, frames in streams.items():
             with RobotPublisher(FLEET, name, session=session) as robot:
                 assert robot.wait_for_service(20.0)
