@@ -4,6 +4,7 @@
     python -m tests.benchmarks.core_bench --quick             # n = 50, 200, 800; no 10k session
     python -m tests.benchmarks.core_bench --sizes 400,1600 --frames 40 --profile 1600
     python -m tests.benchmarks.core_bench --sizes 400,1600,3200 --no-visual --no-memory --worst 5
+    python -m tests.benchmarks.core_bench --store-ab          # visual: dense vs sparse store
 
 Run from the repository root. Everything runs in this process on one thread (BLAS pinned to
 one thread with threadpoolctl, as ``lessmap serve`` does), except the 10,000-node memory
@@ -64,7 +65,7 @@ from scipy import linalg, sparse
 from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 from threadpoolctl import threadpool_limits
 
-from lessmap.core import CovGraph, Partitioner, PartitionParams, Transition
+from lessmap.core import CovGraph, Partitioner, PartitionParams, Transition, covgraph
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -274,6 +275,39 @@ def _decision(partitioner: Partitioner, transition: Transition | None) -> tuple[
     return outcome
 
 
+def store_ab(stream: Stream, params: PartitionParams | None = None) -> str:
+    """The stream fed to two partitioners frame by frame, alternately first: one may hold a
+    dense graph above ``dense_max_nodes`` in the dense store, the other keeps the sparse
+    store there (``DENSE_STORE_MAX_NODES`` = 0 while it steps). Both see the same load;
+    their transitions and evaluations are compared as they are made."""
+    caps = {"dense store": covgraph.DENSE_STORE_MAX_NODES, "sparse store": 0}
+    params = params_of(stream) if params is None else params
+    partitioners = {name: Partitioner(params) for name in caps}
+    spent: dict[str, list[float]] = {name: [] for name in caps}
+    same = True
+    clock = time.process_time
+    try:
+        for seq, (frame, measured) in enumerate(zip(stream.frames, stream.measured, strict=True)):
+            outcomes = {}
+            for name in sorted(caps, reverse=seq % 2 == 1):
+                covgraph.DENSE_STORE_MAX_NODES = caps[name]
+                partitioner = partitioners[name]
+                started = clock()
+                partitioner.apply(seq, float(seq), frame)
+                transition = partitioner.decide()
+                if measured:
+                    spent[name].append(1e3 * (clock() - started))
+                outcomes[name] = (transition, partitioner.last_evaluation)
+            same &= outcomes["dense store"] == outcomes["sparse store"]
+    finally:
+        covgraph.DENSE_STORE_MAX_NODES = caps["dense store"]
+    figures = "; ".join(
+        f"{name}: median {_median(ms):.1f} ms, mean {statistics.fmean(ms):.1f} ms"
+        for name, ms in spent.items()
+    )
+    return f"{stream.name}, {len(spent['dense store'])} frames: {figures}; same decisions: {same}"
+
+
 # -- baselines on the same graphs ------------------------------------------------------------
 
 
@@ -404,8 +438,9 @@ def _retained(frames: list[list[int]]) -> tuple[int, int, int]:
 
 
 def bytes_per_node_and_edge() -> dict[str, float]:
-    """Bytes a CovGraph holds per edge (same 2,000 nodes, 0.2 M vs 1 M edges) and per node
-    (20,000 nodes in pairs: 10,000 edges), from tracemalloc (numpy reports its buffers)."""
+    """Bytes a CovGraph holds per edge (same 2,000 nodes, 0.2 M vs 1 M edges: the sparse
+    store), per node (20,000 nodes in pairs: 10,000 edges), and per edge of a dense graph of
+    1,100 nodes (the dense store), from tracemalloc (numpy reports its buffers)."""
     rng = np.random.default_rng(11)
     tracemalloc.start()
     try:
@@ -415,9 +450,20 @@ def bytes_per_node_and_edge() -> dict[str, float]:
         _, e2, b2 = _retained(dense_graph)
         per_edge = (b2 - b1) / (e2 - e1)
         n3, e3, b3 = _retained([[2 * i, 2 * i + 1] for i in range(10_000)])
+        per_node = (b3 - per_edge * e3) / n3
+        # A dense graph above 400 nodes (frames of half of 1,100 features: ~88 % of the
+        # pairs are edges) is held in the dense store: 24 B per pair, edge or not.
+        frames = [sorted(rng.choice(1100, size=550, replace=False).tolist()) for _ in range(7)]
+        n4, e4, b4 = _retained(frames)
     finally:
         tracemalloc.stop()
-    return {"per_edge": per_edge, "per_node": (b3 - per_edge * e3) / n3}
+    return {
+        "per_edge": per_edge,
+        "per_node": per_node,
+        "dense_nodes": n4,
+        "dense_share": 200.0 * e4 / (n4 * (n4 - 1)),
+        "dense_per_edge": (b4 - per_node * n4) / e4,
+    }
 
 
 def memory_child(nodes: int, edges: int, alive: int) -> dict[str, float]:
@@ -563,11 +609,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--worst", type=int, default=0, help="list each stream's N most expensive frames"
     )
+    parser.add_argument(
+        "--store-ab",
+        action="store_true",
+        help="only the visual stream, dense against sparse store frame by frame (one process)",
+    )
     parser.add_argument("--memory-child", nargs=3, type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.memory_child:
         with threadpool_limits(limits=1):
             sys.stdout.write(json.dumps(memory_child(*args.memory_child)) + "\n")
+        return 0
+    if args.store_ab:
+        stream = visual(frames_per_room=args.visual_frames, alive=args.visual_alive)
+        with threadpool_limits(limits=1):
+            sys.stdout.write(store_ab(stream) + "\n")
         return 0
     if args.sizes:
         sizes = [int(s) for s in args.sizes.split(",")]
@@ -643,7 +699,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         fit = bytes_per_node_and_edge()
         out.write(
             f"memory (CovGraph after a W refresh, tracemalloc): {fit['per_node']:.0f} B/node, "
-            f"{fit['per_edge']:.1f} B/edge\n"
+            f"{fit['per_edge']:.1f} B/edge; a dense graph of {fit['dense_nodes']:.0f} nodes "
+            f"({fit['dense_share']:.0f} % of the pairs are edges, dense store): "
+            f"{fit['dense_per_edge']:.1f} B/edge\n"
         )
         if args.quick:
             out.write("10,000-node 5 M-edge session: skipped (--quick)\n")

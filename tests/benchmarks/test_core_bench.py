@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
+from lessmap.core import covgraph
 from tests.benchmarks import core_bench
 
 if TYPE_CHECKING:
@@ -72,3 +73,12 @@ def test_decisions_with_the_dense_store_above_dense_max_nodes_equal_the_exact_de
     fast = core_bench.decisions(stream, params, exact=False)
     assert fast == core_bench.decisions(stream, params, exact=True)
     assert any(len(decision) > 4 for decision in fast)
+
+
+def test_the_store_comparison_runs_both_stores_to_the_same_decisions() -> None:
+    stream = core_bench.visual(frames_per_room=15, alive=120, pool=300, warmup=5)
+    line = core_bench.store_ab(stream, core_bench.params_of(stream, dense_max_nodes=100))
+    assert "dense store: median" in line
+    assert "sparse store: median" in line
+    assert line.endswith("same decisions: True")
+    assert covgraph.DENSE_STORE_MAX_NODES == 4096  # restored
