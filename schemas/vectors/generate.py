@@ -666,27 +666,7 @@ def fleet_area_vectors() -> dict[str, object]:
                 },
                 "graphs_hex": [encode(g).hex() for g in graphs],
                 "fleet": {
-                    "nodes": [
-                        {
-                            "area": n.area,
-                            "members": [list(m) for m in n.members],
-                            "frames": n.frames,
-                            "visits": n.visits,
-                            "features": n.features,
-                        }
-                        for n in fleet.nodes
-                    ],
-                    "edges": [
-                        {
-                            "a": e.a,
-                            "b": e.b,
-                            "a_to_b": e.a_to_b,
-                            "b_to_a": e.b_to_a,
-                            "robots": list(e.robots),
-                            "boundary_features": [list(p) for p in e.boundary_features],
-                        }
-                        for e in fleet.edges
-                    ],
+                    **fleet.to_json(),
                     "area_of": [[r, a, f] for (r, a), f in sorted(fleet.area_of.items())],
                 },
             }

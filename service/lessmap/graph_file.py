@@ -69,19 +69,7 @@ def graph_document(
             }
             for robot, graph in sorted(robots.items())
         },
-        "fleet": {
-            "nodes": [
-                {
-                    "area": n.area,
-                    "members": [list(m) for m in n.members],
-                    "frames": n.frames,
-                    "visits": n.visits,
-                    "features": n.features,
-                }
-                for n in fleet.nodes
-            ],
-            "edges": [_edge(e) | {"robots": list(e.robots)} for e in fleet.edges],
-        },
+        "fleet": fleet.to_json(),
     }
 
 
@@ -112,7 +100,7 @@ def area_graph_from_wire(message: WireAreaGraph) -> AreaGraph:
     )
 
 
-def _edge(edge: AreaEdge | FleetEdge) -> dict[str, Any]:
+def _edge(edge: AreaEdge) -> dict[str, Any]:
     return {
         "a": edge.a,
         "b": edge.b,

@@ -112,27 +112,7 @@ def test_fleet_area_vector(case: dict[str, Any]) -> None:
     graphs = [decode(bytes.fromhex(h), AreaGraph) for h in case["graphs_hex"]]
     fleet = fleet_graph_of(graphs, FleetParams(**case["params"]))
     want = case["fleet"]
-    assert [
-        {
-            "area": n.area,
-            "members": [list(m) for m in n.members],
-            "frames": n.frames,
-            "visits": n.visits,
-            "features": n.features,
-        }
-        for n in fleet.nodes
-    ] == want["nodes"]
-    assert [
-        {
-            "a": e.a,
-            "b": e.b,
-            "a_to_b": e.a_to_b,
-            "b_to_a": e.b_to_a,
-            "robots": list(e.robots),
-            "boundary_features": [list(p) for p in e.boundary_features],
-        }
-        for e in fleet.edges
-    ] == want["edges"]
+    assert fleet.to_json() == {"nodes": want["nodes"], "edges": want["edges"]}
     assert [[r, a, f] for (r, a), f in sorted(fleet.area_of.items())] == want["area_of"]
 
 

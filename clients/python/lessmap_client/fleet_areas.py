@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -190,6 +190,32 @@ class FleetGraph:
     def members_of(self, area: int) -> tuple[Member, ...]:
         """The robot areas of fleet area ``area``."""
         return self.nodes[area].members
+
+    def to_json(self) -> dict[str, Any]:
+        """The nodes and edges as JSON-ready lists (the area-graph file's and the vectors')."""
+        return {
+            "nodes": [
+                {
+                    "area": n.area,
+                    "members": [list(m) for m in n.members],
+                    "frames": n.frames,
+                    "visits": n.visits,
+                    "features": n.features,
+                }
+                for n in self.nodes
+            ],
+            "edges": [
+                {
+                    "a": e.a,
+                    "b": e.b,
+                    "a_to_b": e.a_to_b,
+                    "b_to_a": e.b_to_a,
+                    "boundary_features": [list(pair) for pair in e.boundary_features],
+                    "robots": list(e.robots),
+                }
+                for e in self.edges
+            ],
+        }
 
     def robots_in(self, area: int) -> tuple[str, ...]:
         """The robots that have been in fleet area ``area``, ascending."""
