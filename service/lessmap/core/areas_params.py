@@ -102,11 +102,12 @@ class AreaParams:
     merge_overlap: float = 0.3
     # Rule 7. The segment entered (the submap reported) starts at most this many frames after
     # the area boundary, where the two sides share most features. 0 (off): dlr e 1.474% at
-    # 87 submaps (1.022%; fixed frames 1.134%), 270° / 360° dense revisits 99.0 / 99.3%
-    # recognised (100 / 100); 4: e 1.091%; 8: 1.013%; no transition moves at 4 to 8. The
-    # area boundary moved instead, 4 frames either way: e 0.931% but 270° sparse 2.4% false
-    # area names and 360° sparse R 94.8%. The seam at the fewest shared features (the
-    # paper's cut) gives e 1.64-1.73%: a landmark seen on both sides keeps its pairs.
+    # 87 submaps (1.022%; fixed frames 1.134%), 270° / 360° dense 403 / 403 transitions and
+    # revisits 99.0 / 99.3% recognised (402 / 402, 100 / 100; held-out seeds unchanged);
+    # 4: e 1.091%; 8: 1.013%. The area boundary moved instead, 4 frames either way: e 0.931%
+    # but 270° sparse 2.4% false area names and 360° sparse R 94.8%. Boundaries moved to the
+    # fewest shared features within 3-10 frames (the paper's cut) give e 1.64-1.73%: a
+    # landmark seen on both sides keeps its pairs.
     seam_frames: int = 6
 
     def __post_init__(self) -> None:
