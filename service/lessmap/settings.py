@@ -125,7 +125,10 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         description="feature pairs one frame may update, k(k-1)/2 (about 630 features)",
     )
     max_edges_per_session: int = Field(
-        1_000_000, ge=1, description="CovGraph edges per session (one decision ~0.3 s at it)"
+        1_000_000,
+        ge=1,
+        description="CovGraph edges per session (one decision ~0.3 s at it; a dense graph above "
+        "400 nodes counts its matrix bytes at 24 B an edge when that is more)",
     )
     max_edges_total: int = Field(
         20_000_000, ge=1, description="CovGraph edges summed over the sessions in memory"

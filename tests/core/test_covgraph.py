@@ -258,3 +258,28 @@ def test_feature_id_views_are_read_only() -> None:
     for view in (graph.feature_ids, graph.counts, graph.first_seen):
         with pytest.raises(ValueError, match="read-only"):
             view[0] = 9
+
+
+def test_memory_edges_charge_a_large_dense_store_its_bytes() -> None:
+    from lessmap.core.counts import SPARSE_BYTES_PER_EDGE, DenseCounts
+
+    small = CovGraph(dense_max_nodes=400)
+    small.add_frame(0, range(30))
+    assert small.is_dense
+    assert small.memory_edges == small.edge_count  # small graphs: edges, as always
+
+    big = CovGraph(dense_max_nodes=20)
+    big.add_frame(0, range(30))  # complete: every pair is an edge
+    big.covrate()
+    assert big.dense_store
+    assert not big.is_dense
+    store = big._store
+    assert isinstance(store, DenseCounts)
+    held = store.held_bytes()
+    assert big.memory_edges == -(-held // SPARSE_BYTES_PER_EDGE)
+    assert big.memory_edges > big.edge_count == 435
+
+    sparse_only = CovGraph(dense_max_nodes=0)
+    sparse_only.add_frame(0, range(30))
+    assert not sparse_only.dense_store
+    assert sparse_only.memory_edges == sparse_only.edge_count == 435

@@ -89,6 +89,27 @@ def test_the_edge_budgets_refuse_what_could_cross_them_per_session_and_per_insta
     assert ledger.total() == 0
 
 
+def test_a_dense_graph_above_400_nodes_charges_the_edge_budgets_its_matrix_bytes() -> None:
+    # 420 features seen together: a complete graph, held as a matrix (the dense
+    # store above dense_max_nodes); its cells cost more than its edges at 24 B an edge.
+    ledger = EdgeLedger(1, max_edges_total=10**9)
+    table = make_table(ledger=ledger)
+    assert table.handle_batch([(FLEET, "dense", frame(0, range(420)))], 0.0).rejections == []
+    state = table.state(FLEET, "dense")
+    assert state is not None
+    assert state.edges == pairs_of(420)  # the state reports true edges
+    assert ledger.total() > pairs_of(420)  # the budgets see what the matrix holds
+    # A sparse graph of as many edges is charged its edges.
+    sparse_ledger = EdgeLedger(1, max_edges_total=10**9)
+    sparse_table = make_table(ledger=sparse_ledger)
+    walk = [frame(k, range(10 * k, 10 * k + 25)) for k in range(200)]
+    for f in walk:
+        assert sparse_table.handle_batch([(FLEET, "walk", f)], 0.0).rejections == []
+    walked = sparse_table.state(FLEET, "walk")
+    assert walked is not None
+    assert sparse_ledger.total() == walked.edges
+
+
 def test_new_sessions_are_rate_limited_per_fleet() -> None:
     table = make_table(admission=SessionAdmission(rate_per_s=1.0, burst=2), max_sessions=100)
     outs = [table.handle_batch([(FLEET, f"r{i}", frame(0, [1, 2]))], 0.0) for i in range(3)]

@@ -37,6 +37,10 @@ if TYPE_CHECKING:
 
     from lessmap.core.spectral import Similarity
 
+#: What the sparse store holds per edge: an int64 key, an int64 count and a float64 W. The
+#: service's edge budgets are written in these edges (``CovGraph.memory_edges``).
+SPARSE_BYTES_PER_EDGE = 24
+
 #: Side of a new dense matrix (and the node capacity of a new CovGraph). Small, because a
 #: fleet has thousands of small sessions: 16 nodes hold 3 KiB of matrices where 64 held 48 KiB,
 #: and doubling keeps the growth amortized.
@@ -379,6 +383,11 @@ class DenseCounts:
     def edge_count(self) -> int:
         """Number of pairs with a_ij > 0."""
         return self._edges
+
+    def held_bytes(self) -> int:
+        """Bytes of the matrices (every cell, edge or not) and of W at the mark."""
+        marked = 0 if self._marked is None else self._marked.nbytes
+        return self._counts.nbytes + self._rates.nbytes + marked
 
     def pair_count(self, i: int, j: int) -> int:
         """a_ij for two distinct node indices."""

@@ -27,7 +27,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lessmap.core.counts import INITIAL_CAPACITY, DenseCounts, SparseCounts, UpperCounts
+from lessmap.core.counts import (
+    INITIAL_CAPACITY,
+    SPARSE_BYTES_PER_EDGE,
+    DenseCounts,
+    SparseCounts,
+    UpperCounts,
+)
 from lessmap.core.errors import GraphError
 
 #: Dense graphs are held in the dense store up to this many nodes (if ``dense_max_nodes`` >
@@ -182,6 +188,21 @@ class CovGraph:
     def edge_count(self) -> int:
         """Number of covisible pairs (undirected edges)."""
         return self._store.edge_count()
+
+    @property
+    def memory_edges(self) -> int:
+        """Edges to charge the service's edge budgets with: what the graph costs in edges.
+
+        The edge count, except for a dense graph held densely above ``dense_max_nodes``: the
+        dense store holds every cell, edge or not, and a copy of W at a mark, so it is charged
+        its bytes at the sparse store's 24 B per edge when that is more (up to ~3x its edges
+        at the 60 % density where a graph leaves the dense store). Below ``dense_max_nodes``
+        nothing changes: small graphs were always held densely and charged by their edges.
+        """
+        edges = self._store.edge_count()
+        if isinstance(self._store, DenseCounts) and not self.is_dense:
+            return max(edges, -(-self._store.held_bytes() // SPARSE_BYTES_PER_EDGE))
+        return edges
 
     @property
     def feature_ids(self) -> NDArray[np.int64]:

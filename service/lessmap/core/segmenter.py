@@ -112,6 +112,10 @@ class Segmenter(Protocol):
         """Edges of that CovGraph."""
 
     @property
+    def memory_edges(self) -> int:
+        """What that CovGraph costs in edges, for the edge budgets (``CovGraph.memory_edges``)."""
+
+    @property
     def closed_submaps(self) -> Sequence[Submap]:
         """Closed segments, oldest first (rule 5)."""
 
@@ -234,6 +238,11 @@ class PaperSegmenter:
     def edge_count(self) -> int:
         """Edges of the partitioner's CovGraph."""
         return self.partitioner.graph.edge_count
+
+    @property
+    def memory_edges(self) -> int:
+        """What the partitioner's CovGraph costs in edges (``CovGraph.memory_edges``)."""
+        return self.partitioner.graph.memory_edges
 
     @property
     def closed_submaps(self) -> tuple[Submap, ...]:
@@ -366,6 +375,11 @@ class AreasSegmenter:
     def edge_count(self) -> int:
         """Edges of the proposer's CovGraph."""
         return self.tracker.proposer.graph.edge_count
+
+    @property
+    def memory_edges(self) -> int:
+        """What the proposer's CovGraph costs in edges (``CovGraph.memory_edges``)."""
+        return self.tracker.proposer.graph.memory_edges
 
     @property
     def closed_submaps(self) -> tuple[Submap, ...]:

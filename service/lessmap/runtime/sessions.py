@@ -23,7 +23,9 @@ Rules of this file (the service's ordering contract, schemas/README.md):
    Work budgets bound what one frame may cost before it reaches the core: at most
    ``max_pairs_per_frame`` pair updates (k features make k(k-1)/2; ``LIMIT_EXCEEDED``),
    at most ``max_edges`` CovGraph edges per session and ``ledger.max_edges_total`` over the
-   instance (``GRAPH_LIMIT``). The edge checks are conservative: a frame is counted as if
+   instance (``GRAPH_LIMIT``), a graph counted by what it holds in edges' worth
+   (``Segmenter.memory_edges``: its edges, or a large dense store's bytes at 24 B an edge,
+   so the budgets bound memory too). The edge checks are conservative: a frame is counted as if
    every pair of its features were a new edge (a session near its budget may see a frame
    refused that would have added fewer). A refused frame counts as received and rejected.
    New sessions are admitted at ``admission.rate_per_s`` per fleet (a token bucket); when
@@ -951,7 +953,7 @@ class SessionTable:
             return None
         self._phase_checkpoints(session, now_s)
         self._open[key] = session
-        self._set_edges(session, segmenter.edge_count)
+        self._set_edges(session, segmenter.memory_edges)
         out.resumed.append(session)
         return session
 
@@ -1049,11 +1051,11 @@ class SessionTable:
         if (self._max_edges and session.edges + pairs > self._max_edges) or (
             ledger is not None and ledger.total() + pairs > ledger.max_edges_total
         ):
-            self._set_edges(session, session.segmenter.edge_count)
+            self._set_edges(session, session.segmenter.memory_edges)
             if self._max_edges and session.edges + pairs > self._max_edges:
                 return (
                     ErrorCode.GRAPH_LIMIT,
-                    f"CovGraph has {session.edges} edges; a frame of {features} features "
+                    f"CovGraph holds {session.edges} edges' worth; a frame of {features} features "
                     f"could add {pairs}, over the budget max_edges_per_session={self._max_edges}",
                 )
             if ledger is not None and ledger.total() + pairs > ledger.max_edges_total:
@@ -1088,7 +1090,7 @@ class SessionTable:
         changes = session.segmenter.decide()
         out.decisions.append((self._clock() - started, batch))
         if self._max_edges or self._ledger is not None:
-            self._set_edges(session, session.segmenter.edge_count)
+            self._set_edges(session, session.segmenter.memory_edges)
         out.transitions.extend((session, change) for change in changes)
 
     def _count_on_closed(self, key: RobotKey, session_id: str, frames: int) -> None:
