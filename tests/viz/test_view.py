@@ -336,6 +336,8 @@ def test_record_writes_the_same_channels_to_mcap(
     from mcap.reader import make_reader
 
     import lessmap_client
+    from lessmap.viz.scene import places_of
+    from lessmap_client.fleet_areas import FleetParams
 
     service = serve("--memory-only", "--max-batch-frames", "1")
     out = tmp_path / "fleet.mcap"
@@ -349,6 +351,7 @@ def test_record_writes_the_same_channels_to_mcap(
         service.endpoint,
         "--mcap",
         str(out),
+        "--shared-features",
     )
     log = tmp_path / "record.log"
     try:
@@ -367,6 +370,11 @@ def test_record_writes_the_same_channels_to_mcap(
                 30,
                 "the recorder to receive the transitions",
             )
+            states = conn.states(fleet_name)
+            places = places_of(
+                states, conn.fleet_area_graph(fleet_name, FleetParams(shared_features=True))
+            )
+            time.sleep(1.5)  # one more state table after the last transition
     finally:
         summary = stop_command(record)
 
@@ -387,6 +395,11 @@ def test_record_writes_the_same_channels_to_mcap(
     assert [r["robot"] for r in final["robots"]] == ROBOTS
     assert {r["frames_applied"] for r in final["robots"]} == {FRAMES}
     assert {r["submap"] for r in final["robots"]} == {1}
+    # --shared-features: each robot's place, its current area's fleet area (paper: area =
+    # submap), as the SDK's merge names it.
+    assert {(r["method"], r["area"]) for r in final["robots"]} == {("paper", 1)}
+    assert sorted(places) == ROBOTS
+    assert {r["robot"]: r["place"] for r in final["robots"]} == places
     scenes = b"".join(payloads["/lessmap/scene"])
     assert b"amr1/trajectory" in scenes
     assert DOOR_LABEL["amr2"] in scenes

@@ -29,6 +29,9 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 #: together with ``lessmap serve``, which can take tens of seconds to listen on a loaded
 #: machine (the other foreground commands keep ``lessmap.foreground``'s default).
 CONNECT_TIMEOUT_S = 60.0
+#: Seconds between two fleet area queries with --shared-features (each asks every robot's
+#: area graph: less often than the state table's once a second).
+PLACES_PERIOD_S = 5.0
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -53,6 +56,13 @@ def _common(parser: argparse.ArgumentParser) -> None:
         "--covgraph",
         metavar="ROBOT",
         help="also show this robot's CovGraph (its current submap, from its frames)",
+    )
+    parser.add_argument(
+        "--shared-features",
+        action="store_true",
+        help="the fleet's feature ids are global: a place column in the state table (each "
+        "robot's fleet area, robot:area of its first member), from the fleet's area graphs "
+        "every 5 s",
     )
     add_run_options(
         parser,
@@ -207,6 +217,7 @@ def _follow(
                 record=record,
                 joiners=joiners,
                 covgraph=args.covgraph,
+                places_period_s=PLACES_PERIOD_S if args.shared_features else None,
             ).start()
             try:
                 stop.wait(args.duration)

@@ -59,12 +59,14 @@ from lessmap.viz.scene import (
     doorways,
     fleet_entities,
     map_transform,
+    places_of,
     previous_entity,
     scene,
     state_table,
     track_entities,
     transition_log,
 )
+from lessmap_client.fleet_areas import FleetGraph, FleetParams
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode_inbound
 from lessmap_schemas.errors import WireError
@@ -178,6 +180,7 @@ class FleetFeed:
         covgraph: str | None = None,
         scene_period_s: float = 0.5,
         state_period_s: float = 1.0,
+        places_period_s: float | None = None,
     ) -> None:
         if live is None and record is None:
             msg = "a feed needs live channels, record channels or both"
@@ -188,6 +191,11 @@ class FleetFeed:
         self.counts: Counter[str] = Counter()
         self.scene_period_s = scene_period_s
         self.state_period_s = state_period_s
+        # With global feature ids: each robot's place (fleet area) in the state table, from a
+        # fleet_area_graph this often (a query for every robot's graph: less often than states).
+        self.places_period_s = places_period_s
+        self._places_graph: FleetGraph | None = None
+        self._places_due = 0.0
         self._session = session
         self._conn = conn
         self._queue: queue.Queue[tuple[str, bytes] | Transition | None] = queue.Queue(100000)
@@ -365,7 +373,27 @@ class FleetFeed:
         except Exception:  # a closing connection: the next period tries again
             log.debug("state query failed", exc_info=True)
             return
-        self._state_message = state_table(self.fleet, states)
+        places = None
+        if self.places_period_s is not None:
+            graph = self._places_graph
+            unplaced = graph is None or any(
+                (s.robot, s.current_area) not in graph.area_of for s in states
+            )
+            if unplaced or time.monotonic() >= self._places_due:
+                # Due, or a robot in an area the last graph did not hold: a new robot or area
+                # gets its place within a state period, not a places period.
+                self._places_due = time.monotonic() + self.places_period_s
+                try:
+                    graph = self._conn.fleet_area_graph(
+                        self.fleet, FleetParams(shared_features=True), timeout_s=1.0
+                    )
+                except Exception:  # as for states: the next period tries again
+                    log.debug("fleet area query failed", exc_info=True)
+                else:
+                    self._places_graph = graph
+                    self.counts["place queries"] += 1
+            places = {} if graph is None else places_of(states, graph)
+        self._state_message = state_table(self.fleet, states, places)
         for sink in self._sinks:
             sink.state.log(self._state_message)
         self.counts["state tables"] += 1

@@ -44,9 +44,10 @@ from foxglove.messages import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Iterable, Mapping
 
     from lessmap.viz.model import CovGraph, FleetModel, Mark, Track
+    from lessmap_client.fleet_areas import FleetGraph
     from lessmap_schemas.messages import SessionState
 
 FRAME_ID = "map"
@@ -101,6 +102,9 @@ STATE_SCHEMA: dict[str, Any] = {
                         ("frames_rejected", "integer"),
                         ("transitions", "integer"),
                         ("submap", "integer"),
+                        ("method", "string"),
+                        ("area", "integer"),
+                        ("place", "string"),
                         ("nodes", "integer"),
                         ("edges", "integer"),
                         ("instance", "string"),
@@ -349,8 +353,14 @@ def transition_log(robot: str, mark: Mark) -> Log:
     )
 
 
-def state_table(fleet: str, states: list[SessionState]) -> dict[str, Any]:
-    """Return the state table message: one row per robot, by name."""
+def state_table(
+    fleet: str, states: list[SessionState], places: Mapping[str, str] | None = None
+) -> dict[str, Any]:
+    """Return the state table message: one row per robot, by name.
+
+    ``places`` (robot -> its fleet area's name, ``robot:area`` of its first member; from
+    ``fleet_area_graph`` when the fleet's feature ids are global) adds a ``place`` column.
+    """
     rows = [
         {
             "robot": s.robot,
@@ -361,13 +371,30 @@ def state_table(fleet: str, states: list[SessionState]) -> dict[str, Any]:
             "frames_rejected": s.frames_rejected,
             "transitions": s.transitions,
             "submap": s.current_submap.id,
+            "method": s.method,
+            "area": s.current_area,
             "nodes": s.nodes,
             "edges": s.edges,
             "instance": s.instance,
         }
+        | ({} if places is None else {"place": places.get(s.robot, "")})
         for s in sorted(states, key=lambda s: s.robot)
     ]
     return {"fleet": fleet, "robots": rows}
+
+
+def places_of(states: list[SessionState], graph: FleetGraph) -> dict[str, str]:
+    """Each robot's place: the name of its current area's fleet area (``FleetGraph.key_of``).
+
+    A robot whose current area the graph does not hold yet (the two answers are a moment
+    apart) has no place until the next graph.
+    """
+    places = {}
+    for s in states:
+        if (s.robot, s.current_area) in graph.area_of:
+            robot, area = graph.key_of(s.robot, s.current_area)
+            places[s.robot] = f"{robot}:{area}"
+    return places
 
 
 def covgraph_entity(robot: str, graph: CovGraph, stamp_s: float) -> SceneEntity:
