@@ -9,6 +9,7 @@ checkpoints once it published the outcome; ``CommittingTable`` does the same at 
 from __future__ import annotations
 
 import sqlite3
+import threading
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -231,6 +232,74 @@ def test_a_closed_session_stays_closed_across_a_restart(tmp_path: Path) -> None:
     assert state is not None
     assert not state.open
     assert state.frames_applied == 20
+    store.close()
+
+
+def test_a_stale_open_record_never_reopens_a_session_this_table_closed(tmp_path: Path) -> None:
+    # The store can hand back an older record for a moment (its writer holds the newest
+    # batch between the pending map and the file); a straggler frame or a repeated end must
+    # not bring the closed session back from it.
+    store = open_store(tmp_path)
+    table = make_table(store)
+    feed(table, FRAMES[:30])  # a checkpoint at 25 frames: an open record
+    assert store.flush()
+    stale = store.load((FLEET, ROBOT))
+    assert stale is not None
+    assert stale.status == "open"
+    table.handle_batch([(FLEET, ROBOT, SessionEnd(session=SESSION, last_seq=29, stamp_s=99.0))], 0)
+    assert store.flush()
+    store.save(stale)  # what a stale read returns: the open record of the closed session
+    out = feed(table, FRAMES[30:31])
+    assert errors(out) == [ErrorCode.SESSION_CLOSED]
+    table.handle_batch([(FLEET, ROBOT, SessionEnd(session=SESSION, last_seq=30, stamp_s=99.0))], 0)
+    state = table.state(FLEET, ROBOT)
+    assert state is not None
+    assert (state.open, state.frames_applied, state.frames_missing) == (False, 30, 0)
+    store.close()
+
+
+def test_a_record_being_written_is_what_load_returns(tmp_path: Path) -> None:
+    # Between the writer taking a batch and committing it, the record is in neither the
+    # pending map nor the file: load must still return it, not the file's older row.
+    gate, taken = threading.Event(), threading.Event()
+
+    class SlowStore(CheckpointStore):
+        def _write(self, batch: Any) -> None:
+            taken.set()
+            gate.wait(10.0)
+            super()._write(batch)
+
+    store = SlowStore(tmp_path)
+    store.open()
+
+    def record(last_seq: int) -> SessionRecord:
+        return SessionRecord(
+            fleet=FLEET,
+            robot=ROBOT,
+            session=SESSION,
+            status="open",
+            last_seq=last_seq,
+            meta={},
+            snapshot=b"x",
+            updated_s=time.time() + last_seq,
+        )
+
+    gate.set()  # the first batch goes through
+    store.save(record(10))
+    assert store.flush()
+    gate.clear()
+    taken.clear()
+    store.save(record(20))
+    try:
+        assert taken.wait(10.0)
+        loaded = store.load((FLEET, ROBOT))
+        assert loaded is not None
+        assert loaded.last_seq == 20
+        assert [r.last_seq for r in store.records_where(lambda *_: True)] == [20]
+        assert store.robots_where(lambda *_: True) == [(FLEET, ROBOT)]
+    finally:
+        gate.set()
+    assert store.flush()
     store.close()
 
 

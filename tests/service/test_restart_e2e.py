@@ -243,3 +243,52 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     assert all(all(r == records[0] for r in records) for records in by_id.values())
     assert sorted(by_id) == [(state.session, i) for i in range(len(expected))]
     assert second.terminate() == 0
+
+
+def test_after_a_restart_every_stored_robot_is_answered_before_it_sends_again(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    router: str,
+    fleet_name: str,
+) -> None:
+    # One robot ended its session, one is between frames: neither is in the new process's
+    # memory until it sends again, yet state, areas and submaps queries must find both.
+    frames = list(read_frames(dataset("dlr.frames.jsonl")))[:40]
+    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1")
+    session = client_session(router)
+    first = serve(*options)
+    with FleetClient(fleet_name, session=session) as client:
+        done, pausing = (RobotPublisher(fleet_name, name, session=session) for name in "ab")
+        assert done.wait_for_service(20.0), first.log()
+        for frame in frames:
+            for robot in (done, pausing):
+                robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+        done.close()
+        wait_closed(client, fleet_name, "a", len(frames))
+        wait_until(
+            lambda: {s.robot: s.frames_applied for s in client.states()} == {"a": 40, "b": 40},
+            60.0,
+            "both robots' frames applied",
+        )
+        before = {s.robot: s for s in client.states()}
+        graphs_before = {g.robot: g for g in client.area_graphs()}
+        first.process.send_signal(signal.SIGTERM)
+        assert first.process.wait(15) == 0, first.log()
+
+        second = serve(*options)
+        wait_until(lambda: "serving as" in second.log(), 30.0, "the second instance")
+        wait_until(lambda: len(client.states()) == 2, 30.0, "both robots answered", second.log)
+        after = {s.robot: s for s in client.states()}
+        assert {r: (s.session, s.open, s.frames_applied) for r, s in after.items()} == {
+            r: (s.session, s.open, s.frames_applied) for r, s in before.items()
+        }
+        assert (after["a"].open, after["b"].open) == (False, True)
+        assert client.state("b", fleet=fleet_name) == after["b"]
+        graphs_after = {g.robot: g for g in client.area_graphs()}
+        assert {r: (g.session, g.areas, g.passages) for r, g in graphs_after.items()} == {
+            r: (g.session, g.areas, g.passages) for r, g in graphs_before.items()
+        }
+        assert [s.summary.id for s in client.submaps("a", fleet=fleet_name)] == [
+            s.id for s in [*after["a"].closed_submaps, after["a"].current_submap]
+        ]
+        pausing.close(timeout_s=0)

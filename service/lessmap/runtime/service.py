@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import sqlite3
 import threading
 import time
 from typing import TYPE_CHECKING
@@ -414,26 +415,64 @@ class Service:
             return
         is_submap = "/submaps/" in text
         is_areas = text.endswith("/areas")
+        answered: set[tuple[str, str]] = set()
         for shard in self._shards:
             with shard.lock:
                 robots = shard.table.robots()
+                answered.update(robots)
                 for fleet, robot in robots:
-                    if self.ownership.epoch_for(fleet, robot) is None:
-                        continue  # handed over (or frozen): the owner answers
-                    if is_submap:
-                        self._reply_submaps(query, shard, fleet, robot)
-                        continue
-                    if is_areas:
-                        self._reply_areas(query, shard, fleet, robot)
-                        continue
-                    key = keys.state(fleet, robot)
-                    if not selector.intersects(zenoh.KeyExpr(key)):
-                        continue
-                    state = shard.table.state(fleet, robot)
-                    if state is not None:
-                        query.reply(
-                            key, encode(state), encoding=zenoh.Encoding(encoding(SessionState))
-                        )
+                    self._reply_robot(query, shard, fleet, robot, is_submap, is_areas)
+        # Robots known only from the store (closed before a restart, evicted, or whose
+        # records came with a partition taken over): the table answers from their record.
+        for fleet, robot in self._stored_robots(selector, answered):
+            shard = self._shard_of(keys.frames(fleet, robot))
+            with shard.lock:
+                self._reply_robot(query, shard, fleet, robot, is_submap, is_areas)
+
+    def _stored_robots(
+        self, selector: zenoh.KeyExpr, answered: set[tuple[str, str]]
+    ) -> list[tuple[str, str]]:
+        """Robots of owned partitions the query names that only the store knows."""
+        if not self.store.durable:
+            return []
+
+        def asked(fleet: str, robot: str) -> bool:
+            return (
+                (fleet, robot) not in answered
+                and self.ownership.epoch_for(fleet, robot) is not None
+                and selector.intersects(zenoh.KeyExpr(f"{keys.KEY_PREFIX}/{fleet}/{robot}/**"))
+            )
+
+        try:
+            return self.store.robots_where(asked)
+        except sqlite3.Error as exc:
+            log.warning("state store unreadable for a query: %s", exc)
+            return []
+
+    def _reply_robot(
+        self,
+        query: zenoh.Query,
+        shard: Shard,
+        fleet: str,
+        robot: str,
+        is_submap: bool,
+        is_areas: bool,
+    ) -> None:
+        """Answer a state, areas or submaps query for one robot (its shard's lock held)."""
+        if self.ownership.epoch_for(fleet, robot) is None:
+            return  # handed over (or frozen): the owner answers
+        if is_submap:
+            self._reply_submaps(query, shard, fleet, robot)
+            return
+        if is_areas:
+            self._reply_areas(query, shard, fleet, robot)
+            return
+        key = keys.state(fleet, robot)
+        if not query.key_expr.intersects(zenoh.KeyExpr(key)):
+            return
+        state = shard.table.state(fleet, robot)
+        if state is not None:
+            query.reply(key, encode(state), encoding=zenoh.Encoding(encoding(SessionState)))
 
     def _reply_areas(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
         key = keys.areas(fleet, robot)

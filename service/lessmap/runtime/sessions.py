@@ -934,6 +934,12 @@ class SessionTable:
             if record.session not in ids:
                 ids.append(record.session)
             return None
+        if record.session in ids:
+            # An open record of a session known closed is stale: the store can hand back an
+            # older row while its writer holds the newest batch. Reopening it would apply a
+            # straggler to a closed session and overwrite its final state.
+            log.debug("stale open record of closed session %s/%s %s", fleet, robot, record.session)
+            return None
         try:
             assert record.snapshot is not None, "an open record without a snapshot"
             segmenter = segmenter_from_bytes(record.snapshot)

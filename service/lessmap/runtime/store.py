@@ -150,6 +150,7 @@ class CheckpointStore:
         self.max_bytes = max_bytes
         self._clock = clock
         self._pending: dict[RobotKey, SessionRecord | None] = {}  # None: delete
+        self._writing: dict[RobotKey, SessionRecord | None] = {}  # the batch being written
         self._in_flight = False  # the writer holds a batch taken from _pending
         self._lock_file: BinaryIO | None = None
         # Memory release (``release_memory_soon``): batches taken and written by the writer,
@@ -318,6 +319,8 @@ class CheckpointStore:
         with self._cond:
             if key in self._pending:
                 return self._pending[key]
+            if key in self._writing:  # taken by the writer, not committed yet
+                return self._writing[key]
         with self._db_lock:
             if self._db is None:
                 return None
@@ -349,10 +352,30 @@ class CheckpointStore:
             self._cond.notify()
         return True
 
+    def robots_where(self, keep: Callable[[str, str], bool]) -> list[RobotKey]:
+        """Every robot with a record (pending or written) for which ``keep`` is True.
+
+        Names only: what a query needs to find the robots it must answer for that are not
+        in memory (closed before a restart, evicted, or received from another instance).
+        """
+        with self._cond:
+            recent = self._writing | self._pending  # the pending record is the newer
+            found = {k for k, r in recent.items() if r is not None and keep(*k)}
+            gone = {k for k, r in recent.items() if r is None}
+        with self._db_lock:
+            if self._db is not None:
+                found.update(
+                    (fleet, robot)
+                    for fleet, robot in self._db.execute("SELECT fleet, robot FROM sessions")
+                    if (fleet, robot) not in gone and keep(fleet, robot)
+                )
+        return sorted(found)
+
     def records_where(self, keep: Callable[[str, str], bool]) -> list[SessionRecord]:
         """The latest record (pending or written) of every robot for which ``keep`` is True."""
         with self._cond:
-            pending = {k: r for k, r in self._pending.items() if keep(*k)}
+            # The batch being written first, the pending records over it (they are newer).
+            pending = {k: r for k, r in (self._writing | self._pending).items() if keep(*k)}
         with self._db_lock:
             if self._db is None:
                 names = []
@@ -402,6 +425,8 @@ class CheckpointStore:
                     if not self._pending:
                         break
                 batch, self._pending = self._pending, {}
+                # Readable until committed: ``load`` must never fall back to an older row.
+                self._writing = batch
                 self._batches_taken += 1
                 self._in_flight = bool(batch)
                 stopping = self._stopping
@@ -419,6 +444,7 @@ class CheckpointStore:
             )
             del batch
             with self._cond:
+                self._writing = {}
                 self._batches_done += 1
                 self._in_flight = False
                 self._cond.notify_all()  # flush() waiters
