@@ -443,8 +443,11 @@ class Service:
                 and selector.intersects(zenoh.KeyExpr(f"{keys.KEY_PREFIX}/{fleet}/{robot}/**"))
             )
 
+        # The fleet and robot the selector names, if it names them without a wildcard: the
+        # store then reads only their rows (robots poll their own state while they close).
+        fleet, robot = _named_fleet_and_robot(str(selector))
         try:
-            return self.store.robots_where(asked)
+            return self.store.robots_where(asked, fleet=fleet, robot=robot)
         except sqlite3.Error as exc:
             log.warning("state store unreadable for a query: %s", exc)
             return []
@@ -837,3 +840,14 @@ def _ranges(partitions: Sequence[int]) -> str:
 
 
 __all__ = ["Service", "WireError"]
+
+
+def _named_fleet_and_robot(selector: str) -> tuple[str | None, str | None]:
+    """The fleet and robot chunks of a query's selector when they hold no wildcard."""
+    chunks = [*selector.removeprefix(f"{keys.KEY_PREFIX}/").split("/"), "", ""]
+
+    def plain(chunk: str) -> str | None:
+        return chunk if chunk and not {"*", "$"} & set(chunk) else None
+
+    fleet = plain(chunks[0])
+    return fleet, plain(chunks[1]) if fleet is not None else None

@@ -352,22 +352,38 @@ class CheckpointStore:
             self._cond.notify()
         return True
 
-    def robots_where(self, keep: Callable[[str, str], bool]) -> list[RobotKey]:
+    def robots_where(
+        self,
+        keep: Callable[[str, str], bool],
+        *,
+        fleet: str | None = None,
+        robot: str | None = None,
+    ) -> list[RobotKey]:
         """Every robot with a record (pending or written) for which ``keep`` is True.
 
         Names only: what a query needs to find the robots it must answer for that are not
         in memory (closed before a restart, evicted, or received from another instance).
+        ``fleet`` (and ``robot``) narrow the file's read to that fleet (robot) by its
+        primary key: a robot polling its own state does not scan every record.
         """
         with self._cond:
             recent = self._writing | self._pending  # the pending record is the newer
             found = {k for k, r in recent.items() if r is not None and keep(*k)}
             gone = {k for k, r in recent.items() if r is None}
+        args: tuple[str, ...] = ()
+        if fleet is None:
+            sql = "SELECT fleet, robot FROM sessions"
+        elif robot is None:
+            sql, args = "SELECT fleet, robot FROM sessions WHERE fleet = ?", (fleet,)
+        else:
+            sql = "SELECT fleet, robot FROM sessions WHERE fleet = ? AND robot = ?"
+            args = (fleet, robot)
         with self._db_lock:
             if self._db is not None:
                 found.update(
-                    (fleet, robot)
-                    for fleet, robot in self._db.execute("SELECT fleet, robot FROM sessions")
-                    if (fleet, robot) not in gone and keep(fleet, robot)
+                    (f, r)
+                    for f, r in self._db.execute(sql, args)
+                    if (f, r) not in gone and keep(f, r)
                 )
         return sorted(found)
 
