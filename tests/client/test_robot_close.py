@@ -100,11 +100,18 @@ def test_close_outlasts_a_take_over_so_the_new_owner_fetches_every_frame(
     session = client_session(router)
     conn = Connection.from_session(session)
     names = {first.instance, second.instance}
-    wait_until(
-        lambda: {h.instance for h in conn.health() if h.partitions} == names,
-        60.0,
-        "both instances owning partitions",
-    )
+
+    def settled() -> bool:
+        # Each instance serves exactly the partitions the live tokens give it: right after
+        # start-up an instance that saw only itself holds all 256 until it hands some over.
+        owned: dict[str, set[int]] = {name: set() for name in names}
+        for p, (owner, _) in conn.coverage().items():
+            if owner in owned:
+                owned[owner].add(p)
+        serving = {h.instance: set(h.partitions) for h in conn.health()}
+        return all(owned[name] and serving.get(name) == owned[name] for name in names)
+
+    wait_until(settled, 60.0, "both instances serving the partitions they own")
     robot_name = next(
         name
         for name in (f"r{i}" for i in range(1000))
