@@ -21,7 +21,9 @@ from typing import Any
 
 _CALIBRATION_FRAMES = 200
 _DEFAULT_SPACING_M = 0.6  # the sim's landmark spacing is drawn in (a, 2a); default a = 0.6
-_BASELINE_ROBOTS = 4
+# Enough robots that a second of the core's CPU is timed (4 gave ~0.2 s: noisy), few enough
+# that the baseline stays a few seconds; the per-frame cost hardly moves with the count.
+_BASELINE_ROBOTS = 25
 _EARLY_S = 0.002  # a frame may leave this much before its time (robots are not in step)
 
 

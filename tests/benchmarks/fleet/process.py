@@ -434,7 +434,8 @@ def offline_baseline(
     """Time the core alone on streams: (observe, apply, coalesced) µs per frame, frames.
 
     One thread (BLAS limited to one, as the service runs it); robots interleaved frame by
-    frame as the service sees them.
+    frame as the service sees them. Timed with the thread's CPU clock, as the service's side
+    is with its process's: wall time counted whatever else the shared machine ran meanwhile.
     """
     from threadpoolctl import threadpool_limits
 
@@ -447,7 +448,7 @@ def offline_baseline(
     with threadpool_limits(limits=1):
         for mode in ("observe", "apply", "coalesced"):
             partitioners = [Partitioner(params) for _ in streams]
-            started = time.perf_counter()
+            started = time.thread_time()
             for k in range(max((len(s) for s in streams), default=0)):
                 for stream, partitioner in zip(streams, partitioners, strict=True):
                     if k >= len(stream):
@@ -458,5 +459,5 @@ def offline_baseline(
                     partitioner.apply(k, k / 10, stream[k])
                     if mode == "coalesced" and (k + 1) % every == 0:
                         partitioner.decide()
-            timings.append(1e6 * (time.perf_counter() - started) / max(1, frames))
+            timings.append(1e6 * (time.thread_time() - started) / max(1, frames))
     return timings[0], timings[1], timings[2], frames
