@@ -282,7 +282,7 @@ def run_load(
         spec, 0, spacing, robots=min(spec.baseline_robots, len(spec.robots_of(0)))
     )
     observe, apply, coalesced, frames = offline_baseline(
-        baseline_streams, report.frames_per_decision
+        baseline_streams, report.frames_per_decision, spec.method
     )
     report.baseline_observe_us = observe
     report.baseline_apply_us = apply

@@ -429,7 +429,7 @@ def _finish_pyspy(
 
 
 def offline_baseline(
-    streams: list[list[list[int]]], frames_per_decision: float
+    streams: list[list[list[int]]], frames_per_decision: float, method: str | None = None
 ) -> tuple[float, float, float, int]:
     """Time the core alone on streams: (observe, apply, coalesced) µs per frame, frames.
 
@@ -439,25 +439,26 @@ def offline_baseline(
     """
     from threadpoolctl import threadpool_limits
 
-    from lessmap.core import Partitioner, PartitionParams
+    from lessmap.core import PartitionParams
+    from lessmap.core.segmenter import make_segmenter
 
+    # The service's method (``serve --method``), through the segmenter a session drives:
+    # a service running ``areas`` measured against the paper's core would flatter neither.
+    chosen = method or "paper"
     params = PartitionParams.from_profile("laser")
     frames = sum(len(s) for s in streams)
     every = max(1, round(frames_per_decision)) if not math.isnan(frames_per_decision) else 1
     timings: list[float] = []
     with threadpool_limits(limits=1):
         for mode in ("observe", "apply", "coalesced"):
-            partitioners = [Partitioner(params) for _ in streams]
+            segmenters = [make_segmenter(chosen, params) for _ in streams]
             started = time.thread_time()
             for k in range(max((len(s) for s in streams), default=0)):
-                for stream, partitioner in zip(streams, partitioners, strict=True):
+                for stream, segmenter in zip(streams, segmenters, strict=True):
                     if k >= len(stream):
                         continue
-                    if mode == "observe":
-                        partitioner.observe(k, k / 10, stream[k])
-                        continue
-                    partitioner.apply(k, k / 10, stream[k])
-                    if mode == "coalesced" and (k + 1) % every == 0:
-                        partitioner.decide()
+                    segmenter.apply(k, k / 10, stream[k])
+                    if mode == "observe" or (mode == "coalesced" and (k + 1) % every == 0):
+                        segmenter.decide()
             timings.append(1e6 * (time.thread_time() - started) / max(1, frames))
     return timings[0], timings[1], timings[2], frames

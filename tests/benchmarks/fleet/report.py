@@ -404,10 +404,10 @@ def format_report(r: LoadReport) -> str:
         f"({100 * rss[2]:+.1f} %): {'flat' if r.rss_flat else 'GROWING'}",
         f"            RSS samples (s: MiB) {_rss_line(r.rss_samples)}",
         "",
-        f"baseline    same streams, core in this process, its thread's CPU "
-        f"({r.baseline_frames} frames of {r.baseline_robots} robots):",
+        f"baseline    same streams, core ({s.method or 'paper'}) in this process, its thread's "
+        f"CPU ({r.baseline_frames} frames of {r.baseline_robots} robots):",
         f"  core observe (apply + decide every frame)   {r.baseline_observe_us:8.0f} µs/frame",
-        f"  core apply only (CovGraph counting)         {r.baseline_apply_us:8.0f} µs/frame",
+        f"  core apply only (areas: all of its work)    {r.baseline_apply_us:8.0f} µs/frame",
         f"  core at the service's coalescing ({r.frames_per_decision:.2f} f/d)  "
         f"{r.baseline_coalesced_us:8.0f} µs/frame",
         f"  service CPU per applied frame               {r.service_us_per_frame:8.0f} µs/frame  "
