@@ -211,10 +211,16 @@ def best_fit(
         there = profile_of(area)
         if there is None:
             continue
-        gains = [there.loglik(f) - h for (_, f), h in zip(window, fits_here, strict=True)]
-        gain = sum(gains) / len(gains)
-        if min(gains) > 0 and gain >= least_llr and gain > best_gain:
-            best, best_gain = area, gain
+        gains: list[float] = []
+        for (_, features), fit_here in zip(window, fits_here, strict=True):
+            gain = there.loglik(features) - fit_here
+            if gain <= 0:
+                break  # it must fit every frame better: most areas fail the first one
+            gains.append(gain)
+        else:
+            mean = sum(gains) / len(gains)
+            if mean >= least_llr and mean > best_gain:
+                best, best_gain = area, mean
     return best
 
 
