@@ -124,6 +124,6 @@ def test_garbage_and_other_versions_are_graph_errors() -> None:
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(b"garbage")
     data = to_bytes(AreaTracker())
-    assert AREAS_SNAPSHOT_VERSION == 6
+    assert AREAS_SNAPSHOT_VERSION == 7
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(data[: len(data) // 2])

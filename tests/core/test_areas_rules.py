@@ -7,7 +7,7 @@ changed, and asserts the difference, so a test fails when its rule stops working
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -24,7 +24,7 @@ from lessmap.core.areas import (
     profile,
     rate_overlap,
 )
-from lessmap.core.areas_rules import blind_run, seam
+from lessmap.core.areas_rules import blind_gap, blind_run, missing_frames, seam
 from lessmap.core.areas_snapshot import from_bytes, to_bytes
 from lessmap.core.params import PartitionParams
 from tests.core.helpers import room_walk
@@ -109,6 +109,115 @@ def test_a_room_reached_blind_after_a_glimpse_is_no_transition(seed: int) -> Non
     # with no margin the run must reach the boundary: two non-empty frames keep it apart
     _, no_margin = track(frames, AreaParams(blind_margin=0))
     assert moves(no_margin) == [(0, 1)]
+
+
+GAP = None  # in a gapped stream: the clock runs on GAP_S seconds with no frame
+GAP_S = 5.0
+
+
+def track_gapped(
+    stream: list[list[int] | None], params: AreaParams | None = None, *, restore: bool = False
+) -> tuple[AreaTracker, list[AreaTransition]]:
+    """Frames every 0.5 s, none in a gap (a stream without empty frames, as MRCLAM's).
+
+    With ``restore``, the tracker goes through a snapshot before every frame.
+    """
+    tracker = AreaTracker(params)
+    found = []
+    seq, stamp = 0, 0.0
+    for frame in stream:
+        if frame is GAP:
+            stamp += GAP_S
+            continue
+        if restore:
+            tracker = from_bytes(to_bytes(tracker))
+        change = tracker.observe(seq, stamp, frame)
+        if change is not None:
+            found.append(change)
+        seq, stamp = seq + 1, stamp + 0.5
+    return tracker, found
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_room_reached_through_a_stamp_gap_is_no_transition(seed: int) -> None:
+    # The stream of test_a_room_reached_blind_is_no_transition without its empty frames:
+    # the robot's blindness is only in the stamps.
+    rng = np.random.default_rng(seed)
+    stream = [*stay(rng, A, 30), GAP, *stay(rng, B, 30)]
+    assert AreaParams().period_steps  # GAP_S leaves out 9 frames, blind_span is 3
+    tracker, found = track_gapped(stream)
+    assert found == []
+    assert set(tracker.area_features(0)) == A | B
+    _, gap_ignored = track_gapped(stream, AreaParams(period_steps=0))
+    assert moves(gap_ignored) == [(0, 1)]
+    assert gap_ignored[0].transition.boundary_seq == 30  # B's first frame, after the gap
+    # a real two-room walk: the same frames at an even pace keep their transition
+    _, door = track_gapped([frame for frame in stream if frame is not GAP])
+    assert moves(door) == [(0, 1)]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_turning_between_two_walls_blind_makes_one_area(seed: int) -> None:
+    # MRCLAM's robot 3: two sets of landmarks never seen together, one wall and the other,
+    # the robot turning from one to the other seeing nothing for a few seconds.
+    rng = np.random.default_rng(seed)
+    stream: list[list[int] | None] = []
+    for wall in (A, B, A, B, A):
+        stream += [GAP, *stay(rng, wall, 60, p=0.3)]
+    tracker, found = track_gapped(stream[1:])
+    assert found == []
+    assert tracker.area_count == 1
+    _, gap_ignored = track_gapped(stream[1:], AreaParams(period_steps=0))
+    assert moves(gap_ignored)[:2] == [(0, 1), (1, 0)]
+    assert len(gap_ignored) == 4
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_gap_away_from_the_door_keeps_the_transition(seed: int) -> None:
+    # Blind for a while in the middle of room A, then an ordinary door: rule 3b looks only
+    # at the boundary's own frames.
+    rng = np.random.default_rng(seed)
+    stream = [*stay(rng, A, 15), GAP, *stay(rng, A, 15), *stay(rng, B, 30)]
+    tracker, found = track_gapped(stream)
+    assert moves(found) == [(0, 1)]
+    assert tracker.gaps == deque()  # the gap went with the segment it was in
+    # restored from a snapshot before every frame: the same decisions and state
+    restored, again = track_gapped(stream, restore=True)
+    assert again == found
+    assert to_bytes(restored) == to_bytes(tracker)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_gapped_stream_restored_at_every_frame_decides_alike(seed: int) -> None:
+    # Sparse sightings: a proposal at the gap waits frames for evidence, across snapshots.
+    rng = np.random.default_rng(seed)
+    stream: list[list[int] | None] = [*stay(rng, A, 40, p=0.3), GAP]
+    stream += [*stay(rng, B, 40, p=0.3), *stay(rng, A, 20), *stay(rng, H2, 30)]
+    tracker, found = track_gapped(stream)
+    restored, again = track_gapped(stream, restore=True)
+    assert again == found
+    assert to_bytes(restored) == to_bytes(tracker)
+    assert found  # the door to H2, without a gap, is still a transition
+
+
+def test_missing_frames_are_counted_at_the_median_step() -> None:
+    steps = [0.5, 0.5, 0.4, 0.6, 9.0]  # one earlier gap does not move the period
+    assert missing_frames(0.6, steps) == 0
+    assert missing_frames(1.0, steps) == 1
+    assert missing_frames(2.1, steps) == 3
+    assert missing_frames(5.0, []) == 0  # no period yet
+
+
+def test_blind_gap_counts_missing_frames_where_empty_ones_count() -> None:
+    frames = [(0, (1,)), (1, (1,)), (2, (1,)), (3, (2,)), (4, (2,))]
+    least = (1, 3)  # blind_frames, blind_span
+    assert blind_gap(frames, [(3, 1)], 3, least, 0)  # one frame right before the boundary
+    assert not blind_gap(frames, [(4, 2)], 3, least, 0)  # two after it: shorter than a span
+    assert blind_gap(frames, [(4, 3)], 3, least, 0)  # a span after it
+    assert not blind_gap(frames, [(2, 3)], 3, least, 0)  # a span before it, no margin
+    assert blind_gap(frames, [(2, 3)], 3, least, 2)  # after frame 1, 2 non-empty frames back
+    assert not blind_gap(frames, [(1, 3)], 3, least, 2)  # before frame 1: outside
+    assert not blind_gap(frames, [(3, 9)], 3, (0, 0), 2)  # rule 3b off
 
 
 def test_blind_run_counts_from_the_margin_on() -> None:
@@ -431,6 +540,7 @@ def test_restoring_at_every_frame_keeps_recognition_and_merges(seed: int) -> Non
         ("blind_frames", -1),
         ("blind_span", -1),
         ("blind_margin", -1),
+        ("period_steps", -1),
         ("stay_share", 0.0),
         ("familiar_rate", 0.0),
         ("familiar_rate", 1.5),

@@ -189,7 +189,9 @@ def test_areas_changes_are_the_trackers(stream: str, size: int) -> None:
         (c.transition, c.area, c.left_area, c.revisit_of, c.reason.value) for c in expected
     ]
     assert segmenter.area_graph() == graph
-    assert len(expected) >= 3
+    # mrclam6's robot 3 is in one arena: its turns between the walls, blind for seconds
+    # (stamp gaps), are no transition (rule 3b); the other streams change area
+    assert len(expected) == 0 if stream == "mrclam6" else len(expected) >= 3
     assert segmenter.closed_submaps == tuple(c.transition.closed for c in expected)
     assert segmenter.current_area == (expected[-1].area if expected else 0)
 
@@ -246,7 +248,7 @@ def test_restored_mid_stream_goes_on_exactly(method: Method, stream: str) -> Non
     assert summary(resumed) == summary(straight)
     assert resumed.to_bytes() == straight.to_bytes()
     assert run.restored_with_pending_frames > 0
-    if method is Method.AREAS:
+    if method is Method.AREAS and stream != "mrclam6":  # one area: no change to hold
         assert run.restored_with_held_changes > 0
 
 

@@ -26,7 +26,10 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
    b. the boundary does not follow ``blind_frames`` empty frames, and no run of
       ``blind_span`` empty frames lies in the frames from ``blind_margin`` non-empty frames
       before the boundary on: a robot that saw nothing saw no boundary (a room wider than
-      the sensor's range, crossed blind, perhaps glimpsing a wall on the way);
+      the sensor's range, crossed blind, perhaps glimpsing a wall on the way). A stream that
+      leaves out its empty frames shows them as a gap between stamps: a frame that follows
+      the one before by ``k + 1`` periods (rounded; the period is the median of the last
+      ``period_steps`` stamp steps) has ``k`` empty frames before it;
    c. the frames from the boundary on are not the current area's own: when ``stay_share``
       of their sightings are of features *familiar* to the current area (seen in
       ``familiar_rate`` of its non-empty frames, or in ``familiar_relative`` times the mean
@@ -138,6 +141,9 @@ class AreaTracker:
         self.segment_frame_count = 0
         self.segment_counts: dict[int, int] = {}  # feature -> frames of the segment
         self.frames: deque[Frame] = deque(maxlen=self.params.history_frames)
+        # rule 3b: the last stamp steps, and (frame, frames missing before it) of kept frames
+        self.steps: deque[float] = deque(maxlen=self.params.period_steps or None)
+        self.gaps: deque[tuple[int, int]] = deque()
         # areas (rule 7); a merged area keeps its slot, empty, and its entry in ``merged``
         self.areas: list[dict[int, int]] = [{}]
         self.area_frames: list[int] = [0]  # non-empty frames per area
@@ -191,6 +197,7 @@ class AreaTracker:
             msg = f"frame seq {seq} is not after the last applied seq {self.last_seq}"
             raise StaleFrameError(msg)
         seen = distinct(seq, features)
+        self._step(seq, float(stamp_s))
         self.last_seq = seq
         self.last_stamp_s = float(stamp_s)
         self.frames_applied += 1
@@ -198,6 +205,7 @@ class AreaTracker:
             self.segment_first_seq = seq
         self.segment_frame_count += 1
         self.frames.append((seq, seen))
+        self._forget_gaps()
         count(self.segment_counts, seen)
         if seen:
             count(self.areas[self.current], seen)
@@ -211,6 +219,29 @@ class AreaTracker:
         if seen and self.params.recognise_frames:
             return self._recognise(seq)
         return None
+
+    def _step(self, seq: int, stamp_s: float) -> None:
+        """Note the frames missing before this one, at the stream's period (rule 3b).
+
+        A stream without its empty frames (a frame only when something is seen) shows the
+        robot's blindness only in its stamps.
+        """
+        if not self.params.period_steps or self.last_seq is None:
+            return
+        step = stamp_s - self.last_stamp_s
+        if step <= 0.0:
+            return  # equal stamps tell no period
+        if self.steps:
+            missing = rules.missing_frames(step, self.steps)
+            if missing:
+                self.gaps.append((seq, missing))
+        self.steps.append(step)
+
+    def _forget_gaps(self) -> None:
+        """Drop the gaps before the first kept frame (no rule looks there)."""
+        first = self.frames[0][0] if self.frames else None
+        while self.gaps and (first is None or self.gaps[0][0] < first):
+            self.gaps.popleft()
 
     def _pool(self, seq: int, seen: tuple[int, ...]) -> None:
         """Add a frame to the pool; hand a full pool to the proposer (rules 1, 2)."""
@@ -319,6 +350,10 @@ class AreaTracker:
         p = self.params
         if rules.blind_before(self.frames, boundary, p.blind_frames):
             return True
+        if rules.blind_gap(
+            self.frames, self.gaps, boundary, (p.blind_frames, p.blind_span), p.blind_margin
+        ):
+            return True
         return bool(p.blind_span) and (
             rules.blind_run(self.frames, boundary, p.blind_margin) >= p.blind_span
         )
@@ -394,6 +429,7 @@ class AreaTracker:
         )
         self.frames.clear()
         self.frames.extend(moved)
+        self._forget_gaps()
         self.segment_id += 1
         self.segment_first_seq = seam
         self.segment_frame_count = len(moved)

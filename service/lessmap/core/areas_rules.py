@@ -49,16 +49,25 @@ def blind_before(frames: Iterable[Frame], boundary: int, blind_frames: int) -> b
     return empty >= blind_frames
 
 
+def blind_start(frames: Sequence[Frame], boundary: int, margin: int) -> int:
+    """Where rule 3b looks for blind frames from: ``margin`` non-empty frames before the boundary.
+
+    The boundary itself when ``margin`` is 0; the first kept frame before it that is
+    non-empty when fewer than ``margin`` are kept.
+    """
+    if margin:
+        earlier = [s for s, features in frames if features and s < boundary]
+        if earlier:
+            return earlier[-min(margin, len(earlier))]
+    return boundary
+
+
 def blind_run(frames: Sequence[Frame], boundary: int, margin: int) -> int:
     """Longest run of empty frames from ``margin`` non-empty frames before the boundary on.
 
     Rule 3b: the run may also lie after the boundary (a pool may start on empty frames).
     """
-    start = boundary
-    if margin:
-        earlier = [s for s, features in frames if features and s < boundary]
-        if earlier:
-            start = earlier[-min(margin, len(earlier))]
+    start = blind_start(frames, boundary, margin)
     best = run = 0
     for frame_seq, features in frames:
         if frame_seq < start:
@@ -69,6 +78,45 @@ def blind_run(frames: Sequence[Frame], boundary: int, margin: int) -> int:
             run += 1
             best = max(best, run)
     return best
+
+
+def missing_frames(step: float, steps: Iterable[float]) -> int:
+    """Frames a stamp step leaves out at the period of ``steps`` (their median; rule 3b).
+
+    A step of about ``k + 1`` periods (rounded) leaves out ``k`` frames; 0 without steps.
+    """
+    ordered = sorted(steps)
+    if not ordered:
+        return 0
+    middle = len(ordered) // 2
+    period = ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
+    return max(0, round(step / period) - 1)
+
+
+def blind_gap(
+    frames: Sequence[Frame],
+    gaps: Iterable[tuple[int, int]],
+    boundary: int,
+    least: tuple[int, int],
+    margin: int,
+) -> bool:
+    """Whether frames a stamp gap left out make the boundary blind, as empty frames would.
+
+    Rule 3b on ``gaps``, (frame, frames missing right before it) of the kept frames:
+    ``least[0]`` (``blind_frames``) missing right before the first sighting from the
+    boundary on, as ``blind_before`` counts, or ``least[1]`` (``blind_span``) missing
+    before a frame after the one ``margin`` non-empty frames before the boundary, as
+    ``blind_run`` counts (a gap before that frame lies outside).
+    """
+    before_first, in_span = least
+    first = next((seq for seq, features in frames if features and seq >= boundary), None)
+    start = blind_start(frames, boundary, margin)
+    for seq, missing in gaps:
+        if before_first and seq == first and missing >= before_first:
+            return True
+        if in_span and seq > start and missing >= in_span:
+            return True
+    return False
 
 
 def seam(

@@ -7,7 +7,8 @@ are summed in) and the kept frames, and ``meta`` is a UTF-8 JSON document of the
 the areas' frame counts and the merged areas. The version number changes whenever the layout
 does (2: frame counts per area and merges, for recognition and merging; 3: the parameter
 ``familiar_relative``; 4: ``weak_ncut`` and ``weak_frames``; 5: ``blind_span`` and
-``blind_margin``; 6: ``seam_frames``).
+``blind_margin``; 6: ``seam_frames``; 7: ``period_steps``, the last stamp steps and the
+kept frames that follow a stamp gap).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from lessmap.core.areas import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.submaps import Reason
 
-AREAS_SNAPSHOT_VERSION = 6
+AREAS_SNAPSHOT_VERSION = 7
 
 _POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
 _INT_FIELDS = (
@@ -63,6 +64,8 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         "pool": sorted(tracker.pool.features),
         "pool_starts": [list(pair) for pair in tracker.pool.starts],
         "frame_seqs": [seq for seq, _ in tracker.frames],
+        "steps": [step.hex() for step in tracker.steps],
+        "gaps": [list(gap) for gap in tracker.gaps],
         "area_frames": list(tracker.area_frames),
         "merged": [[gone, into] for gone, into in tracker.merged.items()],
         "last_stamp_s": tracker.last_stamp_s.hex(),  # hex keeps the float exact
@@ -139,6 +142,8 @@ def from_bytes(data: bytes) -> AreaTracker:
                 strict=True,
             )
         )
+        tracker.steps.extend(float.fromhex(step) for step in meta["steps"])
+        tracker.gaps.extend((int(seq), int(missing)) for seq, missing in meta["gaps"])
         tracker.area_frames = [int(n) for n in meta["area_frames"]]
         tracker.merged = {int(gone): int(into) for gone, into in meta["merged"]}
         for name, field in _POOL_FIELDS.items():
