@@ -187,7 +187,23 @@ class AreaTracker:
     # -- frames ----------------------------------------------------------------------------
 
     def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
-        """Add one frame; return the area change it confirms, if any.
+        """Add one frame and settle at once; return the area change it confirms, if any.
+
+        Raises:
+            StaleFrameError: seq is not greater than the last seq.
+            GraphError: a feature ID is not an integer.
+        """
+        self.add(seq, stamp_s, features)
+        return self.settle()
+
+    def add(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """Count one frame in: the segment's and area's sightings, the pool, the proposer's graph.
+
+        The tests that can change the area (the proposer's Eq. 4, rules 3-6) wait for
+        ``settle``. Called after every frame, the two are ``observe``; a service behind its
+        load settles once for several frames, as the paper's partitioner decides once for
+        several, and then the tests run once (they were most of the method's cost, and
+        would not shrink under load if each frame ran them).
 
         Raises:
             StaleFrameError: seq is not greater than the last seq.
@@ -211,12 +227,27 @@ class AreaTracker:
             count(self.areas[self.current], seen)
             self.area_frames[self.current] += 1
             self._profiles.pop(self.current, None)
-        self._pool(seq, seen)
+        closed = self.pool.add(seq, seen)
+        if closed is not None:
+            self.proposer.apply(closed[0], self.last_stamp_s, closed[1])
+
+    def settle(self) -> AreaTransition | None:
+        """Run the tests on the frames added since the last settle; return the change found.
+
+        The proposer decides once on the pools closed meanwhile (rules 1, 2), then a pending
+        proposal is confirmed, kept or dropped (rules 3, 4, 6) and the last frame, if it saw
+        anything, may be recognised (rule 5), all at the last frame added. Call it once after
+        the frames it covers: it tests the last frame again if called twice.
+        """
+        seq = self.last_seq
+        if seq is None:
+            return None
+        self._propose(seq)
         if self.candidate is not None:
             change = self._confirm(seq)
             if change is not None:
                 return change
-        if seen and self.params.recognise_frames:
+        if self.frames and self.frames[-1][1] and self.params.recognise_frames:
             return self._recognise(seq)
         return None
 
@@ -243,12 +274,9 @@ class AreaTracker:
         while self.gaps and (first is None or self.gaps[0][0] < first):
             self.gaps.popleft()
 
-    def _pool(self, seq: int, seen: tuple[int, ...]) -> None:
-        """Add a frame to the pool; hand a full pool to the proposer (rules 1, 2)."""
-        closed = self.pool.add(seq, seen)
-        if closed is None:
-            return
-        proposal = self.proposer.observe(closed[0], self.last_stamp_s, closed[1])
+    def _propose(self, seq: int) -> None:
+        """Let the proposer decide on the pools it was handed since (rules 1, 2)."""
+        proposal = self.proposer.decide()
         if proposal is not None:
             self.candidate = Candidate(
                 boundary_seq=self.pool.start_of(proposal.boundary_seq, seq),

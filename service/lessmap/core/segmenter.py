@@ -391,21 +391,27 @@ class AreasSegmenter:
         return self.tracker.proposer.graph.count(feature) > 0
 
     def apply(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
-        """Observe one frame at once; hold the change it confirms, if any (rules 2, 3)."""
+        """Count one frame in; its tests wait for ``decide`` (rule 2)."""
         last = self.tracker.last_seq
         if last is not None and seq <= last:
             msg = f"frame seq {seq} is not after the last applied seq {last}"
             raise StaleFrameError(msg)
         ids, _ = _feature_ids(seq, features)
-        found = self.tracker.observe(seq, float(stamp_s), ids)
+        self.tracker.add(seq, float(stamp_s), ids)
         self._pending_frames += 1
-        if found is not None:
-            self.builder.add(found)
-            self._closed.append(found.transition.closed)
-            self._held.append(_change(found))
 
     def decide(self) -> tuple[SegmentChange, ...]:
-        """The changes held since the last ``decide``, oldest first."""
+        """Settle the frames applied since the last ``decide``; the changes held, oldest first.
+
+        Once for several frames under load (the service's coalescing): the area tests run
+        once, at the last frame, as the paper's test does.
+        """
+        if self._pending_frames:
+            found = self.tracker.settle()
+            if found is not None:
+                self.builder.add(found)
+                self._closed.append(found.transition.closed)
+                self._held.append(_change(found))
         changes = tuple(self._held)
         self._held.clear()
         self._pending_frames = 0
