@@ -18,6 +18,8 @@
 //!   last seq applied, then the end is put again): frames dropped at a deposed owner during a
 //!   hand-over are fetched from that cache by the new one (section 6, rules 3, 8 and 9). The
 //!   wait never fails and never outlasts the close timeout; with no live instance it is skipped.
+//!   [`close_all`] closes many publishers with one shared wait (`closing.rs`); a single close
+//!   is `close_all` of one publisher.
 
 use std::collections::hash_map::RandomState;
 use std::collections::{BTreeMap, BTreeSet};
@@ -34,8 +36,9 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
+use crate::closing::{confirm_ends, CloseFailure, CloseReport, PendingEnd, UnconfirmedEnd};
 use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
-use crate::connection::{current_area_graphs, current_states, get_all, instances, ClientError};
+use crate::connection::{current_area_graphs, current_states, get_all, ClientError};
 use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 
@@ -46,16 +49,6 @@ const INBOX_MAX: usize = 1000;
 /// of the robot's partition, whose catch-up from the cache the service bounds by
 /// `catchup_wait_s` (2 s by default).
 pub const DEFAULT_CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
-/// Pauses before the state polls of a close, in ms: the first is short (a live end is handled
-/// within a receiver sweep, 10-50 ms); later ones grow, so a slow take-over costs few queries.
-const POLL_DELAYS_MS: [u64; 5] = [20, 50, 100, 200, 250];
-/// A session open with every frame applied gets this long for its end to arrive before the end
-/// is put again (it may have been dropped with the frames queued at a deposed owner).
-const END_GRACE: Duration = Duration::from_millis(300);
-const STATE_QUERY_MAX: Duration = Duration::from_secs(1);
-const INSTANCES_QUERY_MAX: Duration = Duration::from_millis(500);
-const QUERY_MIN: Duration = Duration::from_millis(50);
-
 /// A fresh session id: the start time plus randomness, a valid name.
 pub fn new_session_id() -> String {
     let secs = SystemTime::now()
@@ -216,6 +209,15 @@ pub fn end_progress(
     let current = current_states(replies)
         .into_iter()
         .find(|state| state.fleet == fleet && state.robot == robot);
+    progress_of(current.as_ref(), session, last_seq)
+}
+
+/// Where the end of `session` (last frame `last_seq`) stands per the robot's current state.
+pub(crate) fn progress_of(
+    current: Option<&SessionState>,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
     match current {
         // Another session is no proof either way: it may be older than this one.
         Some(state) if state.session == session => {
@@ -629,7 +631,7 @@ impl RobotPublisher {
 
     /// End the session explicitly (a `SessionEnd` with the last seq), wait until the service
     /// confirms the end, then release everything. Dropping the publisher does the same,
-    /// ignoring errors.
+    /// logging errors instead of returning them.
     ///
     /// The publication cache stays until the service's `SessionState` shows the session
     /// closed, or open with every frame up to the last seq applied (then the end is put again
@@ -638,7 +640,12 @@ impl RobotPublisher {
     /// cache. Polls the robot's `state` key every 20-250 ms, for at most
     /// [`RobotOptions::close_timeout`]; then, or at once when no service instance is alive or
     /// a query fails, it logs one warning and releases anyway. An unconfirmed end is never an
-    /// error. No wait when no frame was sent or the service had closed the session.
+    /// error. No wait when no frame was sent or the service had closed the session. Closing
+    /// many robots: [`close_all`], which waits for them together and reports the ends left
+    /// unconfirmed.
+    ///
+    /// Fails only when the end could not be sent or a declaration could not be released (the
+    /// publisher is released as far as it can be either way).
     pub fn close(mut self) -> Result<(), ClientError> {
         let timeout = self.close_timeout;
         self.shut(timeout)
@@ -650,9 +657,17 @@ impl RobotPublisher {
     }
 
     fn shut(&mut self, timeout: Duration) -> Result<(), ClientError> {
-        let Some(publisher) = self.publisher.take() else {
-            return Ok(());
-        };
+        let report = close_each(vec![self], timeout);
+        match report.failures.into_iter().next() {
+            Some(failure) => Err(failure.error),
+            None => Ok(()),
+        }
+    }
+
+    /// Send the end of a publisher not released yet; `None` when it was released already.
+    /// The publication cache stays until `release`.
+    fn end_for_close(&mut self, confirm: bool) -> Option<Ending> {
+        self.publisher.as_ref()?;
         let (session_id, last, still_open) = {
             let state = self.shared.lock();
             (
@@ -661,112 +676,77 @@ impl RobotPublisher {
                 !state.closed_report,
             )
         };
-        let ended = if still_open {
+        let sent = if still_open {
             self.send_end(&session_id, last)
         } else {
             Ok(())
         };
-        // The cache lives with `publisher`, until its undeclare below.
-        if let (true, Ok(()), Some(last)) = (still_open, &ended, last) {
-            if !timeout.is_zero() {
-                self.confirm_end(&session_id, last, timeout);
-            }
-        }
+        let to_confirm = match (still_open && sent.is_ok() && confirm, last) {
+            (true, Some(last)) => Some((session_id, last)),
+            _ => None,
+        };
+        Some(Ending { sent, to_confirm })
+    }
+
+    /// Stop following errors and instances, then undeclare the publisher (its cache goes with
+    /// it). Every step runs; the first error is returned.
+    fn release(&mut self) -> Result<(), ClientError> {
         self.shared.stop.store(true, Ordering::Relaxed);
+        let mut first: Result<(), ClientError> = Ok(());
+        let mut note = |result: zenoh::Result<()>| {
+            if let (Err(err), true) = (result, first.is_ok()) {
+                first = Err(err.into());
+            }
+        };
         if let Some(sub) = self.errors_sub.take() {
-            sub.undeclare().wait()?;
+            note(sub.undeclare().wait());
         }
         if let Some(sub) = self.live_sub.take() {
-            sub.undeclare().wait()?;
+            note(sub.undeclare().wait());
         }
         if let Some(follower) = self.follower.take() {
             if follower.thread().id() != std::thread::current().id() {
                 let _ = follower.join();
             }
         }
-        publisher.undeclare().wait()?;
-        ended
+        if let Some(publisher) = self.publisher.take() {
+            note(publisher.undeclare().wait());
+        }
+        first
+    }
+
+    pub(crate) fn zenoh_session(&self) -> &Session {
+        &self.session
+    }
+
+    /// Whether the publisher has seen a live instance's token.
+    pub(crate) fn knows_live_instance(&self) -> bool {
+        !self.shared.lock().live.is_empty()
+    }
+
+    /// Whether the service reported the current session closed.
+    pub(crate) fn closed_by_service(&self) -> bool {
+        self.shared.lock().closed_report
+    }
+
+    /// Put the end of `session_id` again (ignored by the service if it had it).
+    pub(crate) fn resend_end(&self, session_id: &str, last_seq: u64) {
+        if let Err(err) = self.send_end(session_id, Some(last_seq)) {
+            tracing::debug!(
+                "{}/{}: putting the end again: {err}",
+                self.fleet,
+                self.robot
+            );
+        }
     }
 }
 
-impl RobotPublisher {
-    /// Wait until the service confirms the end of `session_id`, at most `timeout`; warn once
-    /// if it does not. Runs before the follower and the liveliness subscriber stop, so a
-    /// `SESSION_CLOSED` report and the instances' tokens still count.
-    fn confirm_end(&self, session_id: &str, last_seq: u64, timeout: Duration) {
-        let label = format!("{}/{}", self.fleet, self.robot);
-        let unconfirmed = |reason: &str| {
-            tracing::warn!(
-                "{label}: end of session {session_id} not confirmed by the service ({reason}); \
-                 closing the publication cache anyway, frames not applied yet are lost"
-            );
-        };
-        let resend = || {
-            if let Err(err) = self.send_end(session_id, Some(last_seq)) {
-                tracing::debug!("{label}: putting the end again: {err}");
-            }
-        };
-        let Ok(key) = keys::state(&self.fleet, &self.robot) else {
-            return; // the names were checked when the publisher was declared
-        };
-        let deadline = Instant::now() + timeout;
-        let mut delays = POLL_DELAYS_MS.iter();
-        let mut caught_up_at: Option<Instant> = None;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                break;
-            }
-            let pause = Duration::from_millis(*delays.next().unwrap_or(&POLL_DELAYS_MS[4]));
-            std::thread::sleep(pause.min(left));
-            if self.shared.lock().closed_report {
-                return; // the service closed it (SESSION_CLOSED): nothing more will apply
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if !self.anyone_alive(left) {
-                unconfirmed("no live lessmap instance");
-                return;
-            }
-            let ask = left.clamp(QUERY_MIN, STATE_QUERY_MAX);
-            let replies = match get_all::<SessionState>(&self.session, &key, ask) {
-                Ok(replies) => replies,
-                Err(err) => {
-                    unconfirmed(&format!("state query failed: {err}"));
-                    return;
-                }
-            };
-            let now = Instant::now();
-            match end_progress(replies, &self.fleet, &self.robot, session_id, last_seq) {
-                EndProgress::Closed => return,
-                EndProgress::Pending => caught_up_at = None,
-                EndProgress::CaughtUp => match caught_up_at {
-                    None => caught_up_at = Some(now),
-                    Some(at) if now.duration_since(at) >= END_GRACE => {
-                        resend(); // ignored by the service if it had the end
-                        return;
-                    }
-                    Some(_) => {}
-                },
-            }
-        }
-        // Out of time: a session with every frame applied lacks only its end; the cache is
-        // not needed for it any more.
-        if caught_up_at.is_some() {
-            resend();
-        } else {
-            unconfirmed(&format!("not confirmed within {timeout:?}"));
-        }
-    }
-
-    /// A live instance per the tokens followed, else per one liveliness query (for a
-    /// publisher closed so soon after it was declared that the tokens had not arrived yet).
-    fn anyone_alive(&self, left: Duration) -> bool {
-        if !self.shared.lock().live.is_empty() {
-            return true;
-        }
-        let ask = left.clamp(QUERY_MIN, INSTANCES_QUERY_MAX);
-        instances(&self.session, ask).is_ok_and(|live| !live.is_empty())
-    }
+/// What a publisher's end did: whether it went out, and the end to confirm (the session and its
+/// last seq) when confirmation was asked for and one is needed (no frame sent, or a session the
+/// service closed, needs none).
+struct Ending {
+    sent: Result<(), ClientError>,
+    to_confirm: Option<(String, u64)>,
 }
 
 impl Drop for RobotPublisher {
@@ -779,6 +759,126 @@ impl Drop for RobotPublisher {
                 self.robot
             );
         }
+    }
+}
+
+/// Close many robot publishers together: every end first, then one wait for them all, then
+/// every release. Returns what was left unconfirmed or failed; never fails, never panics.
+///
+/// [`RobotPublisher::close`] one after the other costs one confirmation latency per robot;
+/// this sends every `SessionEnd`, then polls the states of all the robots at once (one query
+/// per Zenoh session and fleet, with a wildcard key when several robots of a fleet wait),
+/// then releases every publisher. The rules of `close` apply: at most `timeout` of waiting
+/// (each robot's own [`RobotOptions::close_timeout`] is not used), no wait for robots with no
+/// live instance on their network, one warning line for the ends left unconfirmed (per
+/// reason), which the report lists too. `Duration::ZERO` releases right after the ends.
+///
+/// ```no_run
+/// use std::time::Duration;
+/// use lessmap_client::{close_all, Connection};
+///
+/// let conn = Connection::connect(&["tcp/127.0.0.1:7447"], Duration::from_secs(10))?;
+/// let robots = (0..16)
+///     .map(|i| conn.robot("warehouse", &format!("amr-{i}")))
+///     .collect::<Result<Vec<_>, _>>()?;
+/// for robot in &robots {
+///     robot.publish(&[12, 40, 41, 97])?;
+/// }
+/// let report = close_all(robots, lessmap_client::DEFAULT_CLOSE_TIMEOUT);
+/// for end in &report.unconfirmed {
+///     eprintln!("{}/{}: {}", end.fleet, end.robot, end.reason);
+/// }
+/// # Ok::<(), lessmap_client::ClientError>(())
+/// ```
+pub fn close_all<I>(publishers: I, timeout: Duration) -> CloseReport
+where
+    I: IntoIterator<Item = RobotPublisher>,
+{
+    let mut robots: Vec<RobotPublisher> = publishers.into_iter().collect();
+    let report = close_each(robots.iter_mut().collect(), timeout);
+    for failure in &report.failures {
+        tracing::warn!(
+            "{}/{}: closing the robot publisher: {}",
+            failure.fleet,
+            failure.robot,
+            failure.error
+        );
+    }
+    drop(robots); // closed: dropping them does nothing more
+    report
+}
+
+/// `close_all` over publishers borrowed (a single `close` and `Drop` use it too).
+fn close_each(mut robots: Vec<&mut RobotPublisher>, timeout: Duration) -> CloseReport {
+    let mut report = CloseReport::default();
+    let mut closing = Vec::with_capacity(robots.len());
+    let mut pending = Vec::new();
+    for (index, robot) in robots.iter_mut().enumerate() {
+        let Some(Ending { sent, to_confirm }) = robot.end_for_close(!timeout.is_zero()) else {
+            continue; // closed already
+        };
+        closing.push(index);
+        if let Err(error) = sent {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet.clone(),
+                robot: robot.robot.clone(),
+                error,
+            });
+        }
+        if let Some((session, last_seq)) = to_confirm {
+            pending.push((index, session, last_seq));
+        }
+    }
+    if !pending.is_empty() {
+        // The caches live with the publishers until their release below.
+        let ends = pending
+            .into_iter()
+            .map(|(index, session, last_seq)| {
+                PendingEnd::new(index, &*robots[index], session, last_seq)
+            })
+            .collect();
+        report.unconfirmed = confirm_ends(ends, timeout);
+        warn_unconfirmed(&report.unconfirmed);
+    }
+    for index in closing {
+        let robot = &mut robots[index];
+        if let Err(error) = robot.release() {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet.clone(),
+                robot: robot.robot.clone(),
+                error,
+            });
+        }
+        report.closed += 1;
+    }
+    report
+}
+
+/// One warning line per reason for the ends left unconfirmed.
+fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
+    let mut reasons: Vec<String> = Vec::new();
+    for end in ends {
+        let reason = end.reason.to_string();
+        if !reasons.contains(&reason) {
+            reasons.push(reason);
+        }
+    }
+    for reason in reasons {
+        let names: Vec<String> = ends
+            .iter()
+            .filter(|end| end.reason.to_string() == reason)
+            .map(|end| format!("{}/{} session {}", end.fleet, end.robot, end.session))
+            .collect();
+        let more = match names.len() {
+            n if n > 5 => format!(" and {} more", n - 5),
+            _ => String::new(),
+        };
+        tracing::warn!(
+            "end of {} session(s) not confirmed by the service ({reason}): {}{more}; closing \
+             their publication caches anyway, frames not applied yet are lost",
+            names.len(),
+            names[..names.len().min(5)].join(", ")
+        );
     }
 }
 
