@@ -44,6 +44,8 @@ use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 
 /// Error reports waiting for the follower thread; more are dropped and counted.
 const INBOX_MAX: usize = 1000;
+/// How long the follower asks who holds the robot after a `SESSION_CLOSED`.
+const HOLDER_QUERY: Duration = Duration::from_secs(1);
 
 /// How long closing waits by default for the service to confirm the end: room for a take-over
 /// of the robot's partition, whose catch-up from the cache the service bounds by
@@ -153,6 +155,9 @@ struct State {
     errors: BTreeMap<String, u64>,
     last_error: Option<Error>,
     closed_report: bool,
+    /// Another open session of this robot name the service holds (seen after a
+    /// `SESSION_CLOSED`): `publish` does not start a new session over it.
+    holder: Option<String>,
     highest_epoch: u64,
     stale: u64,
     live: BTreeSet<String>,
@@ -164,20 +169,36 @@ impl State {
         self.sessions.push(session_id);
         self.next_seq = 0;
         self.closed_report = false;
+        self.holder = None;
     }
 }
 
 struct Shared {
     state: Mutex<State>,
     live_changed: Condvar,
+    /// Reports handed to the follower and reports it handled (`flush_errors`).
+    inbox: Mutex<Inbox>,
+    inbox_changed: Condvar,
     dropped: AtomicU64,
     stop: AtomicBool,
+}
+
+#[derive(Default)]
+struct Inbox {
+    received: u64,
+    handled: u64,
 }
 
 impl Shared {
     fn lock(&self) -> MutexGuard<'_, State> {
         // A panic in on_error never holds this lock, so poisoning is not expected; recover.
         self.state
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    fn inbox(&self) -> MutexGuard<'_, Inbox> {
+        self.inbox
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
@@ -276,11 +297,14 @@ impl RobotPublisher {
                 errors: BTreeMap::new(),
                 last_error: None,
                 closed_report: false,
+                holder: None,
                 highest_epoch: 0,
                 stale: 0,
                 live: BTreeSet::new(),
             }),
             live_changed: Condvar::new(),
+            inbox: Mutex::new(Inbox::default()),
+            inbox_changed: Condvar::new(),
             dropped: AtomicU64::new(0),
             stop: AtomicBool::new(false),
         });
@@ -313,11 +337,13 @@ impl RobotPublisher {
             session
                 .declare_subscriber(keys::errors(fleet, robot)?)
                 .callback(move |sample: Sample| {
-                    if tx
-                        .try_send(sample.payload().to_bytes().into_owned())
-                        .is_err()
-                    {
-                        counter.dropped.fetch_add(1, Ordering::Relaxed);
+                    // Counted under the inbox lock, so `handled` never runs ahead of it.
+                    let mut inbox = counter.inbox();
+                    match tx.try_send(sample.payload().to_bytes().into_owned()) {
+                        Ok(()) => inbox.received += 1,
+                        Err(_) => {
+                            counter.dropped.fetch_add(1, Ordering::Relaxed);
+                        }
                     }
                 })
                 .wait()?,
@@ -325,12 +351,23 @@ impl RobotPublisher {
         let follower_shared = Arc::clone(&shared);
         let on_error = options.on_error;
         let label = format!("{fleet}/{robot}");
+        let reports = Reports {
+            label: label.clone(),
+            session: session.clone(),
+            state_key: keys::state(fleet, robot)?,
+            auto_new_session: options.auto_new_session,
+            on_error,
+        };
         robot_pub.follower = Some(
             std::thread::Builder::new()
                 .name(format!("lessmap-robot-{label}"))
                 .spawn(move || loop {
                     match rx.recv_timeout(Duration::from_millis(100)) {
-                        Ok(payload) => handle_report(&follower_shared, &label, &payload, &on_error),
+                        Ok(payload) => {
+                            handle_report(&follower_shared, &reports, &payload);
+                            follower_shared.inbox().handled += 1;
+                            follower_shared.inbox_changed.notify_all();
+                        }
                         Err(RecvTimeoutError::Timeout) => {}
                         Err(RecvTimeoutError::Disconnected) => return,
                     }
@@ -412,6 +449,32 @@ impl RobotPublisher {
         }
     }
 
+    /// Wait until every error report received so far is handled (counted in `status`, handed
+    /// to `on_error`); `false` after `timeout`. Reports still on the network are not waited for.
+    pub fn flush_errors(&self, timeout: Duration) -> bool {
+        if let Some(follower) = &self.follower {
+            if follower.thread().id() == std::thread::current().id() {
+                return true; // waiting for ourselves would never end
+            }
+        }
+        let deadline = Instant::now() + timeout;
+        let mut inbox = self.shared.inbox();
+        let target = inbox.received;
+        while inbox.handled < target {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() || self.follower.is_none() {
+                return false;
+            }
+            inbox = self
+                .shared
+                .inbox_changed
+                .wait_timeout(inbox, left)
+                .unwrap_or_else(|poisoned| poisoned.into_inner())
+                .0;
+        }
+        true
+    }
+
     /// Publish one frame stamped now, with the next seq; return that seq.
     pub fn publish(&self, features: &[u64]) -> Result<u64, ClientError> {
         self.publish_frame(features, None, None, None)
@@ -433,6 +496,13 @@ impl RobotPublisher {
         let (session_id, next_seq) = {
             let mut state = self.shared.lock();
             if state.closed_report {
+                if let Some(holder) = &state.holder {
+                    return Err(ClientError::SessionClosed(format!(
+                        "{}/{}: the service closed session {}; session {holder} is open for \
+                         this robot name, from another publisher (new_session would close it)",
+                        self.fleet, self.robot, state.session_id
+                    )));
+                }
                 if !self.auto_new_session {
                     return Err(ClientError::SessionClosed(format!(
                         "{}/{}: the service closed session {}",
@@ -882,8 +952,18 @@ fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
     }
 }
 
+/// What the follower thread needs to handle the reports of one robot.
+struct Reports {
+    label: String,
+    session: Session,
+    state_key: String,
+    auto_new_session: bool,
+    on_error: Option<ErrorCallback>,
+}
+
 /// Handle one report on the follower thread.
-fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option<ErrorCallback>) {
+fn handle_report(shared: &Shared, reports: &Reports, payload: &[u8]) {
+    let label = &reports.label;
     let error = match decode::<Error>(payload) {
         Ok(error) => error,
         Err(err) => {
@@ -891,7 +971,7 @@ fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option
             return;
         }
     };
-    {
+    let closes_current = {
         let mut state = shared.lock();
         if let Some(session) = &error.session {
             if !state.sessions.contains(session) {
@@ -910,12 +990,12 @@ fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option
             .entry(error.code.as_str().to_owned())
             .or_insert(0) += 1;
         state.last_error = Some(error.clone());
-        if error.code == ErrorCode::SessionClosed
-            && error.session.as_deref() == Some(state.session_id.as_str())
-        {
-            state.closed_report = true;
-        }
-    }
+        let current = state.session_id.clone();
+        (error.code == ErrorCode::SessionClosed
+            && error.session.as_deref() == Some(current.as_str())
+            && !state.closed_report)
+            .then_some(current)
+    };
     tracing::warn!(
         "{label}: the service reported {} for session {:?} seq {:?}: {}",
         error.code,
@@ -923,9 +1003,32 @@ fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option
         error.seq,
         error.detail
     );
-    if let Some(callback) = on_error {
+    if let Some(current) = closes_current {
+        // Starting a new session would close any other open session of this robot name:
+        // never fight another publisher for it.
+        let holder = if reports.auto_new_session {
+            other_holder(shared, reports, &current)
+        } else {
+            None
+        };
+        let mut state = shared.lock();
+        if state.session_id == current && !state.closed_report {
+            state.closed_report = true;
+            state.holder = holder;
+        }
+    }
+    if let Some(callback) = &reports.on_error {
         if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| callback(&error))).is_err() {
             tracing::error!("{label}: on_error panicked");
         }
     }
+}
+
+/// Another open session the service holds for this robot name, if any (the current owner's
+/// answer only; a failed query or no answer: none).
+fn other_holder(shared: &Shared, reports: &Reports, current: &str) -> Option<String> {
+    let found = get_all::<SessionState>(&reports.session, &reports.state_key, HOLDER_QUERY).ok()?;
+    let state = current_states(found).into_iter().next()?;
+    let ours = shared.lock().sessions.contains(&state.session);
+    (state.open && state.session != current && !ours).then_some(state.session)
 }
