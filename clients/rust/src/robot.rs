@@ -12,7 +12,11 @@
 //!   status and calls `on_error`. A `SESSION_CLOSED` about the current session becomes a flag
 //!   the next `publish` acts on, so frames are never renumbered behind the caller's back.
 //! * The robot follows the instances' liveliness tokens; `status().owner` ranks them for its
-//!   partition (section 2a).
+//!   partition (section 2a). The follower logs one warning when the robot becomes unserved
+//!   (or still is 2 s after the start) and one info line when it is served again.
+//! * After a `SESSION_CLOSED` for the current session, with `auto_new_session`, the follower
+//!   asks the robot's state: another publisher's open session of the robot name (a holder)
+//!   makes `publish` fail instead of starting a session that would close that one.
 //! * Closing keeps the publication cache after the `SessionEnd` until the service confirms
 //!   the end (its `SessionState` shows the session closed, or open with every frame up to the
 //!   last seq applied, then the end is put again): frames dropped at a deposed owner during a
@@ -44,6 +48,8 @@ use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 
 /// Error reports waiting for the follower thread; more are dropped and counted.
 const INBOX_MAX: usize = 1000;
+/// After this long without an owner since the publisher started, it warns once.
+const UNSERVED_GRACE: Duration = Duration::from_secs(2);
 /// How long the follower asks who holds the robot after a `SESSION_CLOSED`.
 const HOLDER_QUERY: Duration = Duration::from_secs(1);
 
@@ -353,6 +359,7 @@ impl RobotPublisher {
         let label = format!("{fleet}/{robot}");
         let reports = Reports {
             label: label.clone(),
+            partition: partition_of(fleet, robot),
             session: session.clone(),
             state_key: keys::state(fleet, robot)?,
             auto_new_session: options.auto_new_session,
@@ -361,18 +368,22 @@ impl RobotPublisher {
         robot_pub.follower = Some(
             std::thread::Builder::new()
                 .name(format!("lessmap-robot-{label}"))
-                .spawn(move || loop {
-                    match rx.recv_timeout(Duration::from_millis(100)) {
-                        Ok(payload) => {
-                            handle_report(&follower_shared, &reports, &payload);
-                            follower_shared.inbox().handled += 1;
-                            follower_shared.inbox_changed.notify_all();
+                .spawn(move || {
+                    let mut served = Served::new(Instant::now() + UNSERVED_GRACE);
+                    loop {
+                        match rx.recv_timeout(Duration::from_millis(100)) {
+                            Ok(payload) => {
+                                handle_report(&follower_shared, &reports, &payload);
+                                follower_shared.inbox().handled += 1;
+                                follower_shared.inbox_changed.notify_all();
+                            }
+                            Err(RecvTimeoutError::Timeout) => {}
+                            Err(RecvTimeoutError::Disconnected) => return,
                         }
-                        Err(RecvTimeoutError::Timeout) => {}
-                        Err(RecvTimeoutError::Disconnected) => return,
-                    }
-                    if follower_shared.stop.load(Ordering::Relaxed) {
-                        return;
+                        if follower_shared.stop.load(Ordering::Relaxed) {
+                            return;
+                        }
+                        served.check(&follower_shared, &reports);
                     }
                 })
                 .map_err(|err| ClientError::Connect(format!("cannot start a thread: {err}")))?,
@@ -955,10 +966,64 @@ fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
 /// What the follower thread needs to handle the reports of one robot.
 struct Reports {
     label: String,
+    partition: u16,
     session: Session,
     state_key: String,
     auto_new_session: bool,
     on_error: Option<ErrorCallback>,
+}
+
+/// Whether the robot is served, as the follower last logged it: one warning when the robot
+/// becomes unserved (or still is [`UNSERVED_GRACE`] after the start), one info line when it is
+/// served again. The follower checks after every report and every 100 ms.
+struct Served {
+    owner: Option<String>,
+    warned: bool,
+    grace_until: Option<Instant>,
+}
+
+impl Served {
+    fn new(grace_until: Instant) -> Served {
+        Served {
+            owner: None,
+            warned: false,
+            grace_until: Some(grace_until),
+        }
+    }
+
+    fn check(&mut self, shared: &Shared, reports: &Reports) {
+        let owner = {
+            let state = shared.lock();
+            let live: Vec<&String> = state.live.iter().collect();
+            owner_and_standby(reports.partition, &live).0
+        };
+        let startup = self
+            .grace_until
+            .is_some_and(|until| Instant::now() >= until);
+        if startup {
+            self.grace_until = None;
+        }
+        let before = std::mem::replace(&mut self.owner, owner.clone());
+        let (label, partition) = (&reports.label, reports.partition);
+        match owner {
+            None if !self.warned && (before.is_some() || startup) => {
+                self.warned = true;
+                tracing::warn!(
+                    "{label}: no live lessmap instance owns partition {partition}: the robot is \
+                     not served (its recent frames wait in the publisher's cache for the next \
+                     owner)"
+                );
+            }
+            Some(owner) if self.warned => {
+                self.warned = false;
+                tracing::info!("{label}: partition {partition} is served again, by {owner}");
+            }
+            Some(owner) if before.as_deref() != Some(owner.as_str()) => {
+                tracing::debug!("{label}: partition {partition} owner {owner}");
+            }
+            _ => {}
+        }
+    }
 }
 
 /// Handle one report on the follower thread.
