@@ -3,8 +3,10 @@
 The Rust examples run as processes on a loopback router: ``replay_frames`` streams the DLR
 frames file through the Rust ``RobotPublisher`` and ``follow_fleet`` receives the transitions
 through the Rust ``Subscription`` and queries the final ``SessionState``; the transitions must
-be exactly those ``lessmap segment`` computes offline for the file. Skipped where ``cargo`` or
-the shared data sets are absent.
+be exactly those ``lessmap segment`` computes offline for the file. ``close_fleet`` ends a
+fleet's sessions with the Rust ``close_all``: the service must hold every frame and close
+every session, and with no service every end comes back unconfirmed at once. Skipped where
+``cargo`` or the shared data sets are absent.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
+import lessmap_client
 from lessmap_schemas.partition import partition_of
 from tests.conftest import REPO, ServeProcess, dataset, wait_until
 
@@ -26,7 +29,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
 
 CRATE = REPO / "clients" / "rust"
-EXAMPLES = ("follow_fleet", "publish_walk", "replay_frames")
+EXAMPLES = ("close_fleet", "follow_fleet", "publish_walk", "replay_frames")
 
 # A cold build of zenoh takes minutes on a small machine; scripts/check runs `cargo test`
 # first, which builds the examples, so here the build is usually a no-op.
@@ -205,3 +208,76 @@ def test_rust_examples_walk_into_the_next_room(
     assert 40 <= transitions[0]["boundary_seq"] <= 44  # the door
     assert (state["frames_applied"], state["open"], state["transitions"]) == (84, False, 1)
     assert service.terminate() == 0
+
+
+def run_close_fleet(examples: dict[str, Path], endpoint: str, *args: str) -> dict[str, Any]:
+    """Run ``close_fleet`` to its end (bounded) and return its JSON summary."""
+    result = subprocess.run(
+        [str(examples["close_fleet"]), "-e", endpoint, *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr[-4000:]
+    summary: dict[str, Any] = json.loads(result.stdout)
+    return summary
+
+
+def test_rust_close_all_ends_every_session_of_a_fleet(
+    examples: dict[str, Path],
+    serve: Callable[..., ServeProcess],
+    fleet_name: str,
+) -> None:
+    service = serve()
+    robots, frames = 8, 5
+    summary = run_close_fleet(
+        examples,
+        service.endpoint,
+        *("--fleet", fleet_name, "--robots", str(robots), "--frames", str(frames)),
+        *("--timeout-ms", "5000"),
+    )
+    assert (summary["closed"], summary["unconfirmed"], summary["failures"]) == (robots, [], [])
+    assert summary["close_s"] < summary["timeout_s"]
+    sessions = summary["sessions"]
+    assert sorted(sessions) == sorted(f"robot-{i}" for i in range(robots))
+
+    with lessmap_client.connect(service.endpoint, timeout_s=20.0) as conn:
+        # close_all returned once each end was confirmed: every frame is applied already
+        # (the session closed, or open with its end put again and on its way).
+        states = {s.robot: s for s in conn.states(fleet_name, timeout_s=5.0)}
+        assert {r: (s.session, s.frames_applied) for r, s in states.items()} == {
+            robot: (session, frames) for robot, session in sessions.items()
+        }, service.log()[-4000:]
+
+        def all_closed() -> bool:
+            return all(not s.open for s in conn.states(fleet_name, timeout_s=2.0))
+
+        wait_until(all_closed, 30.0, "every session closed", service.log)
+        for state in conn.states(fleet_name, timeout_s=5.0):
+            assert (state.frames_missing, state.frames_rejected) == (0, 0), state
+    assert service.terminate() == 0
+
+
+def test_rust_close_all_without_a_service_reports_every_end_at_once(
+    examples: dict[str, Path],
+    router: str,
+    fleet_name: str,
+) -> None:
+    summary = run_close_fleet(
+        examples,
+        router,
+        *("--fleet", fleet_name, "--robots", "4", "--frames", "3"),
+        *("--timeout-ms", "5000", "--serve-wait-ms", "0"),
+    )
+    assert (summary["closed"], summary["failures"]) == (4, [])
+    assert summary["close_s"] < summary["timeout_s"]
+    assert summary["unconfirmed"] == [
+        {
+            "robot": f"robot-{i}",
+            "session": summary["sessions"][f"robot-{i}"],
+            "last_seq": 2,
+            "reason": "no live lessmap instance",
+        }
+        for i in range(4)
+    ]

@@ -3,13 +3,16 @@
 //!
 //! Each line is `{"robot", "seq", "stamp", "features", "pose"?}`; every robot of the file
 //! publishes under its own session, with the file's seqs and stamps, as fast as Zenoh takes
-//! them (congestion control *block*). Prints one JSON summary line.
+//! them (congestion control *block*), then ends every session together (`close_all`). Prints
+//! one JSON summary line.
 
 use std::collections::BTreeMap;
 use std::io::BufRead;
 use std::time::{Duration, Instant};
 
-use lessmap_client::{ClientError, Connection, RobotPublisher, DEFAULT_ENDPOINT};
+use lessmap_client::{
+    close_all, ClientError, Connection, RobotPublisher, DEFAULT_CLOSE_TIMEOUT, DEFAULT_ENDPOINT,
+};
 use serde_json::Value;
 
 struct Row {
@@ -116,8 +119,11 @@ fn main() -> Result<(), ClientError> {
         )?;
     }
     let count = robots.len();
-    for (_, robot) in robots {
-        robot.close()?; // SessionEnd with the last seq
+    // Every SessionEnd (with the last seq) first, then one wait for the service to confirm
+    // them all.
+    let report = close_all(robots.into_values(), DEFAULT_CLOSE_TIMEOUT);
+    if let Some(failure) = report.failures.into_iter().next() {
+        return Err(failure.error);
     }
     println!(
         "{{\"frames\": {}, \"robots\": {count}, \"elapsed_s\": {:.3}}}",

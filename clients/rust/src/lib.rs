@@ -2,9 +2,10 @@
 //!
 //! It speaks the wire contract v3 (`schemas/README.md` of the lessmap repository): the typed
 //! messages and their msgpack codec ([`messages`], [`codec`]), names, keys and partitions
-//! ([`names`]), a robot publisher ([`RobotPublisher`]) and fleet subscriptions and queries,
-//! all declared from one [`Connection`], as in the Python SDK, and the fleet merge of the
-//! robots' area graphs ([`fleet_areas`]).
+//! ([`names`]), a robot publisher ([`RobotPublisher`]; [`close_all`] ends many with one shared
+//! wait, [`closing`]) and fleet subscriptions and queries, all declared from one
+//! [`Connection`], as in the Python SDK, and the fleet merge of the robots' area graphs
+//! ([`fleet_areas`]).
 //!
 //! ```no_run
 //! use std::time::Duration;
@@ -17,6 +18,7 @@
 //! # Ok::<(), lessmap_client::ClientError>(())
 //! ```
 
+pub mod closing;
 pub mod codec;
 pub mod connection;
 pub mod fleet_areas;
@@ -25,6 +27,7 @@ pub mod names;
 pub mod robot;
 pub mod subscription;
 
+pub use closing::{CloseFailure, CloseReport, UnconfirmedEnd, UnconfirmedReason};
 pub use codec::{
     decode, decode_inbound, encode, encoding, ErrorCode, Inbound, WireError, WireLimits,
 };
@@ -38,6 +41,7 @@ pub use messages::{
 };
 pub use names::{keys, owner_and_standby, partition_of, ranking, validate_name};
 pub use robot::{
-    end_progress, EndProgress, RobotOptions, RobotPublisher, RobotStatus, DEFAULT_CLOSE_TIMEOUT,
+    close_all, end_progress, new_session_id, EndProgress, RobotOptions, RobotPublisher,
+    RobotStatus, DEFAULT_CLOSE_TIMEOUT,
 };
 pub use subscription::Subscription;

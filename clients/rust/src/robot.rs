@@ -12,12 +12,18 @@
 //!   status and calls `on_error`. A `SESSION_CLOSED` about the current session becomes a flag
 //!   the next `publish` acts on, so frames are never renumbered behind the caller's back.
 //! * The robot follows the instances' liveliness tokens; `status().owner` ranks them for its
-//!   partition (section 2a).
+//!   partition (section 2a). The follower logs one warning when the robot becomes unserved
+//!   (or still is 2 s after the start) and one info line when it is served again.
+//! * After a `SESSION_CLOSED` for the current session, with `auto_new_session`, the follower
+//!   asks the robot's state: another publisher's open session of the robot name (a holder)
+//!   makes `publish` fail instead of starting a session that would close that one.
 //! * Closing keeps the publication cache after the `SessionEnd` until the service confirms
 //!   the end (its `SessionState` shows the session closed, or open with every frame up to the
 //!   last seq applied, then the end is put again): frames dropped at a deposed owner during a
 //!   hand-over are fetched from that cache by the new one (section 6, rules 3, 8 and 9). The
 //!   wait never fails and never outlasts the close timeout; with no live instance it is skipped.
+//!   [`close_all`] closes many publishers with one shared wait (`closing.rs`); a single close
+//!   is `close_all` of one publisher.
 
 use std::collections::hash_map::RandomState;
 use std::collections::{BTreeMap, BTreeSet};
@@ -34,28 +40,23 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
+use crate::closing::{confirm_ends, CloseFailure, CloseReport, PendingEnd, UnconfirmedEnd};
 use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
-use crate::connection::{current_area_graphs, current_states, get_all, instances, ClientError};
+use crate::connection::{current_area_graphs, current_states, get_all, ClientError};
 use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 
 /// Error reports waiting for the follower thread; more are dropped and counted.
 const INBOX_MAX: usize = 1000;
+/// After this long without an owner since the publisher started, it warns once.
+const UNSERVED_GRACE: Duration = Duration::from_secs(2);
+/// How long the follower asks who holds the robot after a `SESSION_CLOSED`.
+const HOLDER_QUERY: Duration = Duration::from_secs(1);
 
 /// How long closing waits by default for the service to confirm the end: room for a take-over
 /// of the robot's partition, whose catch-up from the cache the service bounds by
 /// `catchup_wait_s` (2 s by default).
 pub const DEFAULT_CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
-/// Pauses before the state polls of a close, in ms: the first is short (a live end is handled
-/// within a receiver sweep, 10-50 ms); later ones grow, so a slow take-over costs few queries.
-const POLL_DELAYS_MS: [u64; 5] = [20, 50, 100, 200, 250];
-/// A session open with every frame applied gets this long for its end to arrive before the end
-/// is put again (it may have been dropped with the frames queued at a deposed owner).
-const END_GRACE: Duration = Duration::from_millis(300);
-const STATE_QUERY_MAX: Duration = Duration::from_secs(1);
-const INSTANCES_QUERY_MAX: Duration = Duration::from_millis(500);
-const QUERY_MIN: Duration = Duration::from_millis(50);
-
 /// A fresh session id: the start time plus randomness, a valid name.
 pub fn new_session_id() -> String {
     let secs = SystemTime::now()
@@ -160,6 +161,9 @@ struct State {
     errors: BTreeMap<String, u64>,
     last_error: Option<Error>,
     closed_report: bool,
+    /// Another open session of this robot name the service holds (seen after a
+    /// `SESSION_CLOSED`): `publish` does not start a new session over it.
+    holder: Option<String>,
     highest_epoch: u64,
     stale: u64,
     live: BTreeSet<String>,
@@ -171,20 +175,36 @@ impl State {
         self.sessions.push(session_id);
         self.next_seq = 0;
         self.closed_report = false;
+        self.holder = None;
     }
 }
 
 struct Shared {
     state: Mutex<State>,
     live_changed: Condvar,
+    /// Reports handed to the follower and reports it handled (`flush_errors`).
+    inbox: Mutex<Inbox>,
+    inbox_changed: Condvar,
     dropped: AtomicU64,
     stop: AtomicBool,
+}
+
+#[derive(Default)]
+struct Inbox {
+    received: u64,
+    handled: u64,
 }
 
 impl Shared {
     fn lock(&self) -> MutexGuard<'_, State> {
         // A panic in on_error never holds this lock, so poisoning is not expected; recover.
         self.state
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    fn inbox(&self) -> MutexGuard<'_, Inbox> {
+        self.inbox
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
@@ -216,6 +236,15 @@ pub fn end_progress(
     let current = current_states(replies)
         .into_iter()
         .find(|state| state.fleet == fleet && state.robot == robot);
+    progress_of(current.as_ref(), session, last_seq)
+}
+
+/// Where the end of `session` (last frame `last_seq`) stands per the robot's current state.
+pub(crate) fn progress_of(
+    current: Option<&SessionState>,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
     match current {
         // Another session is no proof either way: it may be older than this one.
         Some(state) if state.session == session => {
@@ -274,11 +303,14 @@ impl RobotPublisher {
                 errors: BTreeMap::new(),
                 last_error: None,
                 closed_report: false,
+                holder: None,
                 highest_epoch: 0,
                 stale: 0,
                 live: BTreeSet::new(),
             }),
             live_changed: Condvar::new(),
+            inbox: Mutex::new(Inbox::default()),
+            inbox_changed: Condvar::new(),
             dropped: AtomicU64::new(0),
             stop: AtomicBool::new(false),
         });
@@ -311,11 +343,13 @@ impl RobotPublisher {
             session
                 .declare_subscriber(keys::errors(fleet, robot)?)
                 .callback(move |sample: Sample| {
-                    if tx
-                        .try_send(sample.payload().to_bytes().into_owned())
-                        .is_err()
-                    {
-                        counter.dropped.fetch_add(1, Ordering::Relaxed);
+                    // Counted under the inbox lock, so `handled` never runs ahead of it.
+                    let mut inbox = counter.inbox();
+                    match tx.try_send(sample.payload().to_bytes().into_owned()) {
+                        Ok(()) => inbox.received += 1,
+                        Err(_) => {
+                            counter.dropped.fetch_add(1, Ordering::Relaxed);
+                        }
                     }
                 })
                 .wait()?,
@@ -323,17 +357,33 @@ impl RobotPublisher {
         let follower_shared = Arc::clone(&shared);
         let on_error = options.on_error;
         let label = format!("{fleet}/{robot}");
+        let reports = Reports {
+            label: label.clone(),
+            partition: partition_of(fleet, robot),
+            session: session.clone(),
+            state_key: keys::state(fleet, robot)?,
+            auto_new_session: options.auto_new_session,
+            on_error,
+        };
         robot_pub.follower = Some(
             std::thread::Builder::new()
                 .name(format!("lessmap-robot-{label}"))
-                .spawn(move || loop {
-                    match rx.recv_timeout(Duration::from_millis(100)) {
-                        Ok(payload) => handle_report(&follower_shared, &label, &payload, &on_error),
-                        Err(RecvTimeoutError::Timeout) => {}
-                        Err(RecvTimeoutError::Disconnected) => return,
-                    }
-                    if follower_shared.stop.load(Ordering::Relaxed) {
-                        return;
+                .spawn(move || {
+                    let mut served = Served::new(Instant::now() + UNSERVED_GRACE);
+                    loop {
+                        match rx.recv_timeout(Duration::from_millis(100)) {
+                            Ok(payload) => {
+                                handle_report(&follower_shared, &reports, &payload);
+                                follower_shared.inbox().handled += 1;
+                                follower_shared.inbox_changed.notify_all();
+                            }
+                            Err(RecvTimeoutError::Timeout) => {}
+                            Err(RecvTimeoutError::Disconnected) => return,
+                        }
+                        if follower_shared.stop.load(Ordering::Relaxed) {
+                            return;
+                        }
+                        served.check(&follower_shared, &reports);
                     }
                 })
                 .map_err(|err| ClientError::Connect(format!("cannot start a thread: {err}")))?,
@@ -410,6 +460,32 @@ impl RobotPublisher {
         }
     }
 
+    /// Wait until every error report received so far is handled (counted in `status`, handed
+    /// to `on_error`); `false` after `timeout`. Reports still on the network are not waited for.
+    pub fn flush_errors(&self, timeout: Duration) -> bool {
+        if let Some(follower) = &self.follower {
+            if follower.thread().id() == std::thread::current().id() {
+                return true; // waiting for ourselves would never end
+            }
+        }
+        let deadline = Instant::now() + timeout;
+        let mut inbox = self.shared.inbox();
+        let target = inbox.received;
+        while inbox.handled < target {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() || self.follower.is_none() {
+                return false;
+            }
+            inbox = self
+                .shared
+                .inbox_changed
+                .wait_timeout(inbox, left)
+                .unwrap_or_else(|poisoned| poisoned.into_inner())
+                .0;
+        }
+        true
+    }
+
     /// Publish one frame stamped now, with the next seq; return that seq.
     pub fn publish(&self, features: &[u64]) -> Result<u64, ClientError> {
         self.publish_frame(features, None, None, None)
@@ -431,6 +507,13 @@ impl RobotPublisher {
         let (session_id, next_seq) = {
             let mut state = self.shared.lock();
             if state.closed_report {
+                if let Some(holder) = &state.holder {
+                    return Err(ClientError::SessionClosed(format!(
+                        "{}/{}: the service closed session {}; session {holder} is open for \
+                         this robot name, from another publisher (new_session would close it)",
+                        self.fleet, self.robot, state.session_id
+                    )));
+                }
                 if !self.auto_new_session {
                     return Err(ClientError::SessionClosed(format!(
                         "{}/{}: the service closed session {}",
@@ -629,7 +712,7 @@ impl RobotPublisher {
 
     /// End the session explicitly (a `SessionEnd` with the last seq), wait until the service
     /// confirms the end, then release everything. Dropping the publisher does the same,
-    /// ignoring errors.
+    /// logging errors instead of returning them.
     ///
     /// The publication cache stays until the service's `SessionState` shows the session
     /// closed, or open with every frame up to the last seq applied (then the end is put again
@@ -638,7 +721,12 @@ impl RobotPublisher {
     /// cache. Polls the robot's `state` key every 20-250 ms, for at most
     /// [`RobotOptions::close_timeout`]; then, or at once when no service instance is alive or
     /// a query fails, it logs one warning and releases anyway. An unconfirmed end is never an
-    /// error. No wait when no frame was sent or the service had closed the session.
+    /// error. No wait when no frame was sent or the service had closed the session. Closing
+    /// many robots: [`close_all`], which waits for them together and reports the ends left
+    /// unconfirmed.
+    ///
+    /// Fails only when the end could not be sent or a declaration could not be released (the
+    /// publisher is released as far as it can be either way).
     pub fn close(mut self) -> Result<(), ClientError> {
         let timeout = self.close_timeout;
         self.shut(timeout)
@@ -650,9 +738,17 @@ impl RobotPublisher {
     }
 
     fn shut(&mut self, timeout: Duration) -> Result<(), ClientError> {
-        let Some(publisher) = self.publisher.take() else {
-            return Ok(());
-        };
+        let report = close_each(vec![self], timeout);
+        match report.failures.into_iter().next() {
+            Some(failure) => Err(failure.error),
+            None => Ok(()),
+        }
+    }
+
+    /// Send the end of a publisher not released yet; `None` when it was released already.
+    /// The publication cache stays until `release`.
+    fn end_for_close(&mut self, confirm: bool) -> Option<Ending> {
+        self.publisher.as_ref()?;
         let (session_id, last, still_open) = {
             let state = self.shared.lock();
             (
@@ -661,112 +757,77 @@ impl RobotPublisher {
                 !state.closed_report,
             )
         };
-        let ended = if still_open {
+        let sent = if still_open {
             self.send_end(&session_id, last)
         } else {
             Ok(())
         };
-        // The cache lives with `publisher`, until its undeclare below.
-        if let (true, Ok(()), Some(last)) = (still_open, &ended, last) {
-            if !timeout.is_zero() {
-                self.confirm_end(&session_id, last, timeout);
-            }
-        }
+        let to_confirm = match (still_open && sent.is_ok() && confirm, last) {
+            (true, Some(last)) => Some((session_id, last)),
+            _ => None,
+        };
+        Some(Ending { sent, to_confirm })
+    }
+
+    /// Stop following errors and instances, then undeclare the publisher (its cache goes with
+    /// it). Every step runs; the first error is returned.
+    fn release(&mut self) -> Result<(), ClientError> {
         self.shared.stop.store(true, Ordering::Relaxed);
+        let mut first: Result<(), ClientError> = Ok(());
+        let mut note = |result: zenoh::Result<()>| {
+            if let (Err(err), true) = (result, first.is_ok()) {
+                first = Err(err.into());
+            }
+        };
         if let Some(sub) = self.errors_sub.take() {
-            sub.undeclare().wait()?;
+            note(sub.undeclare().wait());
         }
         if let Some(sub) = self.live_sub.take() {
-            sub.undeclare().wait()?;
+            note(sub.undeclare().wait());
         }
         if let Some(follower) = self.follower.take() {
             if follower.thread().id() != std::thread::current().id() {
                 let _ = follower.join();
             }
         }
-        publisher.undeclare().wait()?;
-        ended
+        if let Some(publisher) = self.publisher.take() {
+            note(publisher.undeclare().wait());
+        }
+        first
+    }
+
+    pub(crate) fn zenoh_session(&self) -> &Session {
+        &self.session
+    }
+
+    /// Whether the publisher has seen a live instance's token.
+    pub(crate) fn knows_live_instance(&self) -> bool {
+        !self.shared.lock().live.is_empty()
+    }
+
+    /// Whether the service reported the current session closed.
+    pub(crate) fn closed_by_service(&self) -> bool {
+        self.shared.lock().closed_report
+    }
+
+    /// Put the end of `session_id` again (ignored by the service if it had it).
+    pub(crate) fn resend_end(&self, session_id: &str, last_seq: u64) {
+        if let Err(err) = self.send_end(session_id, Some(last_seq)) {
+            tracing::debug!(
+                "{}/{}: putting the end again: {err}",
+                self.fleet,
+                self.robot
+            );
+        }
     }
 }
 
-impl RobotPublisher {
-    /// Wait until the service confirms the end of `session_id`, at most `timeout`; warn once
-    /// if it does not. Runs before the follower and the liveliness subscriber stop, so a
-    /// `SESSION_CLOSED` report and the instances' tokens still count.
-    fn confirm_end(&self, session_id: &str, last_seq: u64, timeout: Duration) {
-        let label = format!("{}/{}", self.fleet, self.robot);
-        let unconfirmed = |reason: &str| {
-            tracing::warn!(
-                "{label}: end of session {session_id} not confirmed by the service ({reason}); \
-                 closing the publication cache anyway, frames not applied yet are lost"
-            );
-        };
-        let resend = || {
-            if let Err(err) = self.send_end(session_id, Some(last_seq)) {
-                tracing::debug!("{label}: putting the end again: {err}");
-            }
-        };
-        let Ok(key) = keys::state(&self.fleet, &self.robot) else {
-            return; // the names were checked when the publisher was declared
-        };
-        let deadline = Instant::now() + timeout;
-        let mut delays = POLL_DELAYS_MS.iter();
-        let mut caught_up_at: Option<Instant> = None;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                break;
-            }
-            let pause = Duration::from_millis(*delays.next().unwrap_or(&POLL_DELAYS_MS[4]));
-            std::thread::sleep(pause.min(left));
-            if self.shared.lock().closed_report {
-                return; // the service closed it (SESSION_CLOSED): nothing more will apply
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if !self.anyone_alive(left) {
-                unconfirmed("no live lessmap instance");
-                return;
-            }
-            let ask = left.clamp(QUERY_MIN, STATE_QUERY_MAX);
-            let replies = match get_all::<SessionState>(&self.session, &key, ask) {
-                Ok(replies) => replies,
-                Err(err) => {
-                    unconfirmed(&format!("state query failed: {err}"));
-                    return;
-                }
-            };
-            let now = Instant::now();
-            match end_progress(replies, &self.fleet, &self.robot, session_id, last_seq) {
-                EndProgress::Closed => return,
-                EndProgress::Pending => caught_up_at = None,
-                EndProgress::CaughtUp => match caught_up_at {
-                    None => caught_up_at = Some(now),
-                    Some(at) if now.duration_since(at) >= END_GRACE => {
-                        resend(); // ignored by the service if it had the end
-                        return;
-                    }
-                    Some(_) => {}
-                },
-            }
-        }
-        // Out of time: a session with every frame applied lacks only its end; the cache is
-        // not needed for it any more.
-        if caught_up_at.is_some() {
-            resend();
-        } else {
-            unconfirmed(&format!("not confirmed within {timeout:?}"));
-        }
-    }
-
-    /// A live instance per the tokens followed, else per one liveliness query (for a
-    /// publisher closed so soon after it was declared that the tokens had not arrived yet).
-    fn anyone_alive(&self, left: Duration) -> bool {
-        if !self.shared.lock().live.is_empty() {
-            return true;
-        }
-        let ask = left.clamp(QUERY_MIN, INSTANCES_QUERY_MAX);
-        instances(&self.session, ask).is_ok_and(|live| !live.is_empty())
-    }
+/// What a publisher's end did: whether it went out, and the end to confirm (the session and its
+/// last seq) when confirmation was asked for and one is needed (no frame sent, or a session the
+/// service closed, needs none).
+struct Ending {
+    sent: Result<(), ClientError>,
+    to_confirm: Option<(String, u64)>,
 }
 
 impl Drop for RobotPublisher {
@@ -782,8 +843,192 @@ impl Drop for RobotPublisher {
     }
 }
 
+/// Close many robot publishers together: every end first, then one wait for them all, then
+/// every release. Returns what was left unconfirmed or failed; never fails, never panics.
+///
+/// [`RobotPublisher::close`] one after the other costs one confirmation latency per robot;
+/// this sends every `SessionEnd`, then polls the states of all the robots at once (one query
+/// per Zenoh session and fleet, with a wildcard key when several robots of a fleet wait),
+/// then releases every publisher. The rules of `close` apply: at most `timeout` of waiting
+/// (each robot's own [`RobotOptions::close_timeout`] is not used), no wait for robots with no
+/// live instance on their network, one warning line for the ends left unconfirmed (per
+/// reason), which the report lists too. `Duration::ZERO` releases right after the ends.
+///
+/// ```no_run
+/// use std::time::Duration;
+/// use lessmap_client::{close_all, Connection};
+///
+/// let conn = Connection::connect(&["tcp/127.0.0.1:7447"], Duration::from_secs(10))?;
+/// let robots = (0..16)
+///     .map(|i| conn.robot("warehouse", &format!("amr-{i}")))
+///     .collect::<Result<Vec<_>, _>>()?;
+/// for robot in &robots {
+///     robot.publish(&[12, 40, 41, 97])?;
+/// }
+/// let report = close_all(robots, lessmap_client::DEFAULT_CLOSE_TIMEOUT);
+/// for end in &report.unconfirmed {
+///     eprintln!("{}/{}: {}", end.fleet, end.robot, end.reason);
+/// }
+/// # Ok::<(), lessmap_client::ClientError>(())
+/// ```
+pub fn close_all<I>(publishers: I, timeout: Duration) -> CloseReport
+where
+    I: IntoIterator<Item = RobotPublisher>,
+{
+    let mut robots: Vec<RobotPublisher> = publishers.into_iter().collect();
+    let report = close_each(robots.iter_mut().collect(), timeout);
+    for failure in &report.failures {
+        tracing::warn!(
+            "{}/{}: closing the robot publisher: {}",
+            failure.fleet,
+            failure.robot,
+            failure.error
+        );
+    }
+    drop(robots); // closed: dropping them does nothing more
+    report
+}
+
+/// `close_all` over publishers borrowed (a single `close` and `Drop` use it too).
+fn close_each(mut robots: Vec<&mut RobotPublisher>, timeout: Duration) -> CloseReport {
+    let mut report = CloseReport::default();
+    let mut closing = Vec::with_capacity(robots.len());
+    let mut pending = Vec::new();
+    for (index, robot) in robots.iter_mut().enumerate() {
+        let Some(Ending { sent, to_confirm }) = robot.end_for_close(!timeout.is_zero()) else {
+            continue; // closed already
+        };
+        closing.push(index);
+        if let Err(error) = sent {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet.clone(),
+                robot: robot.robot.clone(),
+                error,
+            });
+        }
+        if let Some((session, last_seq)) = to_confirm {
+            pending.push((index, session, last_seq));
+        }
+    }
+    if !pending.is_empty() {
+        // The caches live with the publishers until their release below.
+        let ends = pending
+            .into_iter()
+            .map(|(index, session, last_seq)| {
+                PendingEnd::new(index, &*robots[index], session, last_seq)
+            })
+            .collect();
+        report.unconfirmed = confirm_ends(ends, timeout);
+        warn_unconfirmed(&report.unconfirmed);
+    }
+    for index in closing {
+        let robot = &mut robots[index];
+        if let Err(error) = robot.release() {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet.clone(),
+                robot: robot.robot.clone(),
+                error,
+            });
+        }
+        report.closed += 1;
+    }
+    report
+}
+
+/// One warning line per reason for the ends left unconfirmed.
+fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
+    let mut reasons: Vec<String> = Vec::new();
+    for end in ends {
+        let reason = end.reason.to_string();
+        if !reasons.contains(&reason) {
+            reasons.push(reason);
+        }
+    }
+    for reason in reasons {
+        let names: Vec<String> = ends
+            .iter()
+            .filter(|end| end.reason.to_string() == reason)
+            .map(|end| format!("{}/{} session {}", end.fleet, end.robot, end.session))
+            .collect();
+        let more = match names.len() {
+            n if n > 5 => format!(" and {} more", n - 5),
+            _ => String::new(),
+        };
+        tracing::warn!(
+            "end of {} session(s) not confirmed by the service ({reason}): {}{more}; closing \
+             their publication caches anyway, frames not applied yet are lost",
+            names.len(),
+            names[..names.len().min(5)].join(", ")
+        );
+    }
+}
+
+/// What the follower thread needs to handle the reports of one robot.
+struct Reports {
+    label: String,
+    partition: u16,
+    session: Session,
+    state_key: String,
+    auto_new_session: bool,
+    on_error: Option<ErrorCallback>,
+}
+
+/// Whether the robot is served, as the follower last logged it: one warning when the robot
+/// becomes unserved (or still is [`UNSERVED_GRACE`] after the start), one info line when it is
+/// served again. The follower checks after every report and every 100 ms.
+struct Served {
+    owner: Option<String>,
+    warned: bool,
+    grace_until: Option<Instant>,
+}
+
+impl Served {
+    fn new(grace_until: Instant) -> Served {
+        Served {
+            owner: None,
+            warned: false,
+            grace_until: Some(grace_until),
+        }
+    }
+
+    fn check(&mut self, shared: &Shared, reports: &Reports) {
+        let owner = {
+            let state = shared.lock();
+            let live: Vec<&String> = state.live.iter().collect();
+            owner_and_standby(reports.partition, &live).0
+        };
+        let startup = self
+            .grace_until
+            .is_some_and(|until| Instant::now() >= until);
+        if startup {
+            self.grace_until = None;
+        }
+        let before = std::mem::replace(&mut self.owner, owner.clone());
+        let (label, partition) = (&reports.label, reports.partition);
+        match owner {
+            None if !self.warned && (before.is_some() || startup) => {
+                self.warned = true;
+                tracing::warn!(
+                    "{label}: no live lessmap instance owns partition {partition}: the robot is \
+                     not served (its recent frames wait in the publisher's cache for the next \
+                     owner)"
+                );
+            }
+            Some(owner) if self.warned => {
+                self.warned = false;
+                tracing::info!("{label}: partition {partition} is served again, by {owner}");
+            }
+            Some(owner) if before.as_deref() != Some(owner.as_str()) => {
+                tracing::debug!("{label}: partition {partition} owner {owner}");
+            }
+            _ => {}
+        }
+    }
+}
+
 /// Handle one report on the follower thread.
-fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option<ErrorCallback>) {
+fn handle_report(shared: &Shared, reports: &Reports, payload: &[u8]) {
+    let label = &reports.label;
     let error = match decode::<Error>(payload) {
         Ok(error) => error,
         Err(err) => {
@@ -791,7 +1036,7 @@ fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option
             return;
         }
     };
-    {
+    let closes_current = {
         let mut state = shared.lock();
         if let Some(session) = &error.session {
             if !state.sessions.contains(session) {
@@ -810,12 +1055,12 @@ fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option
             .entry(error.code.as_str().to_owned())
             .or_insert(0) += 1;
         state.last_error = Some(error.clone());
-        if error.code == ErrorCode::SessionClosed
-            && error.session.as_deref() == Some(state.session_id.as_str())
-        {
-            state.closed_report = true;
-        }
-    }
+        let current = state.session_id.clone();
+        (error.code == ErrorCode::SessionClosed
+            && error.session.as_deref() == Some(current.as_str())
+            && !state.closed_report)
+            .then_some(current)
+    };
     tracing::warn!(
         "{label}: the service reported {} for session {:?} seq {:?}: {}",
         error.code,
@@ -823,9 +1068,32 @@ fn handle_report(shared: &Shared, label: &str, payload: &[u8], on_error: &Option
         error.seq,
         error.detail
     );
-    if let Some(callback) = on_error {
+    if let Some(current) = closes_current {
+        // Starting a new session would close any other open session of this robot name:
+        // never fight another publisher for it.
+        let holder = if reports.auto_new_session {
+            other_holder(shared, reports, &current)
+        } else {
+            None
+        };
+        let mut state = shared.lock();
+        if state.session_id == current && !state.closed_report {
+            state.closed_report = true;
+            state.holder = holder;
+        }
+    }
+    if let Some(callback) = &reports.on_error {
         if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| callback(&error))).is_err() {
             tracing::error!("{label}: on_error panicked");
         }
     }
+}
+
+/// Another open session the service holds for this robot name, if any (the current owner's
+/// answer only; a failed query or no answer: none).
+fn other_holder(shared: &Shared, reports: &Reports, current: &str) -> Option<String> {
+    let found = get_all::<SessionState>(&reports.session, &reports.state_key, HOLDER_QUERY).ok()?;
+    let state = current_states(found).into_iter().next()?;
+    let ours = shared.lock().sessions.contains(&state.session);
+    (state.open && state.session != current && !ours).then_some(state.session)
 }

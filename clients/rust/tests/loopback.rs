@@ -13,8 +13,8 @@ use std::time::{Duration, Instant};
 
 use lessmap_client::codec::{decode_inbound, encode, Inbound};
 use lessmap_client::{
-    keys, partition_of, AreaGraph, AreaNode, Connection, Error, ErrorCode, Health, Method, Passage,
-    Reason, RobotOptions, SessionState, SubmapSummary, Transition,
+    keys, partition_of, AreaGraph, AreaNode, ClientError, Connection, Error, ErrorCode, Health,
+    Method, Passage, Reason, RobotOptions, SessionState, SubmapSummary, Transition,
 };
 use zenoh::{Session, Wait};
 
@@ -549,6 +549,99 @@ fn area_graph_queries_keep_one_graph_per_robot() {
     assert_eq!(robot.area_graph(ask).unwrap(), None);
     robot.close_within(Duration::ZERO).unwrap();
     drop(queryables);
+    conn.close().unwrap();
+    service.close().wait().unwrap();
+}
+
+/// A publisher on `robot`'s errors key of `fleet`, once the robot's subscriber matches it.
+fn errors_publisher(
+    service: &Session,
+    fleet: &str,
+    robot: &str,
+) -> zenoh::pubsub::Publisher<'static> {
+    let publisher = service
+        .declare_publisher(keys::errors(fleet, robot).unwrap())
+        .wait()
+        .unwrap();
+    wait_until("the robot's errors subscriber", || {
+        publisher.matching_status().wait().unwrap().matching()
+    });
+    publisher
+}
+
+#[test]
+fn flush_errors_waits_until_every_report_received_is_handled() {
+    let (service, endpoint) = router();
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+    // on_error tells when it starts, then blocks until the test lets it go (at most WAIT, so
+    // a failing test still closes the robot).
+    let (entered_tx, entered_rx) = std::sync::mpsc::channel::<()>();
+    let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
+    let options = RobotOptions {
+        on_error: Some(Box::new(move |_: &Error| {
+            entered_tx.send(()).unwrap();
+            let _ = release_rx.recv_timeout(WAIT);
+        })),
+        ..RobotOptions::default()
+    };
+    let robot = conn.robot_with("fleet", "r1", options).unwrap();
+    assert!(robot.flush_errors(Duration::ZERO)); // nothing received: nothing to wait for
+    let errors = errors_publisher(&service, "fleet", "r1");
+    errors
+        .put(encode(&report(&robot.session_id(), ErrorCode::SeqGap, 1)))
+        .wait()
+        .unwrap();
+    entered_rx.recv_timeout(WAIT).expect("on_error called");
+    // Received, not handled yet: on_error has not returned.
+    assert!(!robot.flush_errors(Duration::from_millis(100)));
+    release_tx.send(()).unwrap();
+    assert!(robot.flush_errors(WAIT));
+    assert_eq!(robot.status().count(ErrorCode::SeqGap), 1);
+    robot.close_within(Duration::ZERO).unwrap();
+    drop(errors);
+    conn.close().unwrap();
+    service.close().wait().unwrap();
+}
+
+#[test]
+fn auto_new_session_never_takes_the_robot_over_from_another_publisher() {
+    let (service, endpoint) = router();
+    // The service holds another publisher's session of this robot name open.
+    let other = encode(&session_state("r1", "the-other-publisher", true, 0));
+    let _state = service
+        .declare_queryable(keys::state("fleet", "r1").unwrap())
+        .callback(move |query| {
+            query
+                .reply(query.key_expr().clone(), other.clone())
+                .wait()
+                .unwrap();
+        })
+        .wait()
+        .unwrap();
+    let conn = Connection::connect(&[&endpoint], WAIT).unwrap();
+    let robot = conn.robot("fleet", "r1").unwrap();
+    robot.publish(&[1]).unwrap();
+    let errors = errors_publisher(&service, "fleet", "r1");
+    let first = robot.session_id();
+    errors
+        .put(encode(&report(&first, ErrorCode::SessionClosed, 1)))
+        .wait()
+        .unwrap();
+    wait_until("the robot to see SESSION_CLOSED", || {
+        robot.status().closed_by_service
+    });
+    match robot.publish(&[2]) {
+        Err(ClientError::SessionClosed(msg)) => {
+            assert!(msg.contains("the-other-publisher"), "{msg}");
+        }
+        other => panic!("expected SessionClosed, got {other:?}"),
+    }
+    assert_eq!((robot.session_id(), robot.status().sessions), (first, 1));
+    // The caller decides: a new session of its own, numbered from 0.
+    robot.new_session(None).unwrap();
+    assert_eq!(robot.publish(&[3]).unwrap(), 0);
+    robot.close_within(Duration::ZERO).unwrap();
+    drop(errors);
     conn.close().unwrap();
     service.close().wait().unwrap();
 }
