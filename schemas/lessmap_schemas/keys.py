@@ -12,7 +12,7 @@ Layout (all under `KEY_PREFIX`, one chunk per name):
     lessmap/v3/@/health/<instance>             apps -> service   get Health
     lessmap/v3/@/errors/<instance>             service -> ops    put Error (unattributable input)
     lessmap/v3/@/checkpoints/<p>/<fleet>/<robot>  service <-> service  put, get (session state)
-    lessmap/v3/@/released/<p>/<instance>       service -> service  put (hand-over done)
+    lessmap/v3/@/released/<p>/<instance>          service -> service  put (partition handed over)
 
 `<p>` is the robot's partition (`partition.partition_of`): a service instance subscribes to the
 frames of the partitions it owns only (`frames_of_partition`), so Zenoh's routers deliver it no
