@@ -72,6 +72,9 @@ _HEARTBEAT_S = 0.1  # freeze detection (fence_after_s is far above it)
 _LEAVE_CONFIRM_S = 0.25  # a token that went is checked again this much later
 _CHECKPOINT_ENCODING = zenoh.Encoding("application/octet-stream")
 _RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.released``)
+# A hand-over first lets the shards apply what already arrived for the partitions, this long
+# at most: well below handover_release_s, so the joining owner still gets the release.
+_DRAIN_BEFORE_HANDOVER_S = 1.0
 
 
 class Service:
@@ -680,6 +683,7 @@ class Service:
         if not partitions:
             return
         leaving = set(partitions)
+        self._apply_arrived(leaving)
         epochs = self.ownership.owned()  # before the release: what the announcement names
         for p in partitions:
             self.ownership.release(p)
@@ -780,6 +784,31 @@ class Service:
                         keys.frames_of_partition(p), self._receiver.channel()
                     )
         self._receiver.watch(subs)
+
+    def _apply_arrived(self, leaving: set[int]) -> None:
+        """Let the shards apply what arrived for partitions about to be handed over.
+
+        A frame or end that reached this instance before the new owner subscribed reached
+        nobody else (Zenoh forwarded it here before the new owner's token, which came after
+        its subscription): dropped as foreign after the release, it would be lost but for
+        the robot's cache, and a ``SessionEnd`` is never in a cache. Bounded: under overload
+        what is left goes to the new owner's probe and catch-up, as before.
+        """
+        receiver = self._receiver
+        if receiver is None:
+            return
+        receiver.sweep()  # what the channels hold now, into the shards
+
+        def of_leaving(key: str) -> bool:
+            chunk = key[key.rfind("/") + 1 :]
+            return chunk.isdecimal() and int(chunk) in leaving
+
+        deadline = time.monotonic() + _DRAIN_BEFORE_HANDOVER_S
+        while any(shard.holds_any(of_leaving) for shard in self._shards):
+            if time.monotonic() >= deadline:
+                log.info("handing over with frames still queued: the new owner's probe follows")
+                return
+            time.sleep(0.005)
 
     def _take(self, partitions: Sequence[int], handed_by: dict[int, str] | None = None) -> None:
         """Fetch the partitions' newest checkpoints, take epochs, subscribe to their frames.

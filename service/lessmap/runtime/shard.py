@@ -315,6 +315,11 @@ class Shard:
         robot_key = self._robot_of[key] = (fleet, robot)
         return robot_key
 
+    def holds_any(self, wanted: Callable[[str], bool]) -> bool:
+        """True while a message of a robot key ``wanted`` names is queued or in a turn."""
+        with self._ready:
+            return any(wanted(key) for key in self._per_key)
+
     def _give_back(self, items: list[Inbound]) -> None:
         """Release the bounds held by handled items (caller may hold ``_ready``: RLock-free)."""
         for item in items:
