@@ -11,9 +11,9 @@ Partitions (``schemas/README.md`` section 2a): the instance subscribes to the fr
 partitions it owns only. Taking a partition over: query every instance for the partition's
 checkpoints (the newest of each robot goes to the local store), take an epoch, subscribe; a
 robot's next frame resumes its session from the store and fetches what is missing from the
-robot's cache (the same path as after a restart). Handing one over: close the fence,
-unsubscribe, checkpoint and drop its sessions, then announce the release
-(``keys.released``, with the epoch it had).
+robot's cache (the same path as after a restart). Handing one over: apply what already
+arrived for it (bounded), close the fence, unsubscribe, checkpoint and drop its sessions,
+then announce the release (``keys.released``, with the epoch it had).
 
 The hand-shake: an instance that starts while others run wins partitions they own until they
 see its token. It listens for their releases and holds the frames of those partitions
@@ -679,7 +679,7 @@ class Service:
         self.metrics.partitions_owned.set(len(self.ownership.owned()))
 
     def _hand_over(self, partitions: Sequence[int]) -> None:
-        """Close the fence, unsubscribe, checkpoint and drop the partitions' sessions."""
+        """Apply what arrived, close the fence, unsubscribe, checkpoint, drop, announce."""
         if not partitions:
             return
         leaving = set(partitions)
