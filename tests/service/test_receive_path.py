@@ -227,8 +227,22 @@ def test_frames_of_a_partition_on_its_way_are_held_then_handed_on_first_as_probe
     wait_matched(publisher)
     for seq in range(3):
         publisher.put(item("coming", seq).payload)
-    wait_until(lambda: (receiver.sweep(), len(receiver._held))[1] == 3, 20.0, "three held")
+    hostile = ["\u00b2", "1" * 5000, "abc"]  # no partition, even while one is held
+    if key is not None:
+        for chunk in hostile:
+            robot_session.put(keys.frames(FLEET, "coming").rsplit("/", 1)[0] + "/" + chunk, b"x")
+
+    def text() -> str:
+        return generate_latest(metrics.registry).decode()
+
+    def swept() -> bool:
+        receiver.sweep()
+        foreign = metric_value(text(), "lessmap_frames_foreign_total")
+        return len(receiver._held) == 3 and foreign == (len(hostile) if key else 0)
+
+    wait_until(swept, 20.0, "three held, the rest foreign", text)
     assert shard.depth() == 0  # nothing reaches a shard before the partition is taken
+    assert metric_value(text(), "lessmap_frames_received_total") == 3
 
     assert receiver.admit([coming], owned.add) == 3
     assert owned == {coming}
@@ -237,7 +251,6 @@ def test_frames_of_a_partition_on_its_way_are_held_then_handed_on_first_as_probe
     queued = list(shard._queue)
     assert [i.payload for i in queued] == [item("coming", s).payload for s in range(4)]
     assert [i.kind for i in queued] == [PROBE, PROBE, PROBE, 0]
-    text = generate_latest(metrics.registry).decode()
-    assert metric_value(text, "lessmap_frames_foreign_total") == 0
+    assert metric_value(text(), "lessmap_frames_received_total") == 4
     sub.undeclare()
     receiver.stop()

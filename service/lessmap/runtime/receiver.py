@@ -60,6 +60,7 @@ _IDLE_AFTER_S = 1.0
 _SWEEP_MAX = 8192  # samples taken from one channel per sweep: the others get their turn
 _CLOSING_SWEEPS = 200  # an undeclared channel is swept this often at most, then let go
 EVERY_PARTITION = -1  # the partition number ``watch`` takes for the one subscription to all
+_OWNED, _FOREIGN = -1, -2  # where a partition's samples go (``_route``); else: held for it
 
 Channel = zenoh.Handler[zenoh.Sample]
 
@@ -201,21 +202,20 @@ class Receiver:
         limit = self._max_payload
         shards = self._shards
         batches: list[list[Inbound]] = [[] for _ in shards]
-        owned: dict[str, bool] = {}  # partition chunk -> owned, for this batch
-        foreign = 0
+        routes: dict[str, int] = {}  # partition chunk -> where its samples go, for this batch
+        foreign = held = 0
         for sample in samples:
             key = str(sample.key_expr)
             if every:
                 chunk = key[key.rfind("/") + 1 :]
-                mine = owned.get(chunk)
-                if mine is None:
-                    mine = self._is_owned(chunk)
-                    owned[chunk] = mine
-                if not mine:
-                    if self._holding and chunk.isdecimal() and int(chunk) in self._holding:
-                        self._keep(int(chunk), [sample], now)
-                        continue
+                route = routes.get(chunk)
+                if route is None:
+                    route = routes[chunk] = self._route(chunk)
+                if route == _FOREIGN:
                     foreign += 1  # another instance's robot (or in flight, or frozen)
+                    continue
+                if route != _OWNED:
+                    held += self._keep(route, [sample], now)
                     continue
             payload = sample.payload
             index = 0 if len(shards) == 1 else shard_index(key, len(shards))
@@ -226,28 +226,39 @@ class Receiver:
                 continue
             batches[index].append(Inbound(now, key, payload.to_bytes()))
         self._metrics.frames_foreign.inc(foreign)
-        self._metrics.frames_received.inc(len(samples) - foreign)
+        self._metrics.frames_received.inc(len(samples) - foreign - held)
         for shard, batch in zip(shards, batches, strict=True):
             if batch:
                 self._offer_to(shard, batch)
 
-    def _is_owned(self, chunk: str) -> bool:
+    def _route(self, chunk: str) -> int:
+        """``_OWNED``, ``_FOREIGN``, or the partition to hold the samples for."""
         try:  # any client may put here: "²", "1" * 5000, "abc" are no partition
-            return self._owned(int(chunk)) if chunk.isdecimal() else False
+            partition = int(chunk) if chunk.isdecimal() else None
         except ValueError:
-            return False
+            partition = None
+        if partition is None:
+            return _FOREIGN
+        if self._owned(partition):
+            return _OWNED
+        return partition if partition in self._holding else _FOREIGN
 
-    def _keep(self, partition: int, samples: list[zenoh.Sample], now: float) -> None:
-        """Keep samples of a partition on its way here; beyond the bound they are foreign.
+    def _keep(self, partition: int, samples: list[zenoh.Sample], now: float) -> int:
+        """Keep samples of a partition on its way here; return how many (counted received).
 
-        What is not kept the new owner still finds in the robots' caches (its probe).
+        Beyond the bound they are foreign, and oversized ones are dropped (the former owner
+        refuses them): what is not kept the new owner may still find in the robots' caches.
         """
-        room = self._queue_depth - len(self._held)
-        for sample in samples[: max(0, room)]:
+        room = max(0, self._queue_depth - len(self._held))
+        kept = 0
+        for sample in samples[:room]:
             if len(sample.payload) <= self._max_payload:
                 item = Inbound(now, str(sample.key_expr), sample.payload.to_bytes(), PROBE)
                 self._held.append((partition, item))
-        self._metrics.frames_foreign.inc(max(0, len(samples) - max(0, room)))
+                kept += 1
+        self._metrics.frames_foreign.inc(len(samples) - len(samples[:room]))
+        self._metrics.frames_received.inc(kept)
+        return kept
 
     def _offer(self, items: list[Inbound]) -> None:
         """Hand items to their robots' shards, in order."""
