@@ -12,6 +12,7 @@ Layout (all under `KEY_PREFIX`, one chunk per name):
     lessmap/v3/@/health/<instance>             apps -> service   get Health
     lessmap/v3/@/errors/<instance>             service -> ops    put Error (unattributable input)
     lessmap/v3/@/checkpoints/<p>/<fleet>/<robot>  service <-> service  put, get (session state)
+    lessmap/v3/@/released/<p>/<instance>          service -> service  put (partition handed over)
 
 `<p>` is the robot's partition (`partition.partition_of`): a service instance subscribes to the
 frames of the partitions it owns only (`frames_of_partition`), so Zenoh's routers deliver it no
@@ -200,6 +201,29 @@ def parse_checkpoint_key(key: str) -> tuple[int, str, str]:
         msg = f"key {key[:200]!r}: {fleet}/{robot} is in partition {partition_of(fleet, robot)}"
         raise InvalidNameError(msg)
     return partition, fleet, robot
+
+
+def released(partition: int | str = ANY, instance: str = ANY) -> str:
+    """Return the key a service instance puts on when it has handed a partition over.
+
+    Service bookkeeping: the former owner puts here once its final checkpoints of the
+    partition are in its store, so a new owner waiting for it fetches them only then. Pass
+    `"*"` for any chunk to subscribe.
+    """
+    chunk = ANY if partition == ANY else _partition_chunk(partition)  # type: ignore[arg-type]
+    return f"{KEY_PREFIX}/@/released/{chunk}/{_chunk(instance, 'instance')}"
+
+
+def parse_released_key(key: str) -> tuple[int, str]:
+    """Split a concrete `lessmap/v3/@/released/<p>/<instance>` key: (partition, instance)."""
+    parts = key.split("/") if type(key) is str else []
+    prefix = f"{KEY_PREFIX}/@/released"
+    if len(parts) != 6 or "/".join(parts[:4]) != prefix or _ID.fullmatch(parts[4]) is None:
+        msg = f"key {str(key)[:200]!r} is not {prefix}/<p>/<instance>"
+        raise InvalidNameError(msg)
+    partition = int(parts[4])
+    _partition_chunk(partition)  # in range, else InvalidNameError
+    return partition, validate_name(parts[5], "instance")
 
 
 def service_errors(instance: str = ANY) -> str:

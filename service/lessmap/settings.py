@@ -233,6 +233,17 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         le=60.0,
         description="when taking a partition over, wait this long at most for its checkpoints",
     )
+    # A joining instance waits for the live former owner to say it has handed each partition
+    # over (its final checkpoints written) before fetching them: fetched earlier, they miss
+    # what the former owner still decided, e.g. a session it closed. A former owner that
+    # does not answer (frozen, or a version without the hand-shake) costs this much once.
+    handover_release_s: float = Field(
+        3.0,
+        gt=0.0,
+        le=60.0,
+        description="when joining, wait this long at most for the former owners to release "
+        "the partitions this instance takes from them",
+    )
 
     # -- outputs --
     transition_cache: int = Field(

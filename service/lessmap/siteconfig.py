@@ -103,6 +103,9 @@ def access_rules(
     # forged checkpoint would inject session state). No chunk below starts with `@`, so `**`
     # covers every partition, fleet and robot.
     checkpoints = f"{P}/@/checkpoints/**"
+    # Release announcements of a hand-over (schemas/README.md §2a): service identities only
+    # too (a forged one would make a joining instance fetch checkpoints too early).
+    released = f"{P}/@/released/**"
     # Every key of the contract a service instance (and a router of a mesh) deals with.
     every_key = [
         any_frames,
@@ -117,6 +120,7 @@ def access_rules(
         f"{P}/@/instances/*",
         f"{P}/@/errors/*",
         checkpoints,
+        released,
     ]
     rules = [
         _rule(
@@ -154,12 +158,13 @@ def access_rules(
             [any_frames, f"{any_frames}/@adv/**", f"{P}/@/instances/*"],
         ),
         # The owner puts, the standby subscribes, every instance declares the queryable and
-        # a new owner queries it (schemas/README.md §2a, hand-over).
+        # a new owner queries it; a former owner puts its releases, which a joining instance
+        # subscribes to (schemas/README.md §2a, hand-over).
         _rule(
             "service-checkpoints",
             "ingress",
             ["put", "delete", "declare_subscriber", "declare_queryable", "query", "reply"],
-            [checkpoints],
+            [checkpoints, released],
         ),
         _rule(
             "service-out",

@@ -298,3 +298,21 @@ def test_parse_submap_key_rejects_other_ids(tail: str) -> None:
         keys.parse_submap_key(f"lessmap/v3/f/r/submaps/{tail}")
     with pytest.raises(InvalidNameError):
         keys.parse_submap_key(f"lessmap/v3/f/r/state/{tail}")
+
+
+def test_released_key_round_trips_and_rejects_others() -> None:
+    key = keys.released(23, "inst-a")
+    assert key == "lessmap/v3/@/released/23/inst-a"
+    assert keys.released() == "lessmap/v3/@/released/*/*"
+    assert zenoh.KeyExpr(keys.released()).intersects(zenoh.KeyExpr(key))
+    assert keys.parse_released_key(key) == (23, "inst-a")
+    for bad in (
+        "lessmap/v3/@/released/256/inst-a",
+        "lessmap/v3/@/released/023/inst-a",
+        "lessmap/v3/@/released/*/inst-a",
+        "lessmap/v3/@/released/23",
+        "lessmap/v3/@/released/23/a/b",
+        "lessmap/v3/@/checkpoints/23/inst-a",
+    ):
+        with pytest.raises(InvalidNameError):
+            keys.parse_released_key(bad)

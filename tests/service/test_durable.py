@@ -684,3 +684,23 @@ def test_robots_checkpoint_at_phases_of_their_own(tmp_path: Path) -> None:
     assert len(first_due) == 8
     assert len(set(first_due.values())) >= 6  # spread over the period, not one burst
     store.close()
+
+
+def test_a_probed_end_of_a_session_open_here_is_news_and_closes_it_once(tmp_path: Path) -> None:
+    # A partition taken over: the former owner's final record is open at seq 19, and the
+    # robot's end (last seq 19) reached nobody live; the probe (or the frames held during
+    # the hand-shake) finds it. Frames at or below 19 are no news; the end is.
+    store = open_store(tmp_path)
+    former = make_table(store)
+    feed(former, FRAMES[:20])
+    commit_checkpoints(former.hand_over(lambda _f, _r: True, 1.0), store)
+    taker = make_table(store)
+    assert not taker.is_news(FLEET, ROBOT, FRAMES[19])
+    assert taker.is_news(FLEET, ROBOT, FRAMES[20])
+    assert taker.is_news(FLEET, ROBOT, end_of(19))
+    assert not taker.is_news(FLEET, ROBOT, SessionEnd(session="other", last_seq=3, stamp_s=1.0))
+    [(final, cause)] = taker.handle_batch([(FLEET, ROBOT, end_of(19))], 2.0).closed
+    assert cause == "ended"
+    assert (final.frames_applied, final.frames_missing, final.last_seq) == (20, 0, 19)
+    assert not taker.is_news(FLEET, ROBOT, end_of(19))  # closed: a repeat is no news
+    store.close()

@@ -162,3 +162,29 @@ def test_a_record_travels_as_bytes_and_comes_back_equal() -> None:
 def test_a_damaged_record_is_a_value_error(payload: bytes) -> None:
     with pytest.raises(ValueError, match="unreadable checkpoint record"):
         SessionRecord.from_bytes(payload)
+
+
+def test_an_arriving_instance_is_handed_what_the_live_ones_own_and_nothing_else() -> None:
+    a, b = owner("a"), owner("b")
+    take(a, ["a"])
+    change = b.set_live(["a", "b"], arriving=True)
+    assert change.gained
+    # Every partition b wins is a's until a sees b: a hands each over.
+    assert change.handed_by == dict.fromkeys(change.gained, "a")
+    assert b.set_live([]).handed_by == {}  # alone: nobody to wait for
+
+
+def test_a_leave_or_a_join_of_another_hands_nothing_over() -> None:
+    # Rendezvous ranks two instances alike whoever else is alive: a partition an instance
+    # gains on a leave belonged to the one that left, and a join gains it nothing.
+    b = owner("b")
+    take(b, ["a", "b", "c"])
+    left = b.leave("c")
+    assert left.gained
+    assert left.handed_by == {}
+    assert b.join("d").handed_by == {}
+    # Starting anew (arriving) among live instances, b is handed its partitions by them.
+    fresh = owner("b")
+    arrived = fresh.set_live(["a", "b", "d"], arriving=True)
+    assert set(arrived.handed_by.values()) <= {"a", "d"}
+    assert sorted(arrived.handed_by) == arrived.gained

@@ -17,7 +17,7 @@ from lessmap.runtime.metrics import BatchHistogram, ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.receiver import EVERY_PARTITION, Receiver
 from lessmap.runtime.sessions import SessionTable
-from lessmap.runtime.shard import CATCHUP_DONE, Inbound, Shard
+from lessmap.runtime.shard import CATCHUP_DONE, PROBE, Inbound, Shard
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.errors import ErrorCode
@@ -203,3 +203,54 @@ def test_the_last_sweep_takes_what_an_undeclared_channel_holds(
     receiver.stop()
     assert shard.depth() == 4
     assert [i.payload for i in shard._queue] == [item("mine", s).payload for s in range(4)]
+
+
+@pytest.mark.parametrize("subscription", ["partitions", "all"])
+def test_frames_of_a_partition_on_its_way_are_held_then_handed_on_first_as_probes(
+    router: str, client_session: Callable[[str], zenoh.Session], subscription: str
+) -> None:
+    service_session, robot_session = client_session(router), client_session(router)
+    metrics = ServiceMetrics()
+    shard = make_shard(service_session, metrics, queue_depth=64)
+    coming = partition_of(FLEET, "coming")
+    owned: set[int] = set()
+    receiver = Receiver(
+        [shard], metrics, max_payload_bytes=1000, queue_depth=64, owned=owned.__contains__
+    )
+    key = keys.frames_of_every_partition() if subscription == "all" else None
+    sub = service_session.declare_subscriber(
+        key or keys.frames_of_partition(coming), receiver.channel()
+    )
+    receiver.hold([coming])
+    receiver.watch({EVERY_PARTITION if key else coming: sub})
+    publisher = robot_session.declare_publisher(keys.frames(FLEET, "coming"))
+    wait_matched(publisher)
+    for seq in range(3):
+        publisher.put(item("coming", seq).payload)
+    hostile = ["\u00b2", "1" * 5000, "abc"]  # no partition, even while one is held
+    if key is not None:
+        for chunk in hostile:
+            robot_session.put(keys.frames(FLEET, "coming").rsplit("/", 1)[0] + "/" + chunk, b"x")
+
+    def text() -> str:
+        return generate_latest(metrics.registry).decode()
+
+    def swept() -> bool:
+        receiver.sweep()
+        foreign = metric_value(text(), "lessmap_frames_foreign_total")
+        return len(receiver._held) == 3 and foreign == (len(hostile) if key else 0)
+
+    wait_until(swept, 20.0, "three held, the rest foreign", text)
+    assert shard.depth() == 0  # nothing reaches a shard before the partition is taken
+    assert metric_value(text(), "lessmap_frames_received_total") == 3
+
+    assert receiver.admit([coming], owned.add) == 3
+    assert owned == {coming}
+    publisher.put(item("coming", 3).payload)  # live from now on, after the held ones
+    wait_until(lambda: (receiver.sweep(), shard.depth())[1] == 4, 20.0, "the live frame")
+    queued = list(shard._queue)
+    assert [i.payload for i in queued] == [item("coming", s).payload for s in range(4)]
+    assert [i.kind for i in queued] == [PROBE, PROBE, PROBE, 0]
+    assert metric_value(text(), "lessmap_frames_received_total") == 4
+    sub.undeclare()
+    receiver.stop()

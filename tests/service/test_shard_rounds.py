@@ -16,12 +16,12 @@ from lessmap.core import Partitioner, PartitionParams
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.sessions import Outcome, SessionTable
-from lessmap.runtime.shard import Inbound, Shard
+from lessmap.runtime.shard import PROBE, Inbound, Shard
 from lessmap.sim.simulator import simulate
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.limits import DEFAULT_LIMITS
-from lessmap_schemas.messages import Frame
+from lessmap_schemas.messages import Frame, SessionEnd
 from tests.conftest import metric_value
 
 if TYPE_CHECKING:
@@ -220,3 +220,27 @@ def test_a_robot_handed_over_between_its_turn_and_the_chunk_is_not_applied(
     assert counted(shard, "lessmap_frames_foreign_total") == FRAMES
     assert counted(shard, "lessmap_frames_applied_total") == FRAMES * (len(ROBOTS) - 1)
     assert shard.depth() == 0  # every bound was given back
+
+
+def test_held_frames_and_the_end_of_a_session_new_here_close_it(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    # Frames held while a partition was handed over go in as probes: here a whole session
+    # the former owner never saw (its frames, then its end) arrives in one turn. The end
+    # is judged once the frames before it applied, so it closes the session.
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    key = keys.frames(FLEET, "r0")
+    messages = [
+        *(
+            Frame(session="new", seq=seq, stamp_s=float(seq), features=[1, 2, 3])
+            for seq in range(3)
+        ),
+        SessionEnd(session="new", last_seq=2, stamp_s=3.0),
+    ]
+    assert shard.offer_many([Inbound(0.0, key, encode(m), PROBE) for m in messages]) == []
+    shard._collect()
+    while shard._lanes:
+        shard._round()
+    state = shard.table.state(FLEET, "r0")
+    assert state is not None
+    assert (state.session, state.open, state.frames_applied) == ("new", False, 3)

@@ -145,6 +145,12 @@ class ServiceMetrics:
             ["direction"],
             registry=r,
         )
+        self.handover_release_timeouts = Counter(
+            "lessmap_handover_release_timeouts",
+            "Partitions taken from a live former owner without its release announcement "
+            "(it did not answer within handover_release_s)",
+            registry=r,
+        )
         self.checkpoints_withheld = Counter(
             "lessmap_checkpoints_withheld",
             "Checkpoints not saved: their session had a transition the fence held back",

@@ -47,6 +47,9 @@ class Change:
     lost: list[int] = field(default_factory=list)
     standby_gained: list[int] = field(default_factory=list)
     standby_lost: list[int] = field(default_factory=list)
+    # Gained partitions that a live instance owned in the view before: that instance hands
+    # each over when it sees the same change, and says so (``keys.released``).
+    handed_by: dict[int, str] = field(default_factory=dict)
 
     def __bool__(self) -> bool:
         return bool(self.gained or self.lost or self.standby_gained or self.standby_lost)
@@ -83,29 +86,36 @@ class Ownership:
         with self._lock:
             return frozenset(self._live)
 
-    def set_live(self, instances: Iterable[str]) -> Change:
-        """Replace the live set (this instance is always in it); return what changes."""
+    def set_live(self, instances: Iterable[str], *, arriving: bool = False) -> Change:
+        """Replace the live set (this instance is always in it); return what changes.
+
+        ``arriving``: this instance's token is new to the others (start-up). They own, among
+        themselves, the partitions it wins until they see it; ``Change.handed_by`` names them.
+        """
         with self._lock:
+            before = frozenset(instances) - {self.instance} if arriving else frozenset(self._live)
             self._live = {*instances, self.instance}
             live = frozenset(self._live)
-        return self._diff(live)
+        return self._diff(live, before)
 
     def join(self, instance: str) -> Change:
         """An instance's token appeared."""
         with self._lock:
+            before = frozenset(self._live)
             self._live.add(instance)
             live = frozenset(self._live)
-        return self._diff(live)
+        return self._diff(live, before)
 
     def leave(self, instance: str) -> Change:
         """An instance's token went away (never this one: its own token is its own)."""
         with self._lock:
+            before = frozenset(self._live)
             if instance != self.instance:
                 self._live.discard(instance)
             live = frozenset(self._live)
-        return self._diff(live)
+        return self._diff(live, before)
 
-    def _diff(self, live: frozenset[str]) -> Change:
+    def _diff(self, live: frozenset[str], before: frozenset[str]) -> Change:
         # The ranking (a hash per instance and partition) runs outside the lock: the fence
         # takes it for every incoming frame. One thread applies changes, so nothing else
         # moves the owned set meanwhile.
@@ -120,12 +130,32 @@ class Ownership:
         with self._lock:
             owned = set(self._owned)
             standing = set(self._standby)
+        gained = sorted(should_own - owned)
         return Change(
-            gained=sorted(should_own - owned),
+            gained=gained,
             lost=sorted(owned - should_own),
             standby_gained=sorted(should_stand - standing),
             standby_lost=sorted(standing - should_stand),
+            handed_by=self._former_owners(gained, live, before),
         )
+
+    def _former_owners(
+        self, gained: list[int], live: frozenset[str], before: frozenset[str]
+    ) -> dict[int, str]:
+        """The live instance that owned each gained partition in the view ``before``.
+
+        Rendezvous ranks two instances alike whoever else is alive, so an instance that
+        outranked this one keeps doing so: only this instance's own arrival moves a
+        partition away from a live owner (a leave moves the partitions of the one that left).
+        """
+        if not before:
+            return {}
+        handed: dict[int, str] = {}
+        for p in gained:
+            former, _ = owner_and_standby(p, before)
+            if former is not None and former != self.instance and former in live:
+                handed[p] = former
+        return handed
 
     # -- applying a change (the service does the I/O in between) -----------------------------
 

@@ -22,6 +22,13 @@ and the sweep only moves samples on: the bounded shard queues decide what is ref
 the worker reports it. A sample's size is checked before its bytes are copied. Samples of a
 partition no longer owned (in flight when it moved, or during a freeze) are counted as
 foreign and dropped. ``receipt`` in the latency histograms is the sweep that took the sample.
+
+Partitions being handed over to this instance (``hold``): their samples are kept aside
+(bounded) until the former owner has released them and their checkpoints are fetched;
+``admit`` then takes the partitions and hands the kept samples on first, as probes (applied
+only where the table does not know them yet), all under the sweep's lock so no live sample
+of the partition overtakes them. A frame that reached the former owner after it let the
+partition go is thus not lost between the two owners.
 """
 
 from __future__ import annotations
@@ -34,11 +41,11 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from lessmap.runtime.shard import Inbound
+from lessmap.runtime.shard import PROBE, Inbound
 from lessmap_schemas.errors import ErrorCode
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping, Sequence
+    from collections.abc import Callable, Iterable, Mapping, Sequence
 
     from lessmap.runtime.metrics import ServiceMetrics
     from lessmap.runtime.shard import Shard
@@ -53,6 +60,7 @@ _IDLE_AFTER_S = 1.0
 _SWEEP_MAX = 8192  # samples taken from one channel per sweep: the others get their turn
 _CLOSING_SWEEPS = 200  # an undeclared channel is swept this often at most, then let go
 EVERY_PARTITION = -1  # the partition number ``watch`` takes for the one subscription to all
+_OWNED, _FOREIGN = -1, -2  # where a partition's samples go (``_route``); else: held for it
 
 Channel = zenoh.Handler[zenoh.Sample]
 
@@ -79,6 +87,9 @@ class Receiver:
         self._max_payload = max_payload_bytes
         self._queue_depth = queue_depth
         self._owned = owned
+        # Partitions on their way here (``hold``) and what arrived for them, in order.
+        self._holding: set[int] = set()
+        self._held: list[tuple[int, Inbound]] = []
         self._channels: tuple[tuple[int, Channel], ...] = ()  # replaced whole, never mutated
         # Channels of undeclared subscribers: what they still hold is counted, then dropped.
         self._closing: list[tuple[int, Channel, int]] = []
@@ -97,6 +108,28 @@ class Receiver:
             gone = [(p, ch, 0) for p, ch in self._channels if p not in subscribers]
             self._closing.extend(gone)
             self._channels = tuple((p, sub.handler) for p, sub in sorted(subscribers.items()))
+
+    def hold(self, partitions: Iterable[int]) -> None:
+        """Keep the samples of these partitions aside until ``admit`` (at most a queue's depth)."""
+        with self._lock:
+            self._holding.update(partitions)
+
+    def admit(self, partitions: Sequence[int], acquire: Callable[[int], object]) -> int:
+        """Take the partitions (``acquire`` each) and hand on what was held for them.
+
+        Under the sweep's lock: the held samples reach the shards before any live one of
+        these partitions. They go as probes, so a frame the former owner had applied (it is
+        in the checkpoint fetched) is dropped uncounted. Returns how many were handed on.
+        """
+        wanted = set(partitions)
+        with self._lock:
+            for p in partitions:
+                acquire(p)
+            self._holding -= wanted
+            items = [item for p, item in self._held if p in wanted]
+            self._held = [(p, item) for p, item in self._held if p not in wanted]
+            self._offer(items)
+        return len(items)
 
     def start(self) -> None:
         """Start the sweeping thread."""
@@ -160,27 +193,29 @@ class Receiver:
         self.last_sample_s = now
         every = partition == EVERY_PARTITION
         if not every and not self._owned(partition):
+            if partition in self._holding:
+                self._keep(partition, samples, now)
+                return
             # In flight when the partition moved, or during a freeze: the owner has it.
             self._metrics.frames_foreign.inc(len(samples))
             return
         limit = self._max_payload
         shards = self._shards
         batches: list[list[Inbound]] = [[] for _ in shards]
-        owned: dict[str, bool] = {}  # partition chunk -> owned, for this batch
-        foreign = 0
+        routes: dict[str, int] = {}  # partition chunk -> where its samples go, for this batch
+        foreign = held = 0
         for sample in samples:
             key = str(sample.key_expr)
             if every:
                 chunk = key[key.rfind("/") + 1 :]
-                mine = owned.get(chunk)
-                if mine is None:
-                    try:  # any client may put here: "²", "1" * 5000, "abc" are no partition
-                        mine = self._owned(int(chunk)) if chunk.isdecimal() else False
-                    except ValueError:
-                        mine = False
-                    owned[chunk] = mine
-                if not mine:
+                route = routes.get(chunk)
+                if route is None:
+                    route = routes[chunk] = self._route(chunk)
+                if route == _FOREIGN:
                     foreign += 1  # another instance's robot (or in flight, or frozen)
+                    continue
+                if route != _OWNED:
+                    held += self._keep(route, [sample], now)
                     continue
             payload = sample.payload
             index = 0 if len(shards) == 1 else shard_index(key, len(shards))
@@ -191,14 +226,55 @@ class Receiver:
                 continue
             batches[index].append(Inbound(now, key, payload.to_bytes()))
         self._metrics.frames_foreign.inc(foreign)
-        self._metrics.frames_received.inc(len(samples) - foreign)
+        self._metrics.frames_received.inc(len(samples) - foreign - held)
         for shard, batch in zip(shards, batches, strict=True):
-            if not batch:
-                continue
-            for item in shard.offer_many(batch):
-                if shard.stopping:
-                    detail = "the service is stopping; frame not taken (a restart recovers it)"
-                else:
-                    depth = self._queue_depth
-                    detail = f"shard {shard.index} queue full ({depth=}); frame dropped"
-                shard.note_rejection(item.key, ErrorCode.LIMIT_EXCEEDED, detail)
+            if batch:
+                self._offer_to(shard, batch)
+
+    def _route(self, chunk: str) -> int:
+        """``_OWNED``, ``_FOREIGN``, or the partition to hold the samples for."""
+        try:  # any client may put here: "²", "1" * 5000, "abc" are no partition
+            partition = int(chunk) if chunk.isdecimal() else None
+        except ValueError:
+            partition = None
+        if partition is None:
+            return _FOREIGN
+        if self._owned(partition):
+            return _OWNED
+        return partition if partition in self._holding else _FOREIGN
+
+    def _keep(self, partition: int, samples: list[zenoh.Sample], now: float) -> int:
+        """Keep samples of a partition on its way here; return how many (counted received).
+
+        Beyond the bound they are foreign, and oversized ones are dropped (the former owner
+        refuses them): what is not kept the new owner may still find in the robots' caches.
+        """
+        room = max(0, self._queue_depth - len(self._held))
+        kept = 0
+        for sample in samples[:room]:
+            if len(sample.payload) <= self._max_payload:
+                item = Inbound(now, str(sample.key_expr), sample.payload.to_bytes(), PROBE)
+                self._held.append((partition, item))
+                kept += 1
+        self._metrics.frames_foreign.inc(len(samples) - len(samples[:room]))
+        self._metrics.frames_received.inc(kept)
+        return kept
+
+    def _offer(self, items: list[Inbound]) -> None:
+        """Hand items to their robots' shards, in order."""
+        shards = self._shards
+        batches: list[list[Inbound]] = [[] for _ in shards]
+        for item in items:
+            batches[0 if len(shards) == 1 else shard_index(item.key, len(shards))].append(item)
+        for shard, batch in zip(shards, batches, strict=True):
+            if batch:
+                self._offer_to(shard, batch)
+
+    def _offer_to(self, shard: Shard, batch: list[Inbound]) -> None:
+        for item in shard.offer_many(batch):
+            if shard.stopping:
+                detail = "the service is stopping; frame not taken (a restart recovers it)"
+            else:
+                depth = self._queue_depth
+                detail = f"shard {shard.index} queue full ({depth=}); frame dropped"
+            shard.note_rejection(item.key, ErrorCode.LIMIT_EXCEEDED, detail)

@@ -11,8 +11,17 @@ Partitions (``schemas/README.md`` section 2a): the instance subscribes to the fr
 partitions it owns only. Taking a partition over: query every instance for the partition's
 checkpoints (the newest of each robot goes to the local store), take an epoch, subscribe; a
 robot's next frame resumes its session from the store and fetches what is missing from the
-robot's cache (the same path as after a restart). Handing one over: close the fence,
-unsubscribe, checkpoint and drop its sessions.
+robot's cache (the same path as after a restart). Handing one over: apply what already
+arrived for it (bounded), close the fence, unsubscribe, checkpoint and drop its sessions,
+then announce the release (``keys.released``, with the epoch it had).
+
+The hand-shake: an instance that starts while others run wins partitions they own until they
+see its token. It listens for their releases and holds the frames of those partitions
+(``Receiver.hold``) before it declares its token, then waits (``handover_release_s`` at most)
+until each former owner has announced the release, and only then fetches the checkpoints:
+they are the former owner's final records, sessions it closed at the last moment included.
+The held frames follow as probes (applied where the checkpoint does not cover them). A
+former owner that is gone is not waited for (its token went: nothing to hand over).
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
+import msgpack
 import zenoh
 from prometheus_client import start_http_server
 
@@ -61,6 +71,10 @@ _QUIET_S = 0.3  # no sample for this long: the inbound path has settled
 _HEARTBEAT_S = 0.1  # freeze detection (fence_after_s is far above it)
 _LEAVE_CONFIRM_S = 0.25  # a token that went is checked again this much later
 _CHECKPOINT_ENCODING = zenoh.Encoding("application/octet-stream")
+_RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.released``)
+# A hand-over first lets the shards apply what already arrived for the partitions, this long
+# at most: well below handover_release_s, so the joining owner still gets the release.
+_DRAIN_BEFORE_HANDOVER_S = 1.0
 
 
 class Service:
@@ -92,6 +106,9 @@ class Service:
         self._receiver: Receiver | None = None
         self._standby_subs: dict[int, zenoh.Subscriber[None]] = {}
         self._liveliness_sub: zenoh.Subscriber[None] | None = None
+        # Release announcements of the former owners, while this instance waits for them
+        # (start-up only): the subscriber's callback only enqueues.
+        self._releases: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         # Liveliness changes, freezes and shipped checkpoints, for the ownership thread.
         self._control: queue.SimpleQueue[tuple[str, object] | None] = queue.SimpleQueue()
         self._control_thread = threading.Thread(
@@ -216,22 +233,30 @@ class Service:
         # every new robot costs a history query of its whole cache. The query is asked only
         # on a gap, for one robot, and the table puts what comes back in seq order itself.
         self.store.on_written = self._ship
-        # Take this instance's partitions first (frames subscriptions, checkpoints, cache
+        # Alone, take every partition first (frames subscriptions, checkpoints, cache
         # probes), then declare the token: declarations reach every client in order, so one
-        # that sees the token already routes its frames here. The live tokens are asked
-        # before the liveliness subscriber is declared: with a history subscriber declared
-        # first, zenoh 1.x answered the get with the local token only. The subscriber's
-        # history repeats what the get saw; joins are idempotent. Later changes arrive on
-        # the ownership thread.
+        # that sees the token already routes its frames here. With others running, the
+        # partitions this instance wins are theirs until they see its token: hold their
+        # frames, declare the token, then take them as the former owners release them
+        # (module doc). The live tokens are asked before the liveliness subscriber is
+        # declared: with a history subscriber declared first, zenoh 1.x answered the get
+        # with the local token only. The subscriber follows at once, before the take: an
+        # instance that leaves while this one waits for releases must not go unseen. Its
+        # history repeats what the get saw; joins are idempotent. Its changes queue up for
+        # the ownership thread, which starts once this instance has taken its partitions.
         live = self._live_instances()
         log.info("live instances: %s", ", ".join(sorted(set(live))))
-        self.ownership.start_clock()
-        self._heartbeat_thread.start()
-        self._apply(self.ownership.set_live(live))
-        self._token = session.liveliness().declare_token(keys.instance_token(s.instance))
         self._liveliness_sub = session.liveliness().declare_subscriber(
             keys.instances(), self._on_liveliness, history=True
         )
+        self.ownership.start_clock()
+        self._heartbeat_thread.start()
+        change = self.ownership.set_live(live, arriving=True)
+        if change.handed_by:
+            self._join(change)
+        else:
+            self._apply(change)
+            self._declare_token()
         self._control_thread.start()
         log.info(
             "lessmap %s serving as %s (%s, %d shard(s), profile %s, %d of %d partitions)%s",
@@ -251,6 +276,23 @@ class Service:
         else:
             log.info("session checkpoints in %s", self.store.path)
             self._check_catchup_budget()
+
+    def _declare_token(self) -> None:
+        assert self._session is not None
+        token = keys.instance_token(self.settings.instance)
+        self._token = self._session.liveliness().declare_token(token)
+
+    def _join(self, change: Change) -> None:
+        """Take partitions from the live instances that hold them (start-up, module doc)."""
+        session = self._session
+        assert session is not None
+        releases = session.declare_subscriber(keys.released(), self._on_released)
+        try:
+            self._hold_frames(sorted(change.handed_by))
+            self._declare_token()  # the former owners hand over when they see it
+            self._apply(change)
+        finally:
+            releases.undeclare()
 
     def _check_catchup_budget(self) -> None:
         """Warn when a crash can lose frames that the robots' caches would have held.
@@ -540,6 +582,9 @@ class Service:
         kind = "join" if sample.kind == zenoh.SampleKind.PUT else "leave"
         self._control.put((kind, name))
 
+    def _on_released(self, sample: zenoh.Sample) -> None:  # Zenoh's thread: enqueue only
+        self._releases.put((str(sample.key_expr), sample.payload.to_bytes()))
+
     def _live_instances(self) -> list[str]:
         """Ask the network for the live instance tokens (this one included)."""
         assert self._session is not None
@@ -630,14 +675,16 @@ class Service:
                     keys.checkpoints(p), self._on_replica
                 )
         if change.gained:
-            self._take(change.gained)
+            self._take(change.gained, change.handed_by)
         self.metrics.partitions_owned.set(len(self.ownership.owned()))
 
     def _hand_over(self, partitions: Sequence[int]) -> None:
-        """Close the fence, unsubscribe, checkpoint and drop the partitions' sessions."""
+        """Apply what arrived, close the fence, unsubscribe, checkpoint, drop, announce."""
         if not partitions:
             return
         leaving = set(partitions)
+        self._apply_arrived(leaving)
+        epochs = self.ownership.owned()  # before the release: what the announcement names
         for p in partitions:
             self.ownership.release(p)
             sub = self._frame_subs.pop(p, None)
@@ -657,6 +704,9 @@ class Service:
                     # session with a fenced transition (the next owner decides it anew).
                     self._outbox.publish(out, now)
             dropped += out.evicted
+        # The sessions' final records are in the store now (pending ones included, which the
+        # checkpoint queries read): a new owner waiting for this fetches them next.
+        self._announce_released(partitions, epochs)
         self.metrics.partition_moves.labels(direction="out").inc(len(partitions))
         log.info(
             "handed over %d partition(s) (%d session(s) checkpointed): %s",
@@ -665,37 +715,128 @@ class Service:
             _ranges(partitions),
         )
 
-    def _take(self, partitions: Sequence[int]) -> None:
-        """Fetch the partitions' newest checkpoints, take epochs, subscribe to their frames."""
-        started = time.monotonic()
-        fetched = self._fetch_checkpoints(partitions)
+    def _announce_released(self, partitions: Sequence[int], epochs: dict[int, int]) -> None:
+        """Say that these partitions were handed over (a joining owner waits for it)."""
+        session = self._session
+        if session is None or len(self.ownership.live) < 2:
+            return  # alone: nobody takes them (a freeze dropped them, say)
+        for p in partitions:
+            epoch = epochs.get(p)
+            if epoch is None:
+                continue  # not held under an epoch (fenced by a freeze): nothing was decided
+            payload = msgpack.packb({"released": _RELEASE_VERSION, "epoch": epoch})
+            try:
+                key = keys.released(p, self.settings.instance)
+                session.put(key, payload, encoding=_CHECKPOINT_ENCODING)
+            except zenoh.ZError as exc:
+                log.warning("could not announce the release of partition %d: %s", p, exc)
+
+    def _await_releases(self, handed_by: dict[int, str]) -> None:
+        """Wait until each partition's former owner announced its release (bounded).
+
+        On time out the take goes on as without a hand-shake (checkpoints as they are, the
+        robots' caches for the rest): a former owner that does not answer must not keep the
+        partitions unserved.
+        """
+        waiting = dict(handed_by)
+        wait_s = self.settings.handover_release_s
+        deadline = time.monotonic() + wait_s
+        while waiting:
+            try:
+                key, payload = self._releases.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                break
+            release = _read_release(key, payload)
+            if release is not None and waiting.get(release[0]) == release[1]:
+                del waiting[release[0]]
+                self.ownership.saw_epoch(release[0], release[2])
+        if waiting:
+            self.metrics.handover_release_timeouts.inc(len(waiting))
+            log.warning(
+                "%d partition(s) taken without a release from %s within %.1f s: %s",
+                len(waiting),
+                ", ".join(sorted(set(waiting.values()))),
+                wait_s,
+                _ranges(sorted(waiting)),
+            )
+
+    def _hold_frames(self, partitions: Sequence[int]) -> None:
+        """Subscribe to the partitions' frames now and keep them aside until taken."""
+        if self._receiver is not None:
+            self._receiver.hold(partitions)
+            self._subscribe_frames(partitions)
+
+    def _subscribe_frames(self, partitions: Sequence[int]) -> None:
         session = self._session
         assert session is not None
-        for p in partitions:
-            self.ownership.acquire(p)
-        if self._receiver is not None:
-            subs = self._frame_subs
-            if self.settings.frames_subscription == "all":
-                # One subscription for good; the receiver keeps the owned partitions' frames.
-                if EVERY_PARTITION not in subs:
-                    subs[EVERY_PARTITION] = session.declare_subscriber(
-                        keys.frames_of_every_partition(), self._receiver.channel()
+        assert self._receiver is not None
+        subs = self._frame_subs
+        if self.settings.frames_subscription == "all":
+            # One subscription for good; the receiver keeps the owned partitions' frames.
+            if EVERY_PARTITION not in subs:
+                subs[EVERY_PARTITION] = session.declare_subscriber(
+                    keys.frames_of_every_partition(), self._receiver.channel()
+                )
+        else:
+            for p in partitions:
+                if p not in subs:
+                    subs[p] = session.declare_subscriber(
+                        keys.frames_of_partition(p), self._receiver.channel()
                     )
-            else:
-                for p in partitions:
-                    if p not in subs:
-                        subs[p] = session.declare_subscriber(
-                            keys.frames_of_partition(p), self._receiver.channel()
-                        )
-            self._receiver.watch(subs)
+        self._receiver.watch(subs)
+
+    def _apply_arrived(self, leaving: set[int]) -> None:
+        """Let the shards apply what arrived for partitions about to be handed over.
+
+        A frame or end that reached this instance before the new owner subscribed reached
+        nobody else (Zenoh forwarded it here before the new owner's token, which came after
+        its subscription): dropped as foreign after the release, it would be lost but for
+        the robot's cache, and a ``SessionEnd`` is never in a cache. Bounded: under overload
+        what is left goes to the new owner's probe and catch-up, as before.
+        """
+        receiver = self._receiver
+        if receiver is None:
+            return
+        receiver.sweep()  # what the channels hold now, into the shards
+
+        def of_leaving(key: str) -> bool:
+            chunk = key[key.rfind("/") + 1 :]
+            return chunk.isdecimal() and int(chunk) in leaving
+
+        deadline = time.monotonic() + _DRAIN_BEFORE_HANDOVER_S
+        while any(shard.holds_any(of_leaving) for shard in self._shards):
+            if time.monotonic() >= deadline:
+                log.info("handing over with frames still queued: the new owner's probe follows")
+                return
+            time.sleep(0.005)
+
+    def _take(self, partitions: Sequence[int], handed_by: dict[int, str] | None = None) -> None:
+        """Fetch the partitions' newest checkpoints, take epochs, subscribe to their frames.
+
+        ``handed_by``: partitions a live former owner hands over; their checkpoints are
+        fetched once it announced the release (``_await_releases``).
+        """
+        started = time.monotonic()
+        if handed_by:
+            self._await_releases({p: handed_by[p] for p in partitions if p in handed_by})
+        fetched = self._fetch_checkpoints(partitions)
+        held = 0
+        if self._receiver is not None:
+            held = self._receiver.admit(partitions, self.ownership.acquire)
+            self._subscribe_frames(partitions)
+        else:
+            for p in partitions:
+                self.ownership.acquire(p)
         for p in partitions:
             self._probe_caches(p)
         self.metrics.partition_moves.labels(direction="in").inc(len(partitions))
         log.info(
-            "took %d partition(s) in %.0f ms (%d checkpoint(s) from other instances): %s",
+            "took %d partition(s) in %.0f ms (%d checkpoint(s) from other instances, %d "
+            "frame(s) held meanwhile): %s",
             len(partitions),
             (time.monotonic() - started) * 1000.0,
             fetched,
+            held,
             _ranges(partitions),
         )
 
@@ -822,6 +963,20 @@ class Service:
                 self.metrics.checkpoints_shipped.inc()
             except zenoh.ZError as exc:
                 log.warning("could not ship the checkpoint of %s/%s: %s", *record.key, exc)
+
+
+def _read_release(key: str, payload: bytes) -> tuple[int, str, int] | None:
+    """(partition, instance, epoch) of a release announcement, None if it is not one."""
+    try:
+        partition, instance = keys.parse_released_key(key)
+        obj = msgpack.unpackb(payload, raw=False)
+        if not isinstance(obj, dict) or obj.get("released") != _RELEASE_VERSION:
+            return None
+        epoch = obj.get("epoch")
+    except (WireError, ValueError) as exc:
+        log.warning("ignored a release announcement on %s: %s", key[:200], exc)
+        return None
+    return (partition, instance, epoch) if type(epoch) is int else None
 
 
 def _ranges(partitions: Sequence[int]) -> str:

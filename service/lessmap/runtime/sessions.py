@@ -416,17 +416,19 @@ class SessionTable:
     def is_news(self, fleet: str, robot: str, message: Frame | SessionEnd) -> bool:
         """True when a message found in a robot's cache is not known here yet.
 
-        For the probe of a partition just taken over (``Service._probe_caches``): news is a
-        frame of an unknown session or above the last seq seen (in memory, else in the
-        store); anything else is dropped without being counted, since it was counted when it
-        first arrived.
+        For the probe of a partition just taken over (``Service._probe_caches``) and the
+        frames held while it was handed over: news is a frame of an unknown session or above
+        the last seq seen (in memory, else in the store), or the end of a session open here
+        (applied, it would have closed it); anything else is dropped without being counted,
+        since it was counted when it first arrived.
         """
         key = (fleet, robot)
         if message.session in self._closed_ids.get(key, ()):
             return False
-        seq = message.seq if isinstance(message, Frame) else message.last_seq
         session = self._open.get(key)
         if session is not None:
+            if session.session != message.session:
+                return isinstance(message, Frame)
             seen = session.last_seen_seq
         elif self._store is not None:
             try:
@@ -440,9 +442,9 @@ class SessionTable:
             seen = record.last_seq
         else:
             return isinstance(message, Frame)
-        if session is not None and session.session != message.session:
-            return isinstance(message, Frame)
-        return seq is not None and (seen is None or seq > seen)
+        if isinstance(message, SessionEnd):
+            return True
+        return seen is None or message.seq > seen
 
     def state(self, fleet: str, robot: str) -> SessionState | None:
         """Return the state of a robot's open session, else of its last closed one."""

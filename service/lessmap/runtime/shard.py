@@ -315,6 +315,11 @@ class Shard:
         robot_key = self._robot_of[key] = (fleet, robot)
         return robot_key
 
+    def holds_any(self, wanted: Callable[[str], bool]) -> bool:
+        """True while a message of a robot key ``wanted`` names is queued or in a turn."""
+        with self._ready:
+            return any(wanted(key) for key in self._per_key)
+
     def _give_back(self, items: list[Inbound]) -> None:
         """Release the bounds held by handled items (caller may hold ``_ready``: RLock-free)."""
         for item in items:
@@ -548,6 +553,11 @@ class Shard:
         try:
             for item, message, _cost in plan:
                 if item.kind == PROBE:
+                    if live and _is_end(item, self._limits):
+                        # Judged on what the messages before it do to the table: the end of a
+                        # session whose frames are among them is news only once they applied.
+                        self._apply(live, now, decide_every)
+                        live = []
                     news = self._news(fleet, robot, item)
                     if news is not None:
                         live.append((fleet, robot, news))
@@ -666,3 +676,11 @@ class Shard:
             for session_id in sessions:
                 mine = [f for f in robot_frames if f.session == session_id]
                 self._step(now, self.table.recover, (fleet, robot), session_id, mine, now)
+
+
+def _is_end(item: Inbound, limits: WireLimits) -> bool:
+    """True when an item decodes to a ``SessionEnd``."""
+    try:
+        return isinstance(decode_inbound(item.payload, limits), SessionEnd)
+    except WireError:
+        return False
