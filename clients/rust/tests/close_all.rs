@@ -5,8 +5,11 @@
 //! `tests/loopback.rs` does; `tests/rust/` in the repository runs `close_all` against a real
 //! `lessmap serve`.
 
+mod common;
+
+use common::{assert_took, router, WAIT};
+
 use std::collections::{BTreeMap, BTreeSet};
-use std::net::TcpListener;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -17,33 +20,6 @@ use lessmap_client::{
 };
 use zenoh::query::Queryable;
 use zenoh::{Session, Wait};
-
-const WAIT: Duration = Duration::from_secs(10);
-
-/// A router on a free loopback port, and its endpoint.
-fn router() -> (Session, String) {
-    let port = TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .expect("a free port")
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"router\"").unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    (zenoh::open(config).wait().expect("router"), endpoint)
-}
-
-fn assert_took(what: &str, took: Duration, min: Duration, max: Duration) {
-    assert!(
-        took >= min && took < max,
-        "{what} took {took:?}, expected {min:?} to {max:?}"
-    );
-}
 
 /// The `SessionState` a fake service answers for `fleet`/`robot`'s `session`.
 fn session_state(
@@ -260,11 +236,15 @@ fn close_all_sends_every_end_then_waits_once_with_one_query_per_fleet() {
         wanted.iter().map(String::as_str).collect(),
         "{asked:?}"
     );
+    // Each poll asks each fleet still waiting once. The fake closes every session at one
+    // moment, which can fall between a poll's two queries: then one fleet is asked once
+    // more than the other (1 run in 6 here), never more.
     let per_fleet = |key: &str| asked.iter().filter(|k| *k == key).count();
-    assert_eq!(
+    let (six, one) = (
         per_fleet(&keys::state("fa", "*").unwrap()),
-        per_fleet(&keys::state("fb", "solo0").unwrap())
+        per_fleet(&keys::state("fb", "solo0").unwrap()),
     );
+    assert!(six.abs_diff(one) <= 1, "{asked:?}");
     conn.close().unwrap();
     drop(fake);
     drop(frames);

@@ -6,8 +6,11 @@
 //! ends, a new session after `SESSION_CLOSED`, epoch fencing, de-duplication, highest epoch of
 //! replies, a close that waits for the service to confirm the end.
 
+mod common;
+
+use common::{assert_took, router, wait_until, WAIT};
+
 use std::collections::HashMap;
-use std::net::TcpListener;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -17,35 +20,6 @@ use lessmap_client::{
     Method, Passage, Reason, RobotOptions, SessionState, SubmapSummary, Transition,
 };
 use zenoh::{Session, Wait};
-
-const WAIT: Duration = Duration::from_secs(10);
-
-/// A router on a free loopback port, and its endpoint.
-fn router() -> (Session, String) {
-    let port = TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .expect("a free port")
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"router\"").unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    (zenoh::open(config).wait().expect("router"), endpoint)
-}
-
-/// Poll `done` until it holds; panic naming `what` after `WAIT`.
-fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + WAIT;
-    while !done() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
 
 fn summary(id: u64) -> SubmapSummary {
     SubmapSummary {
@@ -301,13 +275,6 @@ fn session_state(robot: &str, session: &str, open: bool, last_seq: u64) -> Sessi
         nodes: 1,
         edges: 0,
     }
-}
-
-fn assert_took(what: &str, took: Duration, min: Duration, max: Duration) {
-    assert!(
-        took >= min && took < max,
-        "{what} took {took:?}, expected {min:?} to {max:?}"
-    );
 }
 
 #[test]

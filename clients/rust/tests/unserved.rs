@@ -4,8 +4,11 @@
 //! by its liveliness token alone. The crate's log lines are captured by a minimal `tracing`
 //! subscriber installed for this test binary (one test here: the subscriber is global).
 
+mod common;
+
+use common::{router, wait_until, WAIT};
+
 use std::fmt;
-use std::net::TcpListener;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -13,9 +16,7 @@ use lessmap_client::{keys, Connection};
 use tracing::field::{Field, Visit};
 use tracing::span::{Attributes, Id, Record};
 use tracing::{Event, Level, Metadata, Subscriber};
-use zenoh::{Session, Wait};
-
-const WAIT: Duration = Duration::from_secs(10);
+use zenoh::Wait;
 
 static LINES: Mutex<Vec<(Level, String)>> = Mutex::new(Vec::new());
 
@@ -65,33 +66,6 @@ fn lines(level: Level, parts: &[&str]) -> usize {
         .iter()
         .filter(|(at, text)| *at == level && parts.iter().all(|part| text.contains(part)))
         .count()
-}
-
-/// A router on a free loopback port, and its endpoint.
-fn router() -> (Session, String) {
-    let port = TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .expect("a free port")
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"router\"").unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    (zenoh::open(config).wait().expect("router"), endpoint)
-}
-
-/// Poll `done` until it holds; panic naming `what` after `WAIT`.
-fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + WAIT;
-    while !done() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 #[test]
