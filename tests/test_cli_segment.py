@@ -400,3 +400,21 @@ def test_area_graph_misuse_is_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert message in err
+
+
+def test_empty_frames_omitted_reads_the_stamp_gaps(capsys: pytest.CaptureFixture[str]) -> None:
+    # MRCLAM's frames are sightings: robot 3's blind turns between two walls show only as
+    # stamp gaps, which are read as blindness only when the file is declared so.
+    path = DATASETS / "mrclam6.frames.jsonl"
+    if not path.exists():
+        pytest.skip("data set mrclam6 not found under ../shared/datasets")
+    argv = ["segment", "--method", "areas", "--robot", "3", str(path)]
+    code, records, err = run(argv, capsys)
+    assert (code, err) == (0, "")
+    assert records[-1]["transitions"] >= 3
+    assert records[-1]["params"]["period_steps"] == 0
+    code, records, err = run([*argv, "--empty-frames-omitted"], capsys)
+    assert (code, err) == (0, "")
+    assert records[-1]["transitions"] == 0
+    assert records[-1]["params"]["period_steps"] > 0
+    assert len(records) == 1  # the summary alone

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from why import why_lines
 
-from lessmap.core.areas import AreaParams
+from lessmap.core.areas import EMPTY_OMITTED_PERIOD_STEPS, AreaParams
 from lessmap.evaluation.diagnosis import Loss
 from lessmap.evaluation.markdown import (
     consistency_lines,
@@ -330,9 +330,10 @@ def areas_lines(tables: str) -> list[str]:
         f"becomes a transition when both sides hold {p.min_area_features} features or more, "
         "the robot did not reach the new side blind (through "
         f"{p.blind_frames} or more empty frames, or a run of {p.blind_span} within "
-        f"{p.blind_margin} non-empty frames of the boundary; in a stream that leaves out "
-        "its empty frames, as MRCLAM's, a stamp gap counts as the frames it left out at "
-        f"the median of the last {p.period_steps} stamp steps), and less than "
+        f"{p.blind_margin} non-empty frames of the boundary; in a stream declared to leave "
+        "out its empty frames, as MRCLAM's (`--empty-frames-omitted`), a stamp gap counts "
+        "as the frames it left out at the median of the last "
+        f"{EMPTY_OMITTED_PERIOD_STEPS} stamp steps), and less than "
         f"{p.stay_share:.0%} of the new "
         "frames' sightings are of features the current area sees in "
         f"{p.familiar_rate:.0%} of its frames, or in {p.familiar_relative:.0%} of its "

@@ -261,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
 
     graphs: dict[str, AreaGraph] = {}
     if args.method == "areas":
-        areas = area_params(settings)
+        areas = area_params(settings, empty_frames_omitted=args.empty_frames_omitted)
         summary, graphs = segment_area_graphs(frames, areas, on_change=emit_area)
         params = areas.proposal
     else:

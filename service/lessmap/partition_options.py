@@ -89,7 +89,7 @@ def partition_params(args: argparse.Namespace) -> PartitionParams:
 
 
 def add_method_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--method paper|areas`` (offline commands only; the service runs the paper)."""
+    """Add ``--method`` and ``--empty-frames-omitted`` (offline commands; ``serve`` has its own)."""
     parser.add_argument(
         "--method",
         choices=METHODS,
@@ -98,15 +98,23 @@ def add_method_option(parser: argparse.ArgumentParser) -> None:
         "confirmed splits of at least 5 features, revisits named (the proposer's thresholds "
         "are Ncut 0.4, λ2 0.4 unless --ncut-min/--lambda2-min are given)",
     )
+    parser.add_argument(
+        "--empty-frames-omitted",
+        action="store_true",
+        help="the file's frames leave out the empty ones (a frame only when something is "
+        "seen, as MRCLAM's): with --method areas a gap between stamps then counts as the "
+        "empty frames it left out, i.e. blindness (by default stamps are not read)",
+    )
 
 
-def area_params(settings: PartitionSettings) -> AreaParams:
+def area_params(settings: PartitionSettings, *, empty_frames_omitted: bool = False) -> AreaParams:
     """Return the area tracker's parameters: its own proposer thresholds unless overridden.
 
     The profile is not applied: the proposer answers before the paper's thresholds would.
-    The guards and the seed mode pass through to the proposer.
+    The guards and the seed mode pass through to the proposer. A stream that leaves out its
+    empty frames has its stamp gaps read as blindness (``AreaParams.for_stream``).
     """
-    base = AreaParams()
+    base = AreaParams().for_stream(empty_frames_omitted=empty_frames_omitted)
     proposal = replace(
         base.proposal,
         ncut_min=settings.ncut_min if settings.ncut_min is not None else base.proposal.ncut_min,

@@ -110,6 +110,14 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         description="segmentation of new sessions: paper = LESS-mapping as published; areas = "
         "confirmed splits, revisits named (a session keeps the method it started with)",
     )
+    # Rule 3b of the areas method reads a stamp gap as blindness only in a stream that
+    # leaves out its empty frames; elsewhere a gap is a stall or a loss (AreaParams).
+    empty_frames_omitted: Annotated[tuple[str, ...], Flag(metavar="FLEET")] = Field(
+        (),
+        description="fleets whose robots leave out their empty frames (a frame only when "
+        "something is seen): with the areas method their stamp gaps count as blind frames; "
+        "* for every fleet (a session keeps what it started with)",
+    )
     max_sessions: int = Field(10_000, ge=1, description="open sessions at most")
     max_nodes_per_session: int = Field(20_000, ge=2, description="CovGraph nodes per session")
     max_batch_frames: int = Field(
@@ -295,6 +303,18 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         flags = init_settings.init_kwargs if isinstance(init_settings, InitSettingsSource) else {}
         path = flags.get("config") or _environ().get(ENV_PREFIX + "CONFIG") or None
         return (init_settings, env_settings, ConfigFileSource(settings_cls, path))
+
+    @field_validator("empty_frames_omitted")
+    @classmethod
+    def _fleets_are_names(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for fleet in value:
+            if fleet != "*":
+                validate_name(fleet, "fleet")
+        return value
+
+    def omits_empty_frames(self, fleet: str) -> bool:
+        """Whether the fleet's robots leave out their empty frames (``empty_frames_omitted``)."""
+        return "*" in self.empty_frames_omitted or fleet in self.empty_frames_omitted
 
     @field_validator("instance")
     @classmethod

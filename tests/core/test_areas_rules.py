@@ -111,6 +111,7 @@ def test_a_room_reached_blind_after_a_glimpse_is_no_transition(seed: int) -> Non
     assert moves(no_margin) == [(0, 1)]
 
 
+OMITTED = AreaParams().for_stream(empty_frames_omitted=True)  # a stream without empty frames
 GAP = None  # in a gapped stream: the clock runs on GAP_S seconds with no frame
 GAP_S = 5.0
 
@@ -144,16 +145,31 @@ def test_a_room_reached_through_a_stamp_gap_is_no_transition(seed: int) -> None:
     # the robot's blindness is only in the stamps.
     rng = np.random.default_rng(seed)
     stream = [*stay(rng, A, 30), GAP, *stay(rng, B, 30)]
-    assert AreaParams().period_steps  # GAP_S leaves out 9 frames, blind_span is 3
-    tracker, found = track_gapped(stream)
+    assert OMITTED.period_steps  # GAP_S leaves out 9 frames, blind_span is 3
+    tracker, found = track_gapped(stream, OMITTED)
     assert found == []
     assert set(tracker.area_features(0)) == A | B
-    _, gap_ignored = track_gapped(stream, AreaParams(period_steps=0))
+    _, gap_ignored = track_gapped(stream)  # by default stamps are not read
     assert moves(gap_ignored) == [(0, 1)]
     assert gap_ignored[0].transition.boundary_seq == 30  # B's first frame, after the gap
     # a real two-room walk: the same frames at an even pace keep their transition
-    _, door = track_gapped([frame for frame in stream if frame is not GAP])
+    _, door = track_gapped([frame for frame in stream if frame is not GAP], OMITTED)
     assert moves(door) == [(0, 1)]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_stall_at_a_door_keeps_its_transition_when_empty_frames_are_sent(seed: int) -> None:
+    # A robot stamped at publish time whose computer stalls at the door for GAP_S: its
+    # stream has the same stamp gap as a blind crossing, but it sends its empty frames, so
+    # the gap is a stall, not blindness, and the door stays a transition by default. Only
+    # a source that declares it leaves out its empty frames gives the gap up to rule 3b.
+    rng = np.random.default_rng(seed)
+    stream = [*stay(rng, A, 30), [], *stay(rng, A, 3), GAP, *stay(rng, B, 30)]
+    _, found = track_gapped(stream)
+    assert moves(found) == [(0, 1)]
+    assert found[0].transition.boundary_seq == 34  # B's first frame, after the stall
+    _, declared = track_gapped(stream, OMITTED)
+    assert declared == []
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -164,10 +180,10 @@ def test_turning_between_two_walls_blind_makes_one_area(seed: int) -> None:
     stream: list[list[int] | None] = []
     for wall in (A, B, A, B, A):
         stream += [GAP, *stay(rng, wall, 60, p=0.3)]
-    tracker, found = track_gapped(stream[1:])
+    tracker, found = track_gapped(stream[1:], OMITTED)
     assert found == []
     assert tracker.area_count == 1
-    _, gap_ignored = track_gapped(stream[1:], AreaParams(period_steps=0))
+    _, gap_ignored = track_gapped(stream[1:])
     assert moves(gap_ignored)[:2] == [(0, 1), (1, 0)]
     assert len(gap_ignored) == 4
 
@@ -178,11 +194,11 @@ def test_a_gap_away_from_the_door_keeps_the_transition(seed: int) -> None:
     # at the boundary's own frames.
     rng = np.random.default_rng(seed)
     stream = [*stay(rng, A, 15), GAP, *stay(rng, A, 15), *stay(rng, B, 30)]
-    tracker, found = track_gapped(stream)
+    tracker, found = track_gapped(stream, OMITTED)
     assert moves(found) == [(0, 1)]
     assert tracker.gaps == deque()  # the gap went with the segment it was in
     # restored from a snapshot before every frame: the same decisions and state
-    restored, again = track_gapped(stream, restore=True)
+    restored, again = track_gapped(stream, OMITTED, restore=True)
     assert again == found
     assert to_bytes(restored) == to_bytes(tracker)
 
@@ -193,8 +209,8 @@ def test_a_gapped_stream_restored_at_every_frame_decides_alike(seed: int) -> Non
     rng = np.random.default_rng(seed)
     stream: list[list[int] | None] = [*stay(rng, A, 40, p=0.3), GAP]
     stream += [*stay(rng, B, 40, p=0.3), *stay(rng, A, 20), *stay(rng, H2, 30)]
-    tracker, found = track_gapped(stream)
-    restored, again = track_gapped(stream, restore=True)
+    tracker, found = track_gapped(stream, OMITTED)
+    restored, again = track_gapped(stream, OMITTED, restore=True)
     assert again == found
     assert to_bytes(restored) == to_bytes(tracker)
     assert found  # the door to H2, without a gap, is still a transition

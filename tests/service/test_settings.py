@@ -359,6 +359,14 @@ def serve_settings(*argv: str) -> Any:
     return settings_from_args(args, args.settings_flags)
 
 
+#: A value of each list setting (a repeatable flag; a JSON list in the environment).
+LIST_SAMPLES = {
+    "connect": "tcp/127.0.0.1:7500",
+    "listen": "tcp/127.0.0.1:7500",
+    "empty_frames_omitted": "lab",
+}
+
+
 def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
     """Return a valid value unlike the default, as text and as the field then holds it."""
     field = spec.field
@@ -368,8 +376,8 @@ def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
     if spec.dest == "config":
         path = write_config(tmp_path, {})
         return str(path), path
-    if spec.dest in {"connect", "listen"}:
-        return "tcp/127.0.0.1:7500", ("tcp/127.0.0.1:7500",)
+    if spec.dest in LIST_SAMPLES:
+        return LIST_SAMPLES[spec.dest], (LIST_SAMPLES[spec.dest],)
     if spec.dest == "seed_mode":
         return "fresh", SeedMode.FRESH
     if spec.dest == "mode":
@@ -424,7 +432,7 @@ def test_every_field_has_a_flag_and_an_environment_variable(
     assert value_at(from_flag, spec) == expected
 
     env = f"LESSMAP_{spec.dest.upper()}"
-    monkeypatch.setenv(env, json.dumps([text]) if spec.dest in {"connect", "listen"} else text)
+    monkeypatch.setenv(env, json.dumps([text]) if spec.dest in LIST_SAMPLES else text)
     assert value_at(load_settings(), spec) == expected
 
     with pytest.raises(SystemExit):
@@ -531,3 +539,13 @@ def test_serve_reports_a_bad_setting_in_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert err.startswith("lessmap serve: invalid setting batch_linger_ms = '500' from environment")
+
+
+def test_empty_frames_omitted_names_fleets_or_all() -> None:
+    none = serve_settings()
+    assert not none.omits_empty_frames("lab")
+    some = serve_settings("--empty-frames-omitted", "lab", "--empty-frames-omitted", "yard")
+    assert (some.omits_empty_frames("lab"), some.omits_empty_frames("yard")) == (True, True)
+    assert not some.omits_empty_frames("lab2")
+    every = serve_settings("--empty-frames-omitted", "*")
+    assert every.omits_empty_frames("anything")

@@ -26,10 +26,12 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
    b. the boundary does not follow ``blind_frames`` empty frames, and no run of
       ``blind_span`` empty frames lies in the frames from ``blind_margin`` non-empty frames
       before the boundary on: a robot that saw nothing saw no boundary (a room wider than
-      the sensor's range, crossed blind, perhaps glimpsing a wall on the way). A stream that
-      leaves out its empty frames shows them as a gap between stamps: a frame that follows
-      the one before by ``k + 1`` periods (rounded; the period is the median of the last
-      ``period_steps`` stamp steps) has ``k`` empty frames before it;
+      the sensor's range, crossed blind, perhaps glimpsing a wall on the way). A stream
+      declared to leave out its empty frames (``period_steps`` above 0) shows them as a gap
+      between stamps: a frame that follows the one before by ``k + 1`` periods (rounded;
+      the period is the median of the last ``period_steps`` stamp steps) has ``k`` empty
+      frames before it. Other streams' stamps are not read: there a gap is a stall or a
+      loss, not blindness;
    c. the frames from the boundary on are not the current area's own: when ``stay_share``
       of their sightings are of features *familiar* to the current area (seen in
       ``familiar_rate`` of its non-empty frames, or in ``familiar_relative`` times the mean
@@ -93,7 +95,7 @@ from lessmap.core.areas_events import (
     segment_transition,
 )
 from lessmap.core.areas_model import merge, move
-from lessmap.core.areas_params import AreaParams
+from lessmap.core.areas_params import EMPTY_OMITTED_PERIOD_STEPS, AreaParams
 from lessmap.core.areas_pool import Pool
 from lessmap.core.areas_profile import (
     Frame,
@@ -113,6 +115,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable
 
 __all__ = [
+    "EMPTY_OMITTED_PERIOD_STEPS",
     "AreaParams",
     "AreaReason",
     "AreaTracker",

@@ -7,10 +7,14 @@ comment says why its default is what it is, measured with
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Final
 
 from lessmap.core.errors import GraphError
 from lessmap.core.params import PartitionParams
+
+#: ``AreaParams.period_steps`` for a stream that leaves out its empty frames.
+EMPTY_OMITTED_PERIOD_STEPS: Final = 16
 
 
 def _default_proposal() -> PartitionParams:
@@ -66,12 +70,18 @@ class AreaParams:
     # A stream may leave out its empty frames (MRCLAM's frames are a robot's sightings that
     # share a stamp): then blindness shows only as a gap between stamps, read as the frames
     # missing at the stream's period, the median of its last ``period_steps`` stamp steps.
-    # No simulated stream and no dlr stamp (frame indices) has a gap. 0 (off): mrclam6 1.28
-    # per 10 min (0.00: robot 3 turns from one wall of the arena to the other seeing nothing
-    # for 2-29 s, and such turns made 7 of its 8 transitions), mrclam1_w1s 0.32 (0.16).
-    # The 12-16 m open rooms without their empty frames: 16.02 / 16.10 / 4.24 per 10 min at
-    # 270° dense / 360° dense / 270° sparse (0.96 / 0.32 / 0.08; with them, 0.96 / 0.32 / 0.16).
-    period_steps: int = 16
+    # 0 (the default): stamps are not read, because a stream that sends its empty frames
+    # shows a gap only when its computer stalled or frames were lost, and a robot stamped at
+    # publish time that stalls at a door would lose that transition. A source declares that
+    # it leaves out its empty frames (``for_stream``; ``serve --empty-frames-omitted FLEET``,
+    # ``segment --empty-frames-omitted``), and then gets ``EMPTY_OMITTED_PERIOD_STEPS``.
+    # No simulated stream and no dlr stamp (frame indices) has a gap. Read at 16 steps:
+    # mrclam6 0.00 per 10 min (1.28 unread: robot 3 turns from one wall of the arena to the
+    # other seeing nothing for 2-29 s, and such turns made 7 of its 8 transitions),
+    # mrclam1_w1s 0.16 (0.32). The 12-16 m open rooms without their empty frames: 0.96 /
+    # 0.32 / 0.08 per 10 min at 270° dense / 360° dense / 270° sparse (16.02 / 16.10 / 4.24
+    # unread; with the empty frames kept, 0.96 / 0.32 / 0.16).
+    period_steps: int = 0
     # Rule 3c. Above 1 (off): 8-10 m open rooms 7.93 per 10 min (1.12), 360° sparse revisits
     # 90.0% recognised (100), dlr 131 transitions (102); 0.4: 270° dense R 95.5% and 3.6%
     # false area names (98.0, 1.0%); 0.6: 12-16 m open rooms 4.48 per 10 min (3.04).
@@ -146,3 +156,12 @@ class AreaParams:
             if not ok:
                 msg = f"invalid area parameter {name}={getattr(self, name)!r}"
                 raise GraphError(msg)
+
+    def for_stream(self, *, empty_frames_omitted: bool) -> AreaParams:
+        """Return these parameters for a stream that sends its empty frames or leaves them out.
+
+        Only a stream declared to leave them out has its stamp gaps read as blindness
+        (rule 3b); the paper method reads no stamps at all.
+        """
+        steps = EMPTY_OMITTED_PERIOD_STEPS if empty_frames_omitted else 0
+        return self if steps == self.period_steps else replace(self, period_steps=steps)

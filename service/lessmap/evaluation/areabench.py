@@ -27,7 +27,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lessmap.evaluation.areas import METHODS, AreaEvent, RevisitScore, revisit_score, run_method
+from lessmap.evaluation.areas import (
+    METHODS,
+    AreaEvent,
+    RevisitScore,
+    dataset_area_params,
+    revisit_score,
+    run_method,
+)
 from lessmap.evaluation.baselines import fixed_frames
 from lessmap.evaluation.infoloss import information_loss, landmark_information, landmark_submaps
 from lessmap.frames_file import FrameRow, read_frames
@@ -127,7 +134,7 @@ def dataset_tally(path: Path) -> dict[str, Tally]:
     frames = list(read_frames(path))
     tallies = {m: Tally() for m in METHODS}
     for method in METHODS:
-        tallies[method].add(run_method(frames, method), frames)
+        tallies[method].add(run_method(frames, method, areas=dataset_area_params(path)), frames)
     return tallies
 
 

@@ -28,8 +28,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lessmap.core.area_graph import AreaGraph, AreaGraphBuilder
-from lessmap.core.areas import AreaTracker
+from lessmap.core.areas import AreaParams, AreaTracker
 from lessmap.evaluation.areabench import SPARSE_SPACING_M, rows
+from lessmap.evaluation.areas import dataset_area_params
 from lessmap.frames_file import read_frames
 from lessmap.sim.simulator import simulate
 from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_SHARED, FleetParams, fleet_graph
@@ -75,7 +76,7 @@ class GraphTally:
 
 
 def robot_graphs(
-    frames: Sequence[FrameRow],
+    frames: Sequence[FrameRow], params: AreaParams | None = None
 ) -> tuple[dict[str, AreaGraph], dict[str, dict[int, int]]]:
     """Each robot's area graph and the area of each of its frames (seq -> area)."""
     trackers: dict[str, AreaTracker] = {}
@@ -83,7 +84,7 @@ def robot_graphs(
     starts: dict[str, list[tuple[int, int]]] = {}  # robot -> (boundary_seq, raw area)
     seqs: dict[str, list[int]] = {}
     for frame in frames:
-        tracker = trackers.setdefault(frame.robot, AreaTracker())
+        tracker = trackers.setdefault(frame.robot, AreaTracker(params))
         builder = builders.setdefault(frame.robot, AreaGraphBuilder())
         seqs.setdefault(frame.robot, []).append(frame.seq)
         change = tracker.observe(frame.seq, frame.stamp_s, frame.features)
@@ -206,7 +207,7 @@ def sweep_table(tallies: dict[str, GraphTally]) -> list[str]:
 
 def mrclam(path: Path, containments: Sequence[float]) -> str:
     """Fleet areas of a recorded file, without and with shared features."""
-    graphs = robot_graphs(list(read_frames(path)))[0]
+    graphs = robot_graphs(list(read_frames(path)), dataset_area_params(path))[0]
     robot_areas = ", ".join(f"{robot}: {len(g.nodes)}" for robot, g in sorted(graphs.items()))
     alone = len(fleet_graph(graphs, FleetParams()).nodes)
     shared = {

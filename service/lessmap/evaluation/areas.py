@@ -27,11 +27,24 @@ from lessmap.core.areas import AreaParams, AreaTracker
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
+    from pathlib import Path
 
     from lessmap.frames_file import FrameRow
     from lessmap.sim.simulator import TruthRow
 
 METHODS = ("paper", "areas")
+
+#: The shared data sets whose frames leave out the empty ones: MRCLAM's frames are a robot's
+#: sightings that share a stamp (its ``meta.json``), so a robot that sees nothing sends
+#: nothing and its blindness is a gap between stamps. Declared, as a user declares a source
+#: (``segment --empty-frames-omitted``, ``serve --empty-frames-omitted FLEET``).
+EMPTY_FRAMES_OMITTED = frozenset({"mrclam6", "mrclam1_w1s"})
+
+
+def dataset_area_params(path: Path) -> AreaParams:
+    """The area parameters for a shared data set's frames file (``EMPTY_FRAMES_OMITTED``)."""
+    name = path.name.removesuffix(".frames.jsonl")
+    return AreaParams().for_stream(empty_frames_omitted=name in EMPTY_FRAMES_OMITTED)
 
 
 @dataclass(frozen=True, slots=True)

@@ -162,6 +162,7 @@ class Service:
                 params,
                 method=Method(s.method),
                 area_params=area_params(s),
+                omits_empty_frames=s.omits_empty_frames,
                 max_sessions=per_shard_sessions,
                 max_nodes=s.max_nodes_per_session,
                 max_batch_frames=s.max_batch_frames,

@@ -73,6 +73,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from lessmap.core import GraphError, PartitionParams
+from lessmap.core.areas import AreaParams
 from lessmap.core.segmenter import Method, make_segmenter, segmenter_from_bytes
 from lessmap.runtime.budget import pairs_of
 from lessmap.runtime.store import SessionRecord
@@ -92,7 +93,6 @@ if TYPE_CHECKING:
 
     from lessmap.core import Submap
     from lessmap.core.area_graph import AreaGraph as CoreAreaGraph
-    from lessmap.core.areas import AreaParams
     from lessmap.core.segmenter import SegmentChange, Segmenter
     from lessmap.runtime.budget import EdgeLedger, SessionAdmission
     from lessmap.runtime.store import CheckpointStore
@@ -331,6 +331,7 @@ class SessionTable:
         *,
         method: Method = Method.PAPER,
         area_params: AreaParams | None = None,
+        omits_empty_frames: Callable[[str], bool] | None = None,
         max_sessions: int,
         max_nodes: int,
         max_batch_frames: int,
@@ -353,7 +354,9 @@ class SessionTable:
     ) -> None:
         self._params = params
         self._method = method  # of new sessions; a resumed one keeps the method it had
-        self._area_params = area_params
+        self._area_params = area_params if area_params is not None else AreaParams()
+        # Per fleet: its robots leave out their empty frames, so stamp gaps are blindness.
+        self._omits_empty_frames = omits_empty_frames or (lambda _fleet: False)
         # Epoch of a robot's partition at this instance, for states and checkpoints.
         self._epoch_of = epoch_of if epoch_of is not None else (lambda _fleet, _robot: 1)
         self._max_pairs = max_pairs_per_frame  # 0: no budget
@@ -634,7 +637,9 @@ class SessionTable:
             if refusal is not None:
                 out.reject(fleet, robot, session_id, ErrorCode.SESSION_LIMIT, refusal, run[0].seq)
                 return
-            segmenter = make_segmenter(self._method, self._params, self._area_params)
+            omitted = self._omits_empty_frames(fleet)
+            areas = self._area_params.for_stream(empty_frames_omitted=omitted)
+            segmenter = make_segmenter(self._method, self._params, areas)
             current = RobotSession(fleet, robot, session_id, segmenter, now_s)
             self._phase_checkpoints(current, now_s)
             self._open[key] = current
