@@ -49,7 +49,7 @@ def test_two_rooms_print_one_transition_and_a_summary(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = write_frames(tmp_path / "rooms.frames.jsonl")
-    code, records, err = run(["segment", str(path)], capsys)
+    code, records, err = run(["segment", str(path), "--method", "paper"], capsys)
     assert code == 0
     assert err == ""
     [transition, summary] = records
@@ -80,6 +80,29 @@ def test_two_rooms_print_one_transition_and_a_summary(
     assert summary["params"] == {"ncut_min": 0.25, "lambda2_min": 0.2, "seed_mode": "seed"}
 
 
+def test_the_default_method_is_areas(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_frames(tmp_path / "rooms.frames.jsonl")
+
+    def records(*argv: str) -> list[Any]:
+        code, found, err = run(["segment", str(path), *argv], capsys)
+        assert (code, err) == (0, "")
+        for record in found:  # timings differ from run to run
+            record.pop("elapsed_s", None)
+            record.pop("ms_per_frame", None)
+        return found
+
+    default = records()
+    assert default == records("--method", "areas")
+    assert default != records("--method", "paper")
+    [transition, summary] = default
+    assert (summary["method"], summary["areas_per_robot"]) == ("areas", {"r1": 2})
+    assert summary["params"]["min_area_features"] == 5  # the area tracker's parameters
+    assert (transition["area"], transition["left_area"], transition["rule"]) == (1, 0, "split")
+    # The area graph needs the areas method: the default has it.
+    assert main(["segment", str(path), "--area-graph", str(tmp_path / "g.json")]) == 0
+    assert (tmp_path / "g.json").is_file()
+
+
 def test_robots_are_segmented_independently_and_can_be_selected(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -105,12 +128,12 @@ def test_profile_and_overrides_reach_the_partitioner(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = write_frames(tmp_path / "rooms.frames.jsonl")
-    argv = ["segment", str(path), "--profile", "monocular", "--seed-mode", "fresh"]
-    code, records, _ = run(argv, capsys)
+    argv = ["segment", str(path), "--method", "paper", "--profile", "monocular"]
+    code, records, _ = run([*argv, "--seed-mode", "fresh"], capsys)
     assert code == 0
     assert records[-1]["params"] == {"ncut_min": 0.1, "lambda2_min": 0.1, "seed_mode": "fresh"}
     # Ncut 0 is never reached by a connected split: no transition at all.
-    code, records, _ = run(["segment", str(path), "--ncut-min", "0"], capsys)
+    code, records, _ = run(["segment", str(path), "--method", "paper", "--ncut-min", "0"], capsys)
     assert code == 0
     assert records[-1]["transitions"] == 0
 
@@ -285,7 +308,16 @@ def test_user_errors_exit_1_with_one_line(
 @pytest.mark.skipif(not DLR.is_file(), reason=f"data set not present: {DLR}")
 def test_console_script_on_the_dlr_data_set() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "lessmap", "segment", "../shared/datasets/dlr.frames.jsonl"],
+        # The paper's partitioner: its thresholds and submap chain are what is checked.
+        [
+            sys.executable,
+            "-m",
+            "lessmap",
+            "segment",
+            "--method",
+            "paper",
+            str(DLR.relative_to(ROOT)),
+        ],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -385,7 +417,7 @@ def test_robots_with_their_own_feature_ids_stay_apart(
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--area-graph", "OUT"], "--area-graph needs --method areas"),
+        (["--method", "paper", "--area-graph", "OUT"], "--area-graph needs --method areas"),
         (["--method", "areas", "--shared-features"], "--shared-features needs --area-graph"),
         (["--method", "areas", "--area-graph", "nowhere/OUT"], "nowhere"),
     ],

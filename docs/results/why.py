@@ -70,9 +70,9 @@ def _partitioner(rec: RecordedResults) -> list[str]:
         f"- Submaps hold {paper.size_median:g} features (median; max {paper.size_max}); "
         f"{paper.small} hold fewer than 5.",
         "",
-        f"Commands: `lessmap segment {path}` lists each transition with its reason and Ncut; "
-        f"`lessmap eval {path} --no-sweep` prints the submap sizes; the sweep table above "
-        "counts SPECTRAL and DISCONNECTED per threshold pair.",
+        f"Commands: `lessmap segment --method paper {path}` lists each transition with its "
+        f"reason and Ncut; `lessmap eval {path} --no-sweep` prints the submap sizes; the sweep "
+        "table above counts SPECTRAL and DISCONNECTED per threshold pair.",
         "",
     ]
     return lines

@@ -7,12 +7,13 @@ They are fields of the service's settings (``serve``) and flags of the offline c
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from lessmap.core import PROFILES, PartitionParams, SeedMode
 from lessmap.core.areas import AreaParams
+from lessmap.core.segmenter import DEFAULT_METHOD as _DEFAULT_METHOD
 from lessmap.errors import ConfigError
 from lessmap.flags import add_flags, flag_specs, given
 
@@ -21,9 +22,11 @@ if TYPE_CHECKING:
 
 TITLE = "partitioning (LESS-mapping Eq. 4)"
 
-#: The offline segmentation methods: ``paper`` is LESS-mapping as published (the default);
-#: ``areas`` is ``lessmap.core.areas`` (pooled evidence, confirmed splits, named revisits).
+#: The segmentation methods: ``paper`` is LESS-mapping as published; ``areas`` is
+#: ``lessmap.core.areas`` (pooled evidence, confirmed splits, named revisits; the default).
 METHODS = ("paper", "areas")
+#: The default method's name, for the offline commands and ``lessmap serve``.
+DEFAULT_METHOD: Final = _DEFAULT_METHOD.value
 
 
 class PartitionSettings(BaseModel):
@@ -89,14 +92,15 @@ def partition_params(args: argparse.Namespace) -> PartitionParams:
 
 
 def add_method_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--method`` and ``--empty-frames-omitted`` (offline commands; ``serve`` has its own)."""
+    """Add ``--method`` (default ``areas``, as ``lessmap serve --method``) and
+    ``--empty-frames-omitted``."""
     parser.add_argument(
         "--method",
         choices=METHODS,
-        default="paper",
-        help="paper: LESS-mapping as published (default); areas: pooled evidence, "
-        "confirmed splits of at least 5 features, revisits named (the proposer's thresholds "
-        "are Ncut 0.4, λ2 0.4 unless --ncut-min/--lambda2-min are given)",
+        default=DEFAULT_METHOD,
+        help="areas (default): pooled evidence, confirmed splits of at least 5 features, "
+        "revisits named (the proposer's thresholds are Ncut 0.4, λ2 0.4 unless "
+        "--ncut-min/--lambda2-min are given); paper: LESS-mapping as published",
     )
     parser.add_argument(
         "--empty-frames-omitted",

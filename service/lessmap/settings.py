@@ -30,7 +30,11 @@ from pydantic_settings.sources import InitSettingsSource
 
 from lessmap.errors import ConfigError
 from lessmap.flags import Flag, FlagSpec, add_flags, describe_path, given, lookup
-from lessmap.partition_options import TITLE as PARTITION_TITLE, PartitionSettings
+from lessmap.partition_options import (
+    DEFAULT_METHOD,
+    TITLE as PARTITION_TITLE,
+    PartitionSettings,
+)
 from lessmap_schemas.keys import validate_name
 from lessmap_schemas.limits import (
     MAX_DETAIL_LEN,
@@ -106,9 +110,9 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         description="seconds before an idle session is evicted (closed when memory-only)",
     )
     method: Literal["paper", "areas"] = Field(
-        "paper",
-        description="segmentation of new sessions: paper = LESS-mapping as published; areas = "
-        "confirmed splits, revisits named (a session keeps the method it started with)",
+        DEFAULT_METHOD,
+        description="segmentation of new sessions: areas = confirmed splits, revisits named; "
+        "paper = LESS-mapping as published (a session keeps the method it started with)",
     )
     # Rule 3b of the areas method reads a stamp gap as blindness only in a stream that
     # leaves out its empty frames; elsewhere a gap is a stall or a loss (AreaParams).

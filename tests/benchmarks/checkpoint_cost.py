@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
+from lessmap.core.segmenter import Method
 from lessmap.frames_file import read_frames
 from lessmap.runtime.sessions import SessionTable, commit_checkpoints
 from lessmap.runtime.store import CheckpointStore
@@ -37,6 +38,7 @@ def run(frames: list[tuple[str, Frame]], every: int | None) -> tuple[float, floa
         store.open()
         table = SessionTable(
             PartitionParams.from_profile("laser"),
+            method=Method.PAPER,  # the method of the figures in docs/BENCHMARKS.md
             max_sessions=1000,
             max_nodes=20_000,
             max_batch_frames=1,

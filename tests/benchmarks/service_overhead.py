@@ -41,6 +41,7 @@ import zenoh
 from threadpoolctl import threadpool_limits
 
 from lessmap.core import Partitioner, PartitionParams
+from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.receiver import Receiver
@@ -116,6 +117,7 @@ def time_worker(
         )
         table = SessionTable(
             PartitionParams.from_profile("laser"),
+            method=Method.PAPER,  # the method of the core it is compared with
             max_sessions=robots,
             max_nodes=100_000,
             max_batch_frames=256,
@@ -151,6 +153,7 @@ def time_receive(session: zenoh.Session, items: Sequence[Inbound], per_sweep: in
     metrics = ServiceMetrics()
     table = SessionTable(
         PartitionParams.from_profile("laser"),
+        method=Method.PAPER,
         max_sessions=1,
         max_nodes=10,
         max_batch_frames=1,

@@ -22,7 +22,8 @@ pytestmark = pytest.mark.timeout(120)
 
 # Robots walk 2 m/s with short pauses so that, in 50 frames, several of them cross a door
 # (seed 2: all five do, offline). With --max-batch-frames 1 the service decides at every
-# frame, so its transitions are exactly the core's on the same streams.
+# frame, so its transitions are exactly the core's on the same streams: the paper's
+# partitioner on both sides (`method`), as `offline_transitions` runs it.
 SPEC = LoadSpec(
     robots=5,
     rate_hz=10.0,
@@ -34,6 +35,7 @@ SPEC = LoadSpec(
     dwell_s=(0.0, 1.0),
     max_batch_frames=1,
     baseline_robots=1,
+    method="paper",
 )
 
 

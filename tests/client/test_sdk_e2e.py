@@ -11,7 +11,8 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from lessmap.core import Partitioner, PartitionParams
+from lessmap.core import PartitionParams
+from lessmap.core.segmenter import make_segmenter
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_schemas.errors import InvalidNameError, WireError
 from tests.conftest import REPO, ServeProcess, free_port, wait_until
@@ -40,8 +41,13 @@ def two_room_walk(rooms: int = 3, per_room: int = 30) -> list[list[int]]:
 
 
 def offline_seqs(frames: list[list[int]]) -> list[int]:
-    partitioner = Partitioner(PartitionParams.from_profile("laser"))
-    return [t.seq for seq, f in enumerate(frames) if (t := partitioner.observe(seq, 0.0, f))]
+    """Transition seqs of the service's default method (areas), deciding at every frame."""
+    segmenter = make_segmenter("areas", PartitionParams.from_profile("laser"))
+    seqs = []
+    for seq, features in enumerate(frames):
+        segmenter.apply(seq, 0.0, features)
+        seqs += [change.transition.seq for change in segmenter.decide()]
+    return seqs
 
 
 def test_round_trip_late_join_and_queries(
@@ -252,8 +258,10 @@ def test_watch_command_shows_transitions(
         session = client_session(service.endpoint)
         time.sleep(2.0)  # let the watcher subscribe (it also recovers history, but be live)
         with RobotPublisher(fleet_name, "seen", session=session) as robot:
-            for features in two_room_walk():
-                robot.publish(features)
+            # Sensor stamps, not the wall clock: under the default method a stall of this
+            # process at a door would read as the robot not seeing it (areas, rule 3b).
+            for seq, features in enumerate(two_room_walk()):
+                robot.publish(features, stamp_s=seq / 10)
         out, err = watch.communicate(timeout=60)
     finally:
         if watch.poll() is None:

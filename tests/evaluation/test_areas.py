@@ -142,7 +142,7 @@ def test_segment_method_areas_prints_areas(
     assert summary["params"]["ncut_min"] == 0.44
     assert summary["params"]["merge_overlap"] == AreaParams().merge_overlap
     assert summary["params"]["weak_frames"] == AreaParams().weak_frames  # every setting listed
-    assert main(["segment", str(path), "--summary-only"]) == 0
+    assert main(["segment", str(path), "--method", "paper", "--summary-only"]) == 0
     paper = json.loads(capsys.readouterr().out)
     assert "method" not in paper
     assert paper["params"]["ncut_min"] == 0.25

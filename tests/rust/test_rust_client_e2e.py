@@ -119,9 +119,9 @@ def follower_output(follower: subprocess.Popen[bytes], out: Path) -> list[dict[s
 
 
 def offline_segment(path: Path) -> list[dict[str, Any]]:
-    """The transitions ``lessmap segment FILE`` prints (its last line is a summary)."""
+    """The transitions ``lessmap segment --method paper FILE`` prints (then a summary line)."""
     result = subprocess.run(
-        [sys.executable, "-m", "lessmap", "segment", str(path)],
+        [sys.executable, "-m", "lessmap", "segment", "--method", "paper", str(path)],
         capture_output=True,
         text=True,
         timeout=600,
@@ -142,8 +142,9 @@ def test_rust_publisher_and_subscriber_reproduce_offline_segment(
     path = dataset("dlr.frames.jsonl")
     expected = offline_segment(path)
     frames = sum(1 for line in path.read_text().splitlines() if line.strip())
-    # max-batch-frames 1: decide at every frame, whatever the pace, as the offline run does.
-    service = serve("--max-batch-frames", "1")
+    # max-batch-frames 1: decide at every frame, whatever the pace, as the offline run does;
+    # the paper on both sides, whose every printed field is compared below.
+    service = serve("--max-batch-frames", "1", "--method", "paper")
     follower, out = start_follower(examples, processes, service, fleet_name, tmp_path)
 
     replay = subprocess.run(

@@ -1,5 +1,6 @@
-"""``lessmap serve --method areas`` end to end: a robot walks a simulated building, the fleet
-app sees its revisits named, and the ``areas`` query answers the area graph."""
+"""``lessmap serve`` end to end, each method and the default (areas): a robot walks a
+simulated building, the fleet app sees its revisits named, and the ``areas`` query answers the
+area graph."""
 
 from __future__ import annotations
 
@@ -34,13 +35,15 @@ def walk() -> list[tuple[int, float, list[int]]]:
     return [(f["seq"], f["stamp"], list(f["features"])) for f in run.frames]
 
 
-@pytest.mark.parametrize("method", list(Method))
+@pytest.mark.parametrize("chosen", [*Method, None], ids=[*Method, "default"])
 def test_served_changes_and_area_graph_equal_the_segmenter_offline(
-    method: Method,
+    chosen: Method | None,
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
     fleet_name: str,
 ) -> None:
+    # None: `serve` without --method, whose sessions run areas (the default since issue 18).
+    method = Method.AREAS if chosen is None else chosen
     frames = walk()
     offline = make_segmenter(method, PartitionParams.from_profile("laser"))
     expected = []
@@ -50,7 +53,7 @@ def test_served_changes_and_area_graph_equal_the_segmenter_offline(
             (c.transition.seq, c.reason, c.area, c.left_area, c.revisit_of is not None)
             for c in offline.decide()
         ]
-    service = start_service(serve, "--method", method.value)
+    service = start_service(serve, method=None if chosen is None else chosen.value)
     session = client_session(service.endpoint)
     with FleetClient(fleet_name, session=session) as client:
         with RobotPublisher(fleet_name, "amr", session=session) as robot:

@@ -84,7 +84,8 @@ def test_oversized_pair_work_is_refused_and_the_good_robot_is_exact(
 ) -> None:
     frames = list(read_frames(dataset("dlr.frames.jsonl")))
     expected = offline_transitions(frames)["0"]
-    service = serve(metrics=True)  # default coalescing and budgets
+    # Default coalescing and budgets; the paper, as the reference `offline_transitions`.
+    service = serve("--method", "paper", metrics=True)
     session = client_session(service.endpoint)
     errors = Errors(session, fleet_name)
     bad_key = keys.frames(fleet_name, "bad")
@@ -134,7 +135,7 @@ def test_a_heavy_robot_within_budget_does_not_change_the_good_robots_segmentatio
 ) -> None:
     frames = list(read_frames(dataset("dlr.frames.jsonl")))
     expected = offline_transitions(frames)["0"]
-    service = serve(metrics=True)
+    service = serve("--method", "paper", metrics=True)  # as `offline_transitions`
     session = client_session(service.endpoint)
     errors = Errors(session, fleet_name)
     heavy_key = keys.frames(fleet_name, "heavy")

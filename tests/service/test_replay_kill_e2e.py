@@ -40,7 +40,7 @@ def test_kill_9_during_replay_loses_nothing_and_replay_exits_zero(
     path = dataset("dlr.frames.jsonl")
     frames = list(read_frames(path))
     expected = offline_transitions(frames)["0"]
-    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1")
+    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", "paper")
     session = client_session(router)
     with FleetClient(fleet_name, session=session) as client:
         first = serve(*options)

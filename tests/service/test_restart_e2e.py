@@ -43,7 +43,7 @@ def test_sigterm_and_restart_resume_every_session_exactly(
     frames = list(read_frames(dataset("dlr.frames.jsonl")))
     expected = offline_transitions(frames)["0"]
     half = len(frames) // 2
-    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1")
+    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", "paper")
     session = client_session(router)
     with FleetClient(fleet_name, session=session) as client:
         robot = RobotPublisher(fleet_name, "dlr", session=session)
@@ -161,7 +161,7 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     # x 10 s): cache and catch-up are sized for that, and the cache gets time to answer
     # (with the 1000-frame defaults a slow restart rightly reported frames as missing).
     options = (
-        *("-m", "peer", "-e", router, "--max-batch-frames", "1"),
+        *("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", "paper"),
         *("--checkpoint-every-frames", "300"),
         *("--catchup-max-frames", "3000", "--catchup-wait-s", "10"),
     )

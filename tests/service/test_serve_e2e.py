@@ -33,7 +33,7 @@ pytestmark = pytest.mark.timeout(240)
 
 
 def offline_transitions(frames: Iterable[FrameRow]) -> dict[str, list[dict[str, Any]]]:
-    """Per robot, the transitions ``lessmap segment`` computes (laser profile)."""
+    """Per robot, the transitions ``lessmap segment --method paper`` computes (laser profile)."""
     found: dict[str, list[dict[str, Any]]] = {}
 
     def keep(robot: str, t: Any) -> None:
@@ -88,11 +88,16 @@ def wait_closed(client: FleetClient, fleet: str, robot: str, frames: int) -> Ses
 
 
 def start_service(
-    serve: Callable[..., ServeProcess], *extra: str, metrics: bool = False
+    serve: Callable[..., ServeProcess],
+    *extra: str,
+    metrics: bool = False,
+    method: str | None = "paper",
 ) -> ServeProcess:
     # max-batch-frames 1: decide at every frame, whatever the pace, so results are comparable
-    # with the offline run bit for bit.
-    return serve("--max-batch-frames", "1", *extra, metrics=metrics)
+    # with the offline run bit for bit. The paper unless told otherwise: these tests compare
+    # with `offline_transitions`, the paper's partitioner; None runs the service's default.
+    chosen = () if method is None else ("--method", method)
+    return serve("--max-batch-frames", "1", *chosen, *extra, metrics=metrics)
 
 
 def test_dlr_replay_equals_offline_segment(

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from lessmap.core import Partitioner, PartitionParams, Reason, Transition
+from lessmap.core.segmenter import Method
 from lessmap.runtime.sessions import Outcome, SessionTable
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame, SessionEnd
@@ -40,8 +41,11 @@ def make_table(
     idle_timeout_s: float = 60.0,
     params: PartitionParams = LASER,
 ) -> SessionTable:
+    # The paper, as the offline `Partitioner` these tests compare with (areas sessions:
+    # test_areas_sessions.py).
     return SessionTable(
         params,
+        method=Method.PAPER,
         max_sessions=max_sessions,
         max_nodes=max_nodes,
         max_batch_frames=max_batch_frames,

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from prometheus_client import generate_latest
 
 from lessmap.core import Partitioner, PartitionParams
+from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.sessions import Outcome, SessionTable
@@ -64,6 +65,7 @@ def make_shard(
     )
     table = SessionTable(
         PartitionParams.from_profile("laser"),
+        method=Method.PAPER,  # the tests count the paper's decisions
         max_sessions=8,
         max_nodes=10_000,
         max_batch_frames=256,

@@ -77,7 +77,9 @@ def test_a_pause_longer_than_the_idle_timeout_changes_nothing(
 ) -> None:
     frames = list(read_frames(dataset("dlr.frames.jsonl")))[:1200]
     expected = offline_transitions(frames)["0"]
-    service = serve("--max-batch-frames", "1", "--idle-timeout", "1", metrics=True)
+    service = serve(
+        "--max-batch-frames", "1", "--idle-timeout", "1", "--method", "paper", metrics=True
+    )
     session = client_session(service.endpoint)
     with FleetClient(fleet_name, session=session) as client:
         with RobotPublisher(fleet_name, "dlr", session=session) as robot:

@@ -395,9 +395,9 @@ def test_record_writes_the_same_channels_to_mcap(
     assert [r["robot"] for r in final["robots"]] == ROBOTS
     assert {r["frames_applied"] for r in final["robots"]} == {FRAMES}
     assert {r["submap"] for r in final["robots"]} == {1}
-    # --shared-features: each robot's place, its current area's fleet area (paper: area =
-    # submap), as the SDK's merge names it.
-    assert {(r["method"], r["area"]) for r in final["robots"]} == {("paper", 1)}
+    # --shared-features: each robot's place, its current area's fleet area, as the SDK's
+    # merge names it. The service's default method, areas: the walk's second room is area 1.
+    assert {(r["method"], r["area"]) for r in final["robots"]} == {("areas", 1)}
     assert sorted(places) == ROBOTS
     assert {r["robot"]: r["place"] for r in final["robots"]} == places
     scenes = b"".join(payloads["/lessmap/scene"])

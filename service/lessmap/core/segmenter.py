@@ -65,6 +65,11 @@ class Method(StrEnum):
     AREAS = "areas"  # ``AreaTracker``: confirmed changes, recognised revisits
 
 
+#: The method of a new session and of the offline commands unless one is chosen (issue 18:
+#: ``areas`` met its targets). ``paper`` stays one flag away (``--method paper``).
+DEFAULT_METHOD: Final = Method.AREAS
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SegmentChange:
     """The robot left one area for another: the segment closed and opened, and the areas."""

@@ -74,7 +74,12 @@ from typing import TYPE_CHECKING, Any
 
 from lessmap.core import GraphError, PartitionParams
 from lessmap.core.areas import AreaParams
-from lessmap.core.segmenter import Method, make_segmenter, segmenter_from_bytes
+from lessmap.core.segmenter import (
+    DEFAULT_METHOD,
+    Method,
+    make_segmenter,
+    segmenter_from_bytes,
+)
 from lessmap.runtime.budget import pairs_of
 from lessmap.runtime.store import SessionRecord
 from lessmap_schemas.errors import ErrorCode
@@ -329,7 +334,7 @@ class SessionTable:
         self,
         params: PartitionParams,
         *,
-        method: Method = Method.PAPER,
+        method: Method = DEFAULT_METHOD,
         area_params: AreaParams | None = None,
         omits_empty_frames: Callable[[str], bool] | None = None,
         max_sessions: int,

@@ -50,7 +50,7 @@ class LoadSpec:
     instances: int = 1
     kill_after_s: float | None = None  # kill -9 one instance this long into the load
     memory_only: bool = False  # True: `serve --memory-only` (no session checkpoints)
-    method: str | None = None  # `serve --method` (None: the service default, paper)
+    method: str | None = None  # `serve --method` (None: the service default, areas)
     # True: the generators run on the last CPU only. Robots publish from their own machines;
     # here they time-slice with the service on both cores and slow it by evicting its caches.
     pin_generators: bool = False

@@ -672,7 +672,7 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--method",
         choices=["paper", "areas"],
-        help="segmentation method of the service's sessions (default: its own, paper)",
+        help="segmentation method of the service's sessions (default: its own, areas)",
     )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument(

@@ -440,11 +440,12 @@ def offline_baseline(
     from threadpoolctl import threadpool_limits
 
     from lessmap.core import PartitionParams
-    from lessmap.core.segmenter import make_segmenter
+    from lessmap.core.segmenter import DEFAULT_METHOD, make_segmenter
 
     # The service's method (``serve --method``), through the segmenter a session drives:
     # a service running ``areas`` measured against the paper's core would flatter neither.
-    chosen = method or "paper"
+    # None is the service's default, as ``LoadSpec.method`` None runs ``serve`` without one.
+    chosen = method or DEFAULT_METHOD
     params = PartitionParams.from_profile("laser")
     frames = sum(len(s) for s in streams)
     every = max(1, round(frames_per_decision)) if not math.isnan(frames_per_decision) else 1

@@ -13,6 +13,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from lessmap.core.segmenter import DEFAULT_METHOD
 from tests.benchmarks.fleet.loadgen import LoadSpec
 
 _QUEUE_P99_TARGET_S = 0.25
@@ -361,7 +362,7 @@ def format_report(r: LoadReport) -> str:
         f"service: {s.instances} instance(s); {_own(s.workers)} shard(s), max batch frames "
         f"{_own(s.max_batch_frames)}, batch linger {_own(s.batch_linger_ms)} ms, "
         f"{'memory only' if s.memory_only else 'session checkpoints on'}, "
-        f"method {s.method or 'paper'}"
+        f"method {s.method or DEFAULT_METHOD}"
         + ("; generators pinned to the last CPU" if s.pin_generators else ""),
         "",
         f"frames      offered {r.offered}  applied {r.applied}  LOST {r.lost}  missing "
@@ -404,8 +405,8 @@ def format_report(r: LoadReport) -> str:
         f"({100 * rss[2]:+.1f} %): {'flat' if r.rss_flat else 'GROWING'}",
         f"            RSS samples (s: MiB) {_rss_line(r.rss_samples)}",
         "",
-        f"baseline    same streams, core ({s.method or 'paper'}) in this process, its thread's "
-        f"CPU ({r.baseline_frames} frames of {r.baseline_robots} robots):",
+        f"baseline    same streams, core ({s.method or DEFAULT_METHOD}) in this process, its "
+        f"thread's CPU ({r.baseline_frames} frames of {r.baseline_robots} robots):",
         f"  core observe (apply + decide every frame)   {r.baseline_observe_us:8.0f} µs/frame",
         f"  core apply only (areas: all of its work)    {r.baseline_apply_us:8.0f} µs/frame",
         f"  core at the service's coalescing ({r.frames_per_decision:.2f} f/d)  "
