@@ -100,10 +100,7 @@ def test_rmw_zenoh_topics_become_frames_and_transitions(
     from lessmap_schemas.codec import decode
     from lessmap_schemas.messages import Frame, Transition
 
-    # The paper, whose decisions read no stamps: under the default (areas, whose rule 3b
-    # reads a gap between stamps as the robot seeing nothing) one run on a loaded machine
-    # left amr3 (the MarkerArray topic) without its transition.
-    service = serve("--memory-only", "--max-batch-frames", "1", "--method", "paper")
+    service = serve("--memory-only", "--max-batch-frames", "1")
     bridge = start_bridge(
         service.endpoint,
         fleet_name,
