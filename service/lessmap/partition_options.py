@@ -92,8 +92,7 @@ def partition_params(args: argparse.Namespace) -> PartitionParams:
 
 
 def add_method_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--method`` (default ``areas``, as ``lessmap serve --method``) and
-    ``--empty-frames-omitted``."""
+    """Add ``--method`` (default ``areas``, as ``serve``'s) and ``--empty-frames-omitted``."""
     parser.add_argument(
         "--method",
         choices=METHODS,
