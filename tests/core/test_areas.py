@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import io
+import json
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -124,6 +128,30 @@ def test_garbage_and_other_versions_are_graph_errors() -> None:
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(b"garbage")
     data = to_bytes(AreaTracker())
-    assert AREAS_SNAPSHOT_VERSION == 7
+    assert AREAS_SNAPSHOT_VERSION == 8
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(data[: len(data) // 2])
+
+
+def test_a_version_7_snapshot_resumes_under_the_default_bound() -> None:
+    # Sessions checkpointed before rule 9 resume: version 7 had no max_area_sightings.
+    tracker = AreaTracker(AreaParams(max_area_sightings=50))
+    for seq in range(40):
+        tracker.observe(seq, seq * 0.1, [seq % 12, (seq + 1) % 12, 100 + seq % 5])
+    with np.load(io.BytesIO(to_bytes(tracker)), allow_pickle=False) as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    meta = json.loads(arrays["meta"].tobytes().decode())
+    meta["version"] = 7
+    del meta["params"]["max_area_sightings"]
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    old = from_bytes(buffer.getvalue())
+    assert old.params == replace(tracker.params, max_area_sightings=100_000)
+    assert old.sightings == tracker.sightings > 0
+    meta["version"] = 6
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    with pytest.raises(GraphError, match="version 6, expected one of 7, 8"):
+        from_bytes(buffer.getvalue())

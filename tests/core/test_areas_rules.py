@@ -572,3 +572,51 @@ def test_restoring_at_every_frame_keeps_recognition_and_merges(seed: int) -> Non
 def test_invalid_rule_params_are_named(field: str, value: float) -> None:
     with pytest.raises(GraphError, match=field):
         AreaParams(**{field: value})  # type: ignore[arg-type]
+
+
+# -- rule 9: bounded area models -------------------------------------------------------------
+
+ROOMS = [frozenset(range(1000 * k, 1000 * k + 10)) for k in range(1, 7)]
+
+
+def tour(rng: np.random.Generator) -> Frames:
+    """Six rooms of their own landmarks, room 0 the longest, then back to room 0."""
+    frames = stay(rng, ROOMS[0], 60)
+    for room in ROOMS[1:]:
+        frames += stay(rng, room, 30)
+    return frames + stay(rng, ROOMS[0], 30)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_area_models_stay_bounded_and_forget_the_smallest_areas(seed: int) -> None:
+    frames = tour(np.random.default_rng(seed))
+    _, free = track(frames, AreaParams(max_area_sightings=0))
+    assert moves(free)[-1] == (5, 0)  # unbounded: room 0 is entered again
+    bound = 40  # four rooms' worth
+    tracker = AreaTracker(AreaParams(max_area_sightings=bound))
+    found = []
+    for seq, frame in enumerate(frames):
+        change = tracker.observe(seq, seq * 0.5, frame)
+        found += [change] if change is not None else []
+        assert tracker.sightings == sum(map(len, tracker.areas))
+        assert tracker.sightings <= bound
+        # the state round-trips with the bound (the count of sightings is derived)
+        restored = from_bytes(to_bytes(tracker))
+        assert restored.sightings == tracker.sightings
+        assert to_bytes(restored) == to_bytes(tracker)
+    forgotten = [a for a in range(len(tracker.areas)) if not tracker.areas[a]]
+    assert forgotten == [1, 2, 3, 4]  # the smallest went first: room 0 has 60 frames, they 30
+    assert all(tracker.area_frames[a] == 30 for a in forgotten)  # their frames stay counted
+    assert moves(found) == moves(free)  # room 0 was kept, and recognised again
+    # a bound that forgets room 0 too: the robot's return opens a new area
+    _, forgetful = track(frames, AreaParams(max_area_sightings=30))
+    assert moves(forgetful)[:5] == moves(free)[:5]
+    assert (forgetful[-1].area, forgetful[-1].revisit_of) == (6, None)
+
+
+def test_the_bound_changes_nothing_below_it() -> None:
+    frames = tour(np.random.default_rng(0))
+    _, free = track(frames, AreaParams(max_area_sightings=0))
+    _, default = track(frames)
+    assert default == free
+    assert AreaParams().max_area_sightings >= 100 * sum(map(len, ROOMS))

@@ -6,6 +6,8 @@ import time
 from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
+from lessmap.core.areas import AreaParams
+from lessmap.core.segmenter import SIGHTING_EDGES, Method
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission, pairs_of
 from lessmap.runtime.sessions import SessionTable, commit_checkpoints
 from lessmap.runtime.store import CheckpointStore
@@ -29,9 +31,14 @@ def make_table(
     store: CheckpointStore | None = None,
     max_sessions: int = 8,
     max_batch_frames: int = 256,
+    method: Method = Method.PAPER,
+    area_params: AreaParams | None = None,
 ) -> SessionTable:
+    # The paper by default: most tests here pin the CovGraph's own charge.
     return SessionTable(
         LASER,
+        method=method,
+        area_params=area_params,
         max_sessions=max_sessions,
         max_nodes=20_000,
         max_batch_frames=max_batch_frames,
@@ -156,3 +163,29 @@ def test_decide_every_lowers_the_coalescing_of_one_call_only() -> None:
     one = make_table(max_batch_frames=1)
     out = one.handle_batch(run, 0.0, decide_every=256)  # never above max_batch_frames
     assert [batch for _seconds, batch in out.decisions] == [1] * 10
+
+
+def test_an_areas_session_is_charged_its_area_models_which_stay_bounded() -> None:
+    # A robot that opens area after area of new features: its area models would grow
+    # without end; rule 9 bounds them and the edge budgets see them.
+    bound = 400
+    ledger = EdgeLedger(1, max_edges_total=10**9)
+    table = make_table(
+        method=Method.AREAS, area_params=AreaParams(max_area_sightings=bound), ledger=ledger
+    )
+    charges = []
+    for room in range(60):
+        landmarks = range(1000 * room, 1000 * room + 20)
+        run = [frame(room * 30 + k, landmarks) for k in range(30)]
+        out = table.handle_batch([(FLEET, "r", f) for f in run], 0.0)
+        assert out.rejections == []
+        session = table._open[(FLEET, "r")]  # the segmenter behind the state
+        tracker = session.segmenter.tracker  # type: ignore[attr-defined]
+        assert tracker.sightings <= bound
+        graph = tracker.proposer.graph.memory_edges
+        assert ledger.total() == graph + SIGHTING_EDGES * tracker.sightings
+        charges.append(ledger.total())
+    state = table.state(FLEET, "r")
+    assert state is not None
+    assert state.transitions >= 50  # a new area per room
+    assert max(charges[30:]) <= 2 * max(charges[:30])  # bounded, not growing with areas

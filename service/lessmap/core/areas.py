@@ -74,6 +74,12 @@ it is, measured with ``python -m lessmap.evaluation.areabench``):
    round-trips through ``lessmap.core.areas_snapshot`` bit for bit; the proposer is a
    ``Partitioner``, so its state is the paper's snapshot. Cached profiles are derived from
    those fields, summed in their (preserved) order, so a restored tracker gets equal floats.
+9. **Bounded models.** The area models hold at most ``max_area_sightings`` (feature, area)
+   sightings. Above it the areas other than the current one with the fewest non-empty
+   frames (then the lowest id) forget their features, until 3/4 of the bound is left: a
+   forgotten area keeps its id, its frame count and its place in the area graph, but is no
+   longer entered again or recognised (rules 4-6 skip it). Checked after each frame added
+   and each settle; the number of sightings is derived from the models, not stored.
 
 No I/O, no clock, no logging: frames in, ``AreaTransition`` out. The parameters are in
 ``areas_params``, the reported types in ``areas_events``, the likelihoods and overlaps in
@@ -151,6 +157,7 @@ class AreaTracker:
         self.areas: list[dict[int, int]] = [{}]
         self.area_frames: list[int] = [0]  # non-empty frames per area
         self.merged: dict[int, int] = {}  # merged area -> the area it merged into
+        self.sightings = 0  # entries of ``areas`` (rule 9), derived: not in the snapshot
         self.current = 0
         self.candidate: Candidate | None = None
         self.last_seq: int | None = None
@@ -227,9 +234,13 @@ class AreaTracker:
         self._forget_gaps()
         count(self.segment_counts, seen)
         if seen:
-            count(self.areas[self.current], seen)
+            counts = self.areas[self.current]
+            known = len(counts)
+            count(counts, seen)
+            self.sightings += len(counts) - known
             self.area_frames[self.current] += 1
             self._profiles.pop(self.current, None)
+            self._bound_models()
         closed = self.pool.add(seq, seen)
         if closed is not None:
             self.proposer.apply(closed[0], self.last_stamp_s, closed[1])
@@ -242,6 +253,11 @@ class AreaTracker:
         anything, may be recognised (rule 5), all at the last frame added. Call it once after
         the frames it covers: it tests the last frame again if called twice.
         """
+        change = self._settle()
+        self._bound_models()
+        return change
+
+    def _settle(self) -> AreaTransition | None:
         seq = self.last_seq
         if seq is None:
             return None
@@ -397,7 +413,33 @@ class AreaTracker:
     # -- rules 6, 7: the area model --------------------------------------------------------
 
     def _live(self) -> Iterable[int]:
-        return (area for area in range(len(self.areas)) if area not in self.merged)
+        """The areas a robot can enter again: neither merged nor forgotten (rule 9)."""
+        return (
+            area
+            for area in range(len(self.areas))
+            if area not in self.merged and (self.areas[area] or not self.area_frames[area])
+        )
+
+    def _bound_models(self) -> None:
+        """Forget the smallest areas' features while the models hold too many (rule 9)."""
+        bound = self.params.max_area_sightings
+        if not bound or self.sightings <= bound:
+            return
+        keep = bound - bound // 4
+        order = sorted(
+            (self.area_frames[area], area)
+            for area in range(len(self.areas))
+            if area != self.current and self.areas[area]
+        )
+        for _, area in order:
+            if self.sightings <= keep:
+                break
+            self.sightings -= len(self.areas[area])
+            self.areas[area] = {}
+            self._profiles.pop(area, None)
+
+    def _count_sightings(self) -> None:
+        self.sightings = sum(map(len, self.areas))
 
     def _merges_with(self, known: int, after: dict[int, int], moved: int) -> bool:
         """Merge ``known`` and the current area if they overlap enough (rule 6).
@@ -413,6 +455,7 @@ class AreaTracker:
         if overlap < self.params.merge_overlap:
             return False
         keep = merge(self.areas, self.area_frames, self.merged, current, known)
+        self._count_sightings()
         self.current = keep
         self._profiles.pop(current, None)
         self._profiles.pop(known, None)
@@ -437,6 +480,7 @@ class AreaTracker:
         else:
             area = known
         move(self.areas, self.area_frames, left, area, after, moved_nonempty)
+        self._count_sightings()
         self._profiles.pop(left, None)
         self._profiles.pop(area, None)
         # the segments (submaps) meet at the seam, at or after the area boundary

@@ -8,7 +8,7 @@ the areas' frame counts and the merged areas. The version number changes wheneve
 does (2: frame counts per area and merges, for recognition and merging; 3: the parameter
 ``familiar_relative``; 4: ``weak_ncut`` and ``weak_frames``; 5: ``blind_span`` and
 ``blind_margin``; 6: ``seam_frames``; 7: ``period_steps``, the last stamp steps and the
-kept frames that follow a stamp gap).
+kept frames that follow a stamp gap; 8: ``max_area_sightings``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,10 @@ from lessmap.core.areas import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.submaps import Reason
 
-AREAS_SNAPSHOT_VERSION = 7
+AREAS_SNAPSHOT_VERSION = 8
+#: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions
+#: checkpointed before the bound resume under it.
+READABLE_VERSIONS = (7, AREAS_SNAPSHOT_VERSION)
 
 _POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
 _INT_FIELDS = (
@@ -111,9 +114,9 @@ def from_bytes(data: bytes) -> AreaTracker:
         with np.load(io.BytesIO(data), allow_pickle=False) as archive:
             arrays = {name: archive[name] for name in archive.files}
         meta = json.loads(arrays["meta"].tobytes().decode())
-        if meta.get("version") != AREAS_SNAPSHOT_VERSION:
-            msg = f"area snapshot version {meta.get('version')!r}, expected "
-            msg += str(AREAS_SNAPSHOT_VERSION)
+        if meta.get("version") not in READABLE_VERSIONS:
+            msg = f"area snapshot version {meta.get('version')!r}, expected one of "
+            msg += ", ".join(map(str, READABLE_VERSIONS))
             raise GraphError(msg)
         proposer = snapshot.from_bytes(arrays["proposer"].tobytes())
         fields = dict(meta["params"])
@@ -144,6 +147,7 @@ def from_bytes(data: bytes) -> AreaTracker:
         )
         tracker.steps.extend(float.fromhex(step) for step in meta["steps"])
         tracker.gaps.extend((int(seq), int(missing)) for seq, missing in meta["gaps"])
+        tracker.sightings = sum(map(len, tracker.areas))
         tracker.area_frames = [int(n) for n in meta["area_frames"]]
         tracker.merged = {int(gone): int(into) for gone, into in meta["merged"]}
         for name, field in _POOL_FIELDS.items():
