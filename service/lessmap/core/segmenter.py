@@ -49,13 +49,12 @@ from lessmap.core.area_graph import (
 )
 from lessmap.core.areas import AreaParams, AreaTracker, AreaTransition
 from lessmap.core.errors import GraphError, StaleFrameError
+from lessmap.core.params import PartitionParams
 from lessmap.core.partitioner import Partitioner, _feature_ids  # rule 2: its own check
 from lessmap.core.submaps import Submap, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
-
-    from lessmap.core.params import PartitionParams
 
 
 class Method(StrEnum):
@@ -345,7 +344,7 @@ class AreasSegmenter:
         """Wrap a tracker and the builder fed its changes so far (new ones by default)."""
         self.tracker = tracker if tracker is not None else AreaTracker()
         self.builder = builder if builder is not None else AreaGraphBuilder()
-        bound = self.tracker.params.proposal.keep_closed_submaps
+        bound = PartitionParams().keep_closed_submaps  # the proposer keeps none (AreaParams)
         self._closed: deque[Submap] = deque(closed, maxlen=bound)
         self._held: list[SegmentChange] = list(held)  # found, not yet decided (rule 3)
         self._pending_frames = pending_frames
