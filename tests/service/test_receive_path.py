@@ -254,3 +254,47 @@ def test_frames_of_a_partition_on_its_way_are_held_then_handed_on_first_as_probe
     assert metric_value(text(), "lessmap_frames_received_total") == 4
     sub.undeclare()
     receiver.stop()
+
+
+def test_a_probe_reply_goes_behind_the_live_frames_already_received(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    # A take-over's probe asks a robot's cache for its newest frame while the robot still
+    # sends: the copy of frame 1 comes after the live frames 0 and 1, which wait in the
+    # channel for the next sweep. Handed to the shard at once, the copy came first, was
+    # applied beyond a gap, and the live frame 0 then counted as late and was never applied.
+    service_session, robot_session = client_session(router), client_session(router)
+    metrics = ServiceMetrics()
+    shard = make_shard(service_session, metrics, queue_depth=64)
+    mine = partition_of(FLEET, "mine")
+    receiver = Receiver(
+        [shard], metrics, max_payload_bytes=1000, queue_depth=64, owned=lambda p: p == mine
+    )
+    sub = service_session.declare_subscriber(keys.frames_of_every_partition(), receiver.channel())
+    receiver.watch({EVERY_PARTITION: sub})
+    # A second subscriber of the same session sees each sample when the receiver's does.
+    witness = service_session.declare_subscriber(
+        keys.frames_of_every_partition(), receiver.channel()
+    )
+    publisher = robot_session.declare_publisher(keys.frames(FLEET, "mine"))
+    wait_matched(publisher)
+    for seq in range(2):
+        publisher.put(item("mine", seq).payload)
+    seen = 0
+
+    def both_seen() -> bool:
+        nonlocal seen
+        while witness.handler.try_recv() is not None:
+            seen += 1
+        return seen == 2
+
+    wait_until(both_seen, 20.0, "the live frames in the channel (not swept yet)")
+    receiver.probe(item("mine", 1, PROBE))
+    assert shard.depth() == 0  # the reply waits for the sweep
+    wait_until(lambda: (receiver.sweep(), shard.depth())[1] == 3, 20.0, "the frames and the copy")
+    queued = list(shard._queue)
+    assert [i.payload for i in queued] == [item("mine", s).payload for s in (0, 1, 1)]
+    assert [i.kind for i in queued] == [0, 0, PROBE]
+    witness.undeclare()
+    sub.undeclare()
+    receiver.stop()

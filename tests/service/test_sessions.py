@@ -335,6 +335,24 @@ def test_frames_and_end_in_one_batch_then_a_straggler() -> None:
     assert (cause, final.frames_applied, final.last_seq) == ("ended", 2, 1)
 
 
+def test_a_cache_copy_behind_the_end_of_its_session_is_a_redelivery() -> None:
+    # A take-over's probe judged the cache's copy of frame 2 news while the session was
+    # open; the robot's own frame 2 and its end came first. The copy meets the closed
+    # session: a frame applied once, not a straggler (no SESSION_CLOSED, nothing counted).
+    table = make_table()
+    table.note_from_cache((FLEET, "r1"), "s1", 2)
+    outcome = table.handle_batch(msgs("r1", frame(0), frame(1), frame(2), end(2), frame(2)), 0.0)
+    assert codes(outcome) == []
+    final = state_of(table)
+    assert (final.open, final.frames_applied, final.frames_rejected) == (False, 3, 0)
+    assert final.frames_duplicate == 0
+    # The mark was used up: the robot's own frame 2 once more, or a frame past the end,
+    # is a straggler of the closed session as before.
+    again = table.handle_batch(frames_at(2, 3), now_s=1.0)
+    assert codes(again) == [ErrorCode.SESSION_CLOSED, ErrorCode.SESSION_CLOSED]
+    assert state_of(table).frames_rejected == 2
+
+
 def test_session_end_beyond_the_last_frame_counts_the_tail_missing() -> None:
     table = make_table()
     table.handle_batch(frames_at(0, 1, 2), now_s=0.0)

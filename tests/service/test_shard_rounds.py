@@ -246,3 +246,34 @@ def test_held_frames_and_the_end_of_a_session_new_here_close_it(
     state = shard.table.state(FLEET, "r0")
     assert state is not None
     assert (state.session, state.open, state.frames_applied) == ("new", False, 3)
+
+
+def test_a_probe_behind_the_live_end_of_its_session_is_no_news(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    # A partition just taken: the take-over's probe asks the robot's cache for its newest
+    # frame while the robot sends its last frames and its end live. The cache's copy of the
+    # last frame can reach the robot's lane behind the live frame and the end, in one turn.
+    # Judged before they applied, the copy looked new and then met the closed session: a
+    # SESSION_CLOSED counted as the robot's rejected frame (seen once in the hand-over test).
+    # It is judged on what the messages before it did: a frame the session had, uncounted.
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    key = keys.frames(FLEET, "r0")
+    live = [
+        *(Frame(session="s", seq=seq, stamp_s=float(seq), features=[1, 2, 3]) for seq in range(3)),
+        SessionEnd(session="s", last_seq=2, stamp_s=3.0),
+    ]
+    copy = Frame(session="s", seq=2, stamp_s=2.0, features=[1, 2, 3])
+    items = [Inbound(time.monotonic(), key, encode(m)) for m in live]
+    items.append(Inbound(time.monotonic(), key, encode(copy), PROBE))
+    assert shard.offer_many(items) == []
+    shard._collect()
+    while shard._lanes:
+        shard._round()
+    state = shard.table.state(FLEET, "r0")
+    assert state is not None
+    assert (state.open, state.frames_applied) == (False, 3)
+    assert (state.frames_rejected, state.frames_duplicate, state.frames_missing) == (0, 0, 0)
+    codes = [r.code for outcome in outbox_of(shard).published for r in outcome.rejections]
+    assert codes == []
+    assert shard.depth() == 0

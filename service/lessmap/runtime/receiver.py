@@ -29,6 +29,13 @@ Partitions being handed over to this instance (``hold``): their samples are kept
 only where the table does not know them yet), all under the sweep's lock so no live sample
 of the partition overtakes them. A frame that reached the former owner after it let the
 partition go is thus not lost between the two owners.
+
+The replies of a take-over's probe of the robots' caches (``probe``) take the same road: a
+sweep hands them on behind every sample the channels held when they came. A robot's cache
+answers with its newest frame, which the robot put before that: handed to the shard at once,
+the copy overtook the live frames still in a channel (up to a tick), was applied as news
+beyond a gap, and the frame before it, arriving live after the catch-up had given up on a
+cache already closed, was counted late (``OUT_OF_ORDER``) and never applied.
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ import logging
 import threading
 import time
 import zlib
+from collections import deque
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -90,6 +98,9 @@ class Receiver:
         # Partitions on their way here (``hold``) and what arrived for them, in order.
         self._holding: set[int] = set()
         self._held: list[tuple[int, Inbound]] = []
+        # Replies of the robots' caches to a take-over's probe (``probe``), in arrival order;
+        # appended on Zenoh's callback thread (a deque's append is atomic), bounded.
+        self._probes: deque[Inbound] = deque(maxlen=queue_depth)
         self._channels: tuple[tuple[int, Channel], ...] = ()  # replaced whole, never mutated
         # Channels of undeclared subscribers: what they still hold is counted, then dropped.
         self._closing: list[tuple[int, Channel, int]] = []
@@ -113,6 +124,15 @@ class Receiver:
         """Keep the samples of these partitions aside until ``admit`` (at most a queue's depth)."""
         with self._lock:
             self._holding.update(partitions)
+
+    def probe(self, item: Inbound) -> None:
+        """Queue a cache's reply to a take-over's probe (a ``PROBE`` item; callback-safe).
+
+        The next sweep hands it on behind what the channels held when it came, so it never
+        overtakes a live frame the robot put before its cache answered. A reply beyond the
+        bound pushes out the oldest: a probe is a hint, the robot's next frame resumes anyway.
+        """
+        self._probes.append(item)
 
     def admit(self, partitions: Sequence[int], acquire: Callable[[int], object]) -> int:
         """Take the partitions (``acquire`` each) and hand on what was held for them.
@@ -154,9 +174,16 @@ class Receiver:
             tick = _IDLE_TICK_S if idle else _TICK_S
 
     def sweep(self) -> int:
-        """Move every waiting sample to its shard; return how many were found."""
+        """Move every waiting sample to its shard; return how many were found.
+
+        Probe replies that came before the sweep began follow the channels' samples: each
+        came after the live samples its robot put before its cache answered, which are in a
+        channel by then (unless a channel was cut at ``_SWEEP_MAX``: they wait a sweep).
+        """
         found = 0
         with self._lock:
+            probes = [self._probes.popleft() for _ in range(len(self._probes))]
+            complete = True
             for partition, channel in self._channels:
                 # Most channels are empty: ask once here, call ``_drain`` only for samples.
                 try:
@@ -164,14 +191,33 @@ class Receiver:
                 except zenoh.ZError:
                     continue  # undeclared (a hand-over under way): ``watch`` moves it
                 if first is not None:
-                    found += self._drain(partition, channel, first)[0]
+                    taken = self._drain(partition, channel, first)[0]
+                    found += taken
+                    complete = complete and taken < _SWEEP_MAX
             closing, self._closing = self._closing, []
             for partition, channel, sweeps in closing:
                 taken, closed = self._drain(partition, channel)
                 found += taken
+                complete = complete and taken < _SWEEP_MAX
                 if not closed and sweeps < _CLOSING_SWEEPS:
                     self._closing.append((partition, channel, sweeps + 1))
+            if complete:
+                self._offer_probes(probes)
+            else:
+                self._probes.extendleft(reversed(probes))  # behind the rest, next sweep
         return found
+
+    def _offer_probes(self, probes: list[Inbound]) -> None:
+        """Hand probe replies to their robots' shards; one refused is dropped quietly."""
+        if not probes:
+            return
+        shards = self._shards
+        batches: list[list[Inbound]] = [[] for _ in shards]
+        for item in probes:
+            batches[0 if len(shards) == 1 else shard_index(item.key, len(shards))].append(item)
+        for shard, batch in zip(shards, batches, strict=True):
+            if batch:
+                shard.offer_many(batch)  # a full queue: the robot's next frame resumes it
 
     def _drain(
         self, partition: int, channel: Channel, first: zenoh.Sample | None = None

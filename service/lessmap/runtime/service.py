@@ -850,13 +850,16 @@ class Service:
         newest frame (``_max=1``), which the shard applies like a live one only if the table
         does not know it (``SessionTable.is_news``): a session ahead of its checkpoint, or
         unknown, then resumes and catches up as after a gap; a frame already seen is dropped
-        uncounted (it was counted when it arrived). Callbacks only enqueue.
+        uncounted (it was counted when it arrived). Callbacks only enqueue, on the receiver:
+        its next sweep hands a reply on behind the live frames already received, which the
+        robot put before its cache answered (``Receiver.probe``).
         """
         session = self._session
         if session is None or self.store.path is None:
             return  # memory-only: no catch-up (gaps are reported at once)
         suffix = f"/frames/{partition}"
         max_payload = self.settings.limits.max_payload_bytes
+        receiver = self._receiver
 
         def on_reply(reply: zenoh.Reply) -> None:  # Zenoh's thread: enqueue only
             sample = reply.ok
@@ -865,7 +868,10 @@ class Service:
             key = str(sample.key_expr)
             if key.endswith(suffix) and "@" not in key:
                 item = Inbound(time.monotonic(), key, sample.payload.to_bytes(), PROBE)
-                self._shard_of(key).offer(item)
+                if receiver is not None:
+                    receiver.probe(item)  # behind the live frames already received
+                else:
+                    self._shard_of(key).offer(item)
 
         try:
             session.get(

@@ -4,7 +4,9 @@ Rules of this file (the service's ordering contract, schemas/README.md):
 
 1. One open session per (fleet, robot). A frame with a new session id closes the open one
    (its final state goes out) and starts a new CovGraph. Frames of a session closed before
-   are rejected (SESSION_CLOSED): a session id is never reopened.
+   are rejected (SESSION_CLOSED): a session id is never reopened. A cache's copy of a frame
+   the closed session received (``note_from_cache``: a probe judged news while the session
+   was open) is a redelivery instead, dropped uncounted.
 2. Frames of a session are applied in seq order exactly once. A batch is sorted by seq first,
    so reordering inside a batch loses nothing. seq <= last applied: ignored, counted as
    DUPLICATE_SEQ, or OUT_OF_ORDER when it falls in a gap reported earlier. seq > last + 1:
@@ -412,14 +414,28 @@ class SessionTable:
 
     def _cache_copy(self, session: RobotSession, seq: int) -> bool:
         """True (and the mark is used up) when one of two copies of a frame came from a cache."""
-        key = (session.fleet, session.robot)
+        return self._use_mark((session.fleet, session.robot), session.session, seq)
+
+    def _use_mark(self, key: RobotKey, session_id: str, seq: int) -> bool:
         marks = self._from_cache.get(key)
-        if not marks or (session.session, seq) not in marks:
+        if not marks or (session_id, seq) not in marks:
             return False
-        marks.discard((session.session, seq))
+        marks.discard((session_id, seq))
         if not marks:
             del self._from_cache[key]
         return True
+
+    def _cache_copy_of_closed(self, key: RobotKey, frame: Frame) -> bool:
+        """True (the mark used up) for a cache's copy of a frame its closed session received.
+
+        A copy judged news while the session was open (a probe, ``is_news``) can reach the
+        table behind the robot's own put of that frame and its end: the frame was applied
+        once, so the copy is a redelivery, dropped uncounted, never a SESSION_CLOSED.
+        """
+        final = self._final_states.get(key)
+        if final is None or final.session != frame.session or final.last_seq is None:
+            return False
+        return frame.seq <= final.last_seq and self._use_mark(key, frame.session, frame.seq)
 
     def is_news(self, fleet: str, robot: str, message: Frame | SessionEnd) -> bool:
         """True when a message found in a robot's cache is not known here yet.
@@ -625,6 +641,7 @@ class SessionTable:
             current = self._resume(key, out, now_s)
         if current is None or current.session != session_id:
             if session_id in self._closed_ids.get(key, ()):
+                run = [f for f in run if not self._cache_copy_of_closed(key, f)]
                 self._count_on_closed(key, session_id, len(run))
                 for frame in run:
                     out.reject(

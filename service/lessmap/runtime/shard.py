@@ -548,20 +548,37 @@ class Shard:
             return
         self._flush()  # anything else of this robot comes after its earlier turns
         live: list[tuple[str, str, Frame | SessionEnd]] = []
+        # The session when ``live`` holds only probed frames of it (judged news together).
+        probed_of: str | None = None
         recovered: list[Inbound] = []
         items = [item for item, _message, _cost in plan]
         try:
             for item, message, _cost in plan:
                 if item.kind == PROBE:
-                    if live and _is_end(item, self._limits):
-                        # Judged on what the messages before it do to the table: the end of a
-                        # session whose frames are among them is news only once they applied.
+                    probe = self._decoded_probe(item)
+                    if probe is None:
+                        continue
+                    # A probe is judged on what the messages before it did to the table,
+                    # so they are applied first: a live end closes the session that a copy
+                    # of its last frame would otherwise reach as a straggler (counted as a
+                    # rejected SESSION_CLOSED), a live frame makes the copy a redelivery,
+                    # and the end of a session whose frames are among them is news only
+                    # once they applied. Probed frames of one session (those held at a
+                    # take-over) are judged together: one only raises the last seq the
+                    # next is judged against, and a copy judged news is marked, so its
+                    # second offer is dropped uncounted.
+                    if recovered:
+                        self._recover(recovered, now)
+                        recovered = []
+                    if live and not (isinstance(probe, Frame) and probe.session == probed_of):
                         self._apply(live, now, decide_every)
                         live = []
-                    news = self._news(fleet, robot, item)
+                    news = self._news(fleet, robot, probe)
                     if news is not None:
+                        probed_of = news.session if isinstance(news, Frame) else None
                         live.append((fleet, robot, news))
                     continue
+                probed_of = None
                 if item.kind != LIVE:
                     if live:
                         self._apply(live, now, decide_every)
@@ -627,12 +644,17 @@ class Shard:
                 turns = kept
         return self.table.handle_turns(turns, now)
 
-    def _news(self, fleet: str, robot: str, item: Inbound) -> Frame | SessionEnd | None:
-        """A probed message, if it decodes and the table does not know it yet."""
+    def _decoded_probe(self, item: Inbound) -> Frame | SessionEnd | None:
+        """A probed message decoded, or None (refused when it first arrived, if it did)."""
         try:
-            message = decode_inbound(item.payload, self._limits)
+            return decode_inbound(item.payload, self._limits)
         except WireError:
-            return None  # refused when it first arrived, if it did
+            return None
+
+    def _news(
+        self, fleet: str, robot: str, message: Frame | SessionEnd
+    ) -> Frame | SessionEnd | None:
+        """A probed message, if the table does not know it yet."""
         with self.lock:
             if not self.table.is_news(fleet, robot, message):
                 return None
@@ -676,11 +698,3 @@ class Shard:
             for session_id in sessions:
                 mine = [f for f in robot_frames if f.session == session_id]
                 self._step(now, self.table.recover, (fleet, robot), session_id, mine, now)
-
-
-def _is_end(item: Inbound, limits: WireLimits) -> bool:
-    """True when an item decodes to a ``SessionEnd``."""
-    try:
-        return isinstance(decode_inbound(item.payload, limits), SessionEnd)
-    except WireError:
-        return False
