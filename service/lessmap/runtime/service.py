@@ -459,12 +459,23 @@ class Service:
         is_submap = "/submaps/" in text
         is_areas = text.endswith("/areas")
         answered: set[tuple[str, str]] = set()
-        for shard in self._shards:
+        named_fleet, named_robot = _named_fleet_and_robot(text)
+        if named_fleet is not None and named_robot is not None:
+            # One robot named (robots poll their own state while they close, apps ask for
+            # one robot): only its shard can hold it, so only it is checked, not every
+            # robot of every shard against the selector.
+            shard = self._shard_of(keys.frames(named_fleet, named_robot))
             with shard.lock:
-                robots = shard.table.robots()
-                answered.update(robots)
-                for fleet, robot in robots:
-                    self._reply_robot(query, shard, fleet, robot, is_submap, is_areas)
+                if shard.table.knows(named_fleet, named_robot):
+                    self._reply_robot(query, shard, named_fleet, named_robot, is_submap, is_areas)
+                    return
+        else:
+            for shard in self._shards:
+                with shard.lock:
+                    robots = shard.table.robots()
+                    answered.update(robots)
+                    for fleet, robot in robots:
+                        self._reply_robot(query, shard, fleet, robot, is_submap, is_areas)
         # Robots known only from the store (closed before a restart, evicted, or whose
         # records came with a partition taken over): the table answers from their record.
         for fleet, robot in self._stored_robots(selector, answered):

@@ -405,6 +405,11 @@ class SessionTable:
         """Every robot with an open or remembered closed session."""
         return list(dict.fromkeys([*self._open, *self._final_states]))
 
+    def knows(self, fleet: str, robot: str) -> bool:
+        """Whether the robot is one of ``robots()`` (an open or remembered closed session)."""
+        key = (fleet, robot)
+        return key in self._open or key in self._final_states
+
     def note_from_cache(self, key: RobotKey, session_id: str, seq: int) -> None:
         """Remember that frame ``seq`` of a session came (or comes) from the robot's cache."""
         marks = self._from_cache.setdefault(key, set())
