@@ -2,7 +2,9 @@
 
 Real processes on loopback: a Zenoh router opened by the test, two ``lessmap serve``
 processes one after the other (peers of that router, sharing the test's state directory),
-one robot replaying DLR, one fleet app. The reference is ``lessmap segment`` of the file.
+one robot replaying DLR, one fleet app. The reference is ``lessmap segment`` of the file,
+for the paper and for the default method, areas (whose area ids and revisits must survive the
+restart as exactly as the paper's transitions).
 The frames the robot sends while no instance runs, and after a kill -9 those since the last
 checkpoint, come back from the robot's publication cache (the service's catch-up query).
 """
@@ -13,11 +15,13 @@ import re
 import signal
 import threading
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import zenoh
 
+from lessmap.core import PartitionParams
+from lessmap.core.segmenter import Method, make_segmenter
 from lessmap.frames_file import read_frames
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_schemas import keys
@@ -34,16 +38,59 @@ if TYPE_CHECKING:
 pytestmark = pytest.mark.timeout(300)
 
 
+def offline_area_changes(frames: list[FrameRow]) -> list[dict[str, Any]]:
+    """One robot's transitions under the areas method, deciding at every frame."""
+    segmenter = make_segmenter(Method.AREAS, PartitionParams.from_profile("laser"))
+    found = []
+    for frame in frames:
+        segmenter.apply(frame.seq, frame.stamp_s, frame.features)
+        found += [
+            {
+                "seq": c.transition.seq,
+                "boundary_seq": c.transition.boundary_seq,
+                "reason": c.reason,
+                "closed": list(c.transition.closed.features),
+                "opened": list(c.transition.opened.features),
+                "area": c.area,
+                "left_area": c.left_area,
+                "revisit": c.revisit_of is not None,
+            }
+            for c in segmenter.decide()
+        ]
+    return found
+
+
+def as_area_record(t: Transition) -> dict[str, Any]:
+    return {
+        "seq": t.seq,
+        "boundary_seq": t.boundary_seq,
+        "reason": t.reason,
+        "closed": t.closed.features,
+        "opened": t.opened.features,
+        "area": t.area,
+        "left_area": t.left_area,
+        "revisit": t.revisit,
+    }
+
+
+@pytest.mark.parametrize("method", list(Method))
 def test_sigterm_and_restart_resume_every_session_exactly(
+    method: Method,
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
     router: str,
     fleet_name: str,
 ) -> None:
     frames = list(read_frames(dataset("dlr.frames.jsonl")))
-    expected = offline_transitions(frames)["0"]
+    if method is Method.PAPER:
+        expected = offline_transitions(frames)["0"]
+        record = as_record
+    else:
+        expected = offline_area_changes(frames)
+        record = as_area_record
+        assert any(change["revisit"] for change in expected)  # the areas' own fields matter
     half = len(frames) // 2
-    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", "paper")
+    options = ("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", method.value)
     session = client_session(router)
     with FleetClient(fleet_name, session=session) as client:
         robot = RobotPublisher(fleet_name, "dlr", session=session)
@@ -79,7 +126,7 @@ def test_sigterm_and_restart_resume_every_session_exactly(
     # Submap ids continue across the restart, so no new event looks like an old one.
     closed_ids = [t.closed.id for t in got]
     assert closed_ids == sorted(set(closed_ids))
-    assert [as_record(t) for t in got] == expected
+    assert [record(t) for t in got] == expected
     assert {t.instance for t in got} == {first.instance, second.instance}
     assert second.terminate() == 0
 
@@ -143,16 +190,30 @@ class PacedRobot:
         self._thread.join(10.0)
 
 
-@pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "sigterm"])
+@pytest.mark.parametrize(
+    ("how", "method"),
+    [
+        (signal.SIGKILL, Method.PAPER),
+        (signal.SIGTERM, Method.PAPER),
+        (signal.SIGKILL, Method.AREAS),
+    ],
+    ids=["kill-9", "sigterm", "kill-9-areas"],
+)
 def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     how: signal.Signals,
+    method: Method,
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
     router: str,
     fleet_name: str,
 ) -> None:
     frames = list(read_frames(dataset("dlr.frames.jsonl")))
-    expected = offline_transitions(frames)["0"]
+    if method is Method.PAPER:
+        expected = offline_transitions(frames)["0"]
+        record = as_record
+    else:
+        expected = offline_area_changes(frames)
+        record = as_area_record
     # Checkpoints every 300 frames: the kill lands well after the last one (seq 1199), so
     # the frames between it and the crash, which the dead process had applied and whose
     # transitions it had published, must come back from the cache too.
@@ -161,7 +222,7 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     # x 10 s): cache and catch-up are sized for that, and the cache gets time to answer
     # (with the 1000-frame defaults a slow restart rightly reported frames as missing).
     options = (
-        *("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", "paper"),
+        *("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", method.value),
         *("--checkpoint-every-frames", "300"),
         *("--catchup-max-frames", "3000", "--catchup-wait-s", "10"),
     )
@@ -234,12 +295,12 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     assert state.transitions == len(expected)
     assert not [e for e in errors if e.code.value == "SEQ_GAP"], errors
     # De-duplicated on (session, closed id) as the client does: exactly the offline ones.
-    assert [as_record(t) for t in got] == expected
+    assert [record(t) for t in got] == expected
     # A transition published twice (before the kill and again after the catch-up) is the
     # same transition: nothing conflicting ever reached the wire.
     by_id: dict[tuple[str, int], list[dict[str, object]]] = {}
     for t in raw:
-        by_id.setdefault((t.session, t.closed.id), []).append(as_record(t))
+        by_id.setdefault((t.session, t.closed.id), []).append(record(t))
     assert all(all(r == records[0] for r in records) for records in by_id.values())
     assert sorted(by_id) == [(state.session, i) for i in range(len(expected))]
     assert second.terminate() == 0
