@@ -22,16 +22,18 @@ import pytest
 import zenoh
 
 from lessmap.frames_file import read_frames
+from lessmap.sim.simulator import simulate, write_run
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode
 from lessmap_schemas.messages import Health, SessionState, Transition
 from lessmap_schemas.partition import PARTITIONS, owner_and_standby, partition_of
 from tests.conftest import dataset, free_port, wait_until
+from tests.service.test_restart_e2e import as_area_record, offline_area_changes
 from tests.service.test_serve_e2e import as_record, offline_transitions
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
     from pathlib import Path
 
 pytestmark = [pytest.mark.timeout(600), pytest.mark.slow]
@@ -69,6 +71,7 @@ class Site:
     tmp_path: Path
     procs: list[Proc]
     lease_ms: int | None = None
+    method: str = "paper"  # the reference of most tests here is the paper's partitioner
 
     def start(self, name: str, *argv: str, log_name: str | None = None) -> Proc:
         log_path = self.tmp_path / f"{log_name or name}.log"
@@ -99,9 +102,9 @@ class Site:
             str(self.tmp_path / f"state-{name}"),
             "--max-batch-frames",
             "1",
-            # The paper's partitioner, as `offline_transitions` (the reference) runs it.
+            # The method the test's reference runs (`offline_transitions`: the paper).
             "--method",
-            "paper",
+            self.method,
             # Room for a busy CI machine (tests run on two workers): with the default 2 s a
             # take-over's cache replies arrived after the hold was released, and 11 frames
             # were rightly counted as rejected late arrivals.
@@ -157,11 +160,15 @@ def covered(session: zenoh.Session, instances: set[str]) -> bool:
     return all(owners.get(p) == [owner_and_standby(p, instances)[0]] for p in range(PARTITIONS))
 
 
-def compare(expected: dict[str, list[dict[str, Any]]], got: list[Transition]) -> list[str]:
+def compare(
+    expected: dict[str, list[dict[str, Any]]],
+    got: list[Transition],
+    as_dict: Callable[[Transition], dict[str, Any]] = as_record,
+) -> list[str]:
     """Differences between the bus and the offline run per (robot, seq); [] when equal."""
     seen: dict[tuple[str, int], list[dict[str, Any]]] = {}
     for t in got:
-        record = as_record(t)
+        record = as_dict(t)
         copies = seen.setdefault((t.robot, t.seq), [])
         if record not in copies:
             copies.append(record)
@@ -279,6 +286,46 @@ def test_kill_9_of_an_owner_then_a_fourth_instance_loses_nothing(site: Site) -> 
         assert any("session resumed from the state store" in log for log in logs.values())
         assert any("recovered from the robot's cache" in log for log in logs.values())
         assert any("handed over" in log for log in logs.values())
+    finally:
+        session.close()
+
+
+def test_kill_9_of_an_owner_under_the_areas_method_loses_nothing(site: Site) -> None:
+    # The default method: area ids and revisits must survive a take-over as exactly as the
+    # paper's transitions. Six robots walk a simulated building (many area changes, and
+    # revisits), replayed against three instances; one owner is killed mid-way.
+    run = simulate(0, rooms=8, robots=6, frames_per_robot=600)
+    path = write_run(run, site.tmp_path / "sim", "walk").frames
+    frames = list(read_frames(path))
+    expected = {
+        robot: offline_area_changes([f for f in frames if f.robot == robot])
+        for robot in sorted({f.robot for f in frames})
+    }
+    total = sum(len(v) for v in expected.values())
+    assert total >= 60
+    assert any(c["revisit"] for v in expected.values() for c in v)
+    site.method = "areas"
+    names = ["inst-a", "inst-b", "inst-c"]
+    instances = {name: site.instance(name) for name in names}
+    session = open_session([site.endpoint], timeout_s=20.0)
+    try:
+        bus = BusRecorder(session)
+        wait_until(lambda: covered(session, set(names)), 60.0, "three instances to share out")
+        replay = start_replay(site, path, "15")  # 300 s of walk in ~20 s
+        wait_until(lambda: len(bus.got) >= total // 3, 120.0, "a third of the transitions")
+        victim = bus.latest_instance()
+        instances[victim].process.send_signal(signal.SIGKILL)
+        instances[victim].process.wait(10)
+        survivors = set(names) - {victim}
+        wait_until(lambda: covered(session, survivors), 30.0, "the survivors to take over")
+        code = replay.process.wait(300)
+        time.sleep(1.0)  # the last transitions on their way
+        summary = replay_summary(replay)
+        assert code == 0, failure_context(summary, site)
+        for robot, counts in summary["per_robot"].items():
+            assert counts["applied"] == counts["offered"], (robot, counts)
+        assert compare(expected, [t for _, t in bus.got], as_area_record) == []
+        assert {t.instance for _, t in bus.got} >= {victim, *survivors}
     finally:
         session.close()
 
