@@ -151,6 +151,12 @@ class ServiceMetrics:
             "(it did not answer within handover_release_s)",
             registry=r,
         )
+        self.replies_cut = Counter(
+            "lessmap_replies_cut",
+            "State or area graph replies cut to the wire limits (oldest submaps, old areas)",
+            ["kind"],
+            registry=r,
+        )
         self.checkpoints_withheld = Counter(
             "lessmap_checkpoints_withheld",
             "Checkpoints not saved: their session had a transition the fence held back",

@@ -46,6 +46,7 @@ from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.ownership import Change, Ownership
 from lessmap.runtime.receiver import EVERY_PARTITION, Receiver, shard_index
+from lessmap.runtime.replies import fit_area_graph, fit_state
 from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, PROBE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
@@ -75,6 +76,7 @@ _RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.rel
 # A hand-over first lets the shards apply what already arrived for the partitions, this long
 # at most: well below handover_release_s, so the joining owner still gets the release.
 _DRAIN_BEFORE_HANDOVER_S = 1.0
+_CUTS_LOGGED = 10_000  # robots whose cut replies were logged (then the set starts again)
 
 
 class Service:
@@ -83,6 +85,9 @@ class Service:
     def __init__(self, settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> None:
         self.settings = settings
         self.metrics = ServiceMetrics()
+        # Replies are cut to what readers accept (``replies``): the service's own limits.
+        self._reply_limits = settings.limits.wire_limits()
+        self._cuts_logged: set[tuple[str, str, str]] = set()
         self._zenoh_cfg = tuple(zenoh_cfg)
         self._session: zenoh.Session | None = None
         self._outbox: Outbox | None = None
@@ -529,7 +534,9 @@ class Service:
             return
         state = shard.table.state(fleet, robot)
         if state is not None:
-            query.reply(key, encode(state), encoding=zenoh.Encoding(encoding(SessionState)))
+            payload, cut = fit_state(state, self._reply_limits)
+            self._note_cut("state", fleet, robot, cut, "oldest closed submaps left out")
+            query.reply(key, payload, encoding=zenoh.Encoding(encoding(SessionState)))
 
     def _reply_areas(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
         key = keys.areas(fleet, robot)
@@ -537,7 +544,30 @@ class Service:
             return
         graph = shard.table.area_graph(fleet, robot)
         if graph is not None:
-            query.reply(key, encode(graph), encoding=zenoh.Encoding(encoding(AreaGraph)))
+            payload, cut = fit_area_graph(graph, self._reply_limits)
+            self._note_cut("areas", fleet, robot, cut, "areas visited longest ago cut")
+            query.reply(key, payload, encoding=zenoh.Encoding(encoding(AreaGraph)))
+
+    def _note_cut(self, kind: str, fleet: str, robot: str, cut: int, what: str) -> None:
+        """Count a reply cut to the wire limits; log it once per robot and kind."""
+        if not cut:
+            return
+        self.metrics.replies_cut.labels(kind).inc()
+        if len(self._cuts_logged) >= _CUTS_LOGGED:
+            self._cuts_logged.clear()  # bounded; a robot logged again is no harm
+        if (kind, fleet, robot) not in self._cuts_logged:
+            self._cuts_logged.add((kind, fleet, robot))
+            limit = self._reply_limits.max_payload_bytes
+            log.warning(
+                "%s/%s %s reply over the wire limits (%d bytes, %d per list): %d %s",
+                fleet,
+                robot,
+                kind,
+                limit,
+                self._reply_limits.max_list_len,
+                cut,
+                what,
+            )
 
     def _reply_submaps(self, query: zenoh.Query, shard: Shard, fleet: str, robot: str) -> None:
         state = shard.table.state(fleet, robot)
