@@ -358,7 +358,10 @@ class AreaTracker:
         if first is None or window is None or window[0][0] <= first:
             return None
         leave, left = tally(window)
-        here = profile(self.areas[self.current], self.area_frames[self.current], leave, left)
+        # Only the window's frames are weighed against known areas, so the current area's
+        # profile needs only their features' gains (rule 5 costs a profile every frame).
+        counts, frames = self.areas[self.current], self.area_frames[self.current]
+        here = profile(counts, frames, leave, left, only=leave)
         if here is None:
             return None
         best = rules.best_fit(
@@ -372,6 +375,8 @@ class AreaTracker:
             return None
         there = self._profile(best)
         assert there is not None
+        here = profile(counts, frames, leave, left)  # all gains: walk_back reads earlier frames
+        assert here is not None
         boundary = rules.walk_back(self.frames, window[0][0], first, there, here)
         after, before, moved = rules.sides(self.frames, self.segment_counts, boundary)
         minimum = self.params.min_area_features
