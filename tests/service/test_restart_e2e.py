@@ -73,7 +73,9 @@ def as_area_record(t: Transition) -> dict[str, Any]:
     }
 
 
-@pytest.mark.parametrize("method", list(Method))
+# Areas too: the kill -9 case below, with a catch-up, is the stricter one for it (the default
+# test run stays short, so its SIGTERM case here is left out).
+@pytest.mark.parametrize("method", [Method.PAPER])
 def test_sigterm_and_restart_resume_every_session_exactly(
     method: Method,
     serve: Callable[..., ServeProcess],
