@@ -76,6 +76,7 @@ _RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.rel
 # A hand-over first lets the shards apply what already arrived for the partitions, this long
 # at most: well below handover_release_s, so the joining owner still gets the release.
 _DRAIN_BEFORE_HANDOVER_S = 1.0
+_ROUTER_WAIT_S = 10.0  # after a freeze, how long a client waits for its router again
 _CUTS_LOGGED = 10_000  # robots whose cut replies were logged (then the set starts again)
 
 
@@ -288,14 +289,21 @@ class Service:
         token = keys.instance_token(self.settings.instance)
         self._token = self._session.liveliness().declare_token(token)
 
-    def _join(self, change: Change) -> None:
-        """Take partitions from the live instances that hold them (start-up, module doc)."""
+    def _join(self, change: Change, *, declare_token: bool = True) -> None:
+        """Take partitions from the live instances that hold them (start-up, module doc).
+
+        After a freeze the token is already declared: the others see it again as the
+        session reconnects.
+        """
         session = self._session
         assert session is not None
+        while not self._releases.empty():  # announcements of an earlier join, already used
+            self._releases.get_nowait()
         releases = session.declare_subscriber(keys.released(), self._on_released)
         try:
             self._hold_frames(sorted(change.handed_by))
-            self._declare_token()  # the former owners hand over when they see it
+            if declare_token:
+                self._declare_token()  # the former owners hand over when they see it
             self._apply(change)
         finally:
             releases.undeclare()
@@ -696,7 +704,38 @@ class Service:
         self._hand_over(sorted(self.ownership.owned()))
         for p in list(self._standby_subs):
             self._standby_subs.pop(p).undeclare()
-        self._apply(self.ownership.set_live(self._live_instances()))
+        self._wait_for_router()
+        # Back as a joiner comes: the partitions this instance wins again were taken over
+        # while it was frozen, so their owners now hand them over (their release, with
+        # their final checkpoints) before it fetches; their frames are held meanwhile. Taken
+        # at once, they resumed from this instance's own old checkpoints, and a session
+        # whose frames the robot's cache no longer held went on past a gap, publishing
+        # transitions unlike the owner's (seen in one full test run: SEQ_GAP of 264 frames).
+        change = self.ownership.set_live(self._live_instances(), arriving=True)
+        if change.handed_by:
+            self._join(change, declare_token=False)
+        else:
+            self._apply(change)
+
+    def _wait_for_router(self) -> None:
+        """After a freeze, wait (bounded) until a client is connected to a router again.
+
+        A client whose router dropped it during the freeze sees no other token until it has
+        reconnected: asked for the live instances before that, it would take every partition.
+        """
+        session = self._session
+        if session is None or self.settings.mode != "client":
+            return
+        deadline = time.monotonic() + _ROUTER_WAIT_S
+        while not list(session.info.routers_zid()):
+            if time.monotonic() > deadline:
+                log.warning(
+                    "no router %.0f s after the freeze: taking partitions on what this "
+                    "instance sees",
+                    _ROUTER_WAIT_S,
+                )
+                return
+            time.sleep(0.1)
 
     def _apply(self, change: Change) -> None:
         """Carry out a change of ownership (ownership thread, or ``start``)."""
