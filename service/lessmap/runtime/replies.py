@@ -26,8 +26,6 @@ from typing import TYPE_CHECKING, Any
 
 import msgpack
 
-from lessmap_schemas.codec import encode
-
 if TYPE_CHECKING:
     from collections.abc import Callable
 
@@ -36,7 +34,7 @@ if TYPE_CHECKING:
 
 
 def _pack(document: dict[str, Any]) -> bytes:
-    data: bytes = msgpack.packb(document, use_bin_type=True)  # as ``encode`` does
+    data: bytes = msgpack.packb(document, use_bin_type=True)  # ``encode`` of a model_dump
     return data
 
 
@@ -64,8 +62,8 @@ def _least(n: int, fits: Callable[[int], bool]) -> int | None:
 
 def fit_state(state: SessionState, limits: WireLimits) -> tuple[bytes, int]:
     """Return the state's payload within the limits, and how many closed submaps it left out."""
-    data = encode(state)
     document = state.model_dump()
+    data = _pack(document)  # what ``encode`` gives, the document kept for a cut
     if _fits(data, document, limits, ("closed_submaps",)):
         return data, 0
     closed = document["closed_submaps"]
@@ -85,8 +83,8 @@ def fit_state(state: SessionState, limits: WireLimits) -> tuple[bytes, int]:
 
 def fit_area_graph(graph: AreaGraph, limits: WireLimits) -> tuple[bytes, int]:
     """Return the graph's payload within the limits, and how many areas lost something."""
-    data = encode(graph)
     document = graph.model_dump()
+    data = _pack(document)  # what ``encode`` gives, the document kept for a cut
     lists = ("areas", "passages")
     if _fits(data, document, limits, lists):
         return data, 0

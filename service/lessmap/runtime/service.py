@@ -685,7 +685,7 @@ class Service:
         session = self._session
         if session is None:
             return False
-        if self.settings.mode == "client" and not list(session.info.routers_zid()):
+        if self._without_router(session):
             log.info("token of %s went while this instance has no router; waiting", name)
             return False
         if name in self._live_instances():
@@ -717,6 +717,10 @@ class Service:
         else:
             self._apply(change)
 
+    def _without_router(self, session: zenoh.Session) -> bool:
+        """True for a client connected to no router: it sees no other instance's token."""
+        return self.settings.mode == "client" and not list(session.info.routers_zid())
+
     def _wait_for_router(self) -> None:
         """After a freeze, wait (bounded) until a client is connected to a router again.
 
@@ -724,10 +728,10 @@ class Service:
         reconnected: asked for the live instances before that, it would take every partition.
         """
         session = self._session
-        if session is None or self.settings.mode != "client":
+        if session is None:
             return
         deadline = time.monotonic() + _ROUTER_WAIT_S
-        while not list(session.info.routers_zid()):
+        while self._without_router(session):
             if time.monotonic() > deadline:
                 log.warning(
                     "no router %.0f s after the freeze: taking partitions on what this "
