@@ -138,7 +138,7 @@ def load_grid(path: Path, resolution_m: float | None = None) -> OccupancyGrid:
         # map_server: occupancy = (255 - grey) / 255 (or grey / 255 when negated)
         occ = grey / 255.0 if negate else (255.0 - grey) / 255.0
         free = occ < free_thresh
-        ox, oy = (list(origin) + [0.0, 0.0])[:2] if isinstance(origin, list) else (0.0, 0.0)
+        ox, oy = [*list(origin), 0.0, 0.0][:2] if isinstance(origin, list) else (0.0, 0.0)
         return _checked(OccupancyGrid(free=free, resolution_m=res, origin_xy=(ox, oy)), path)
     res = BENCHMARK_RESOLUTION_M if resolution_m is None else resolution_m
     if not res > 0:
