@@ -15,6 +15,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+import zenoh
+
+from lessmap_schemas import keys
+from lessmap_schemas.codec import decode
+from lessmap_schemas.messages import SessionState
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -220,3 +225,23 @@ def router() -> Iterator[str]:
     conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
     with zenoh.open(conf):
         yield endpoint
+
+
+def new_robot_wait_s(
+    session: zenoh.Session, fleet: str, robot: str, frame: bytes, timeout_s: float
+) -> float:
+    """Put a new robot's first frame; seconds until a state query shows it applied (or NaN).
+
+    The state query is asked every 10 ms, so the figure is within ~10 ms of the service's.
+    """
+    key = keys.state(fleet, robot)
+    start = time.monotonic()
+    session.put(keys.frames(fleet, robot), frame, congestion_control=zenoh.CongestionControl.BLOCK)
+    while time.monotonic() - start < timeout_s:
+        for reply in session.get(key, timeout=2.0):
+            if reply.ok is not None:
+                state = decode(reply.ok.payload.to_bytes(), SessionState)
+                if state.frames_applied >= 1:
+                    return time.monotonic() - start
+        time.sleep(0.01)
+    return float("nan")

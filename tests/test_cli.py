@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from lessmap.cli import COMMANDS, build_parser, command_parser, main
+from lessmap.cli.app import COMMANDS, build_parser, command_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("numpy", "scipy", "zenoh", "pydantic", "lessmap_schemas", "lessmap.core")
@@ -19,7 +19,7 @@ def loaded_after(argv: list[str]) -> set[str]:
     """Run the command line in a fresh interpreter; return the heavy modules it imported."""
     code = (
         "import sys\n"
-        "from lessmap.cli import main\n"
+        "from lessmap.cli.app import main\n"
         "try:\n"
         f"    main({argv!r})\n"
         "except SystemExit:\n"
@@ -108,7 +108,7 @@ def test_a_missing_optional_extra_is_one_line(tmp_path: Path) -> None:
         encoding="utf-8",
     )
     code = (
-        "import sys; sys.modules['matplotlib'] = None; from lessmap.cli import main; "
+        "import sys; sys.modules['matplotlib'] = None; from lessmap.cli.app import main; "
         f"sys.exit(main(['plot', {str(frames)!r}, '--out', {str(tmp_path / 'out')!r}]))"
     )
     result = subprocess.run(

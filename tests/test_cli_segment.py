@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from lessmap.cli import main
-from lessmap.settings import LimitSettings
+from lessmap.cli.app import main
+from lessmap.config.settings import LimitSettings
 from lessmap_schemas.limits import DEFAULT_LIMITS
 from tests.core.helpers import TWO_ROOM_DOOR, room_walk, two_room_frames
 

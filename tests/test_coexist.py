@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING
 import pytest
 import zenoh
 
-from lessmap.coexist import join_existing_router, listening
+from lessmap.config.coexist import join_existing_router, listening
+from lessmap.config.settings import load_settings
 from lessmap.errors import ConfigError
-from lessmap.settings import load_settings
 from lessmap_schemas import keys
 from tests.conftest import free_port
 

@@ -18,9 +18,9 @@ from typing import Any
 import pytest
 import zenoh
 
-from lessmap.cli import command_parser
+from lessmap.cli.app import command_parser
+from lessmap.config.settings import LimitSettings, ServiceSettings
 from lessmap.runtime.router import router_config
-from lessmap.settings import LimitSettings, ServiceSettings
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode

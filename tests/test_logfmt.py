@@ -3,7 +3,7 @@ from __future__ import annotations
 import json
 import logging
 
-from lessmap.logfmt import JsonFormatter
+from lessmap.cli.logfmt import JsonFormatter
 
 
 def test_json_lines_carry_message_and_extra_fields() -> None:
@@ -30,7 +30,7 @@ def test_json_lines_include_tracebacks() -> None:
 
 
 def test_configure_installs_one_handler_of_the_chosen_format() -> None:
-    from lessmap.logfmt import configure
+    from lessmap.cli.logfmt import configure
 
     root = logging.getLogger()
     saved = root.handlers[:], root.level

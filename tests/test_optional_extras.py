@@ -23,7 +23,7 @@ def test_a_missing_extra_is_named(command: str, argv: list[str], module: str, ex
     code = (
         "import sys\n"
         f"sys.modules[{module!r}] = None\n"
-        "from lessmap.cli import main\n"
+        "from lessmap.cli.app import main\n"
         f"sys.exit(main({argv!r}))\n"
     )
     result = subprocess.run(

@@ -4,9 +4,9 @@
 
 Run from the repository root. It evaluates a recorded data set (default: DLR from
 ``../shared/datasets``) and a simulated run (the files of ``lessmap sim --out``) with
-``lessmap.evaluation.results``, draws the figures and renders the page with ``render.py``
-beside this file. The imports go one way: this folder imports the ``lessmap`` package, the
-package never imports this folder.
+``lessmap.evaluation.report.results_page``, draws the figures and renders the page with
+``render.py`` beside this file. The imports go one way: this folder imports the ``lessmap``
+package, the package never imports this folder.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from render import COMMAND, render
 
 from lessmap.core import PartitionParams
 from lessmap.errors import DatasetError
-from lessmap.evaluation.results import RecordedResults, SimResults, recorded, simulated
-from lessmap.evaluation.sweep import DEFAULT_GRID
+from lessmap.evaluation.report.results_page import RecordedResults, SimResults, recorded, simulated
+from lessmap.evaluation.studies.sweep import DEFAULT_GRID
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -33,7 +33,7 @@ DEFAULT_DATASET = Path("../shared/datasets/dlr.frames.jsonl")
 
 def write_figures(folder: Path, rec: RecordedResults, sim: SimResults | None) -> list[Path]:
     """Write the PNGs of the page into ``folder``; return their paths."""
-    from lessmap.evaluation import charts, plots
+    from lessmap.evaluation.figures import building as charts, segmentation as plots
 
     folder.mkdir(parents=True, exist_ok=True)
     report, name = rec.report, rec.report.dataset
@@ -109,10 +109,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         sim = simulated(args.sim, params) if args.sim is not None else None
         areas = area_graph = None
         if args.areas_seeds > 0:
-            from lessmap.evaluation.areabench import report
+            from lessmap.evaluation.studies.areabench import report
 
             areas = report(args.areas_seeds, args.dataset.parent)
-            from lessmap.evaluation.areagraph import CONTAINMENTS, report as graph_report
+            from lessmap.evaluation.scores.area_graphs import CONTAINMENTS, report as graph_report
 
             area_graph = graph_report(args.areas_seeds, args.dataset.parent, CONTAINMENTS)
     except (DatasetError, FileNotFoundError) as exc:

@@ -1,4 +1,4 @@
-"""Render docs/RESULTS.md from the measured results (``lessmap.evaluation.results``).
+"""Render docs/RESULTS.md from the measured results (``lessmap.evaluation.report.results_page``).
 
 Beside ``generate.py``, which runs the measurements and calls ``render``; the "Why" section
 comes from ``why.py``. Neither ships in the wheel.
@@ -14,9 +14,8 @@ from typing import TYPE_CHECKING
 
 from why import why_lines
 
-from lessmap.core.areas import EMPTY_OMITTED_PERIOD_STEPS, AreaParams
-from lessmap.evaluation.diagnosis import Loss
-from lessmap.evaluation.markdown import (
+from lessmap.core.areas.tracker import EMPTY_OMITTED_PERIOD_STEPS, AreaParams
+from lessmap.evaluation.report.markdown import (
     consistency_lines,
     door_lines,
     e1,
@@ -26,13 +25,14 @@ from lessmap.evaluation.markdown import (
     ratio,
     table,
 )
+from lessmap.evaluation.studies.diagnosis import Loss
 from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_LINKED_SHARE, MIN_SHARED
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from lessmap.evaluation.report import EvalReport, MethodResult
-    from lessmap.evaluation.results import RecordedResults, SimResults
+    from lessmap.evaluation.report.evaluation import EvalReport, MethodResult
+    from lessmap.evaluation.report.results_page import RecordedResults, SimResults
 
 COMMAND = ("python", "docs/results/generate.py")  # run from the repository root
 SIM_ONE_LINER = (
@@ -128,7 +128,7 @@ def header_lines(argv: Sequence[str]) -> list[str]:
         "together. Two membership rules are reported: **e** puts a landmark in every submap "
         "whose frames saw it (a pair is lost when no submap saw both); **e exclusive** puts it "
         "in the one submap that saw it most (Eq. 5 read literally, one cluster C(i) per "
-        "landmark). See `lessmap.evaluation.infoloss` for the construction of H.",
+        "landmark). See `lessmap.evaluation.scores.infoloss` for the construction of H.",
         "",
     ]
 
@@ -270,7 +270,7 @@ def sim_lines(sim: SimResults, figures: Sequence[str]) -> list[str]:
         f"`{sim.path}`: {len(robots)} robots, {frames} frames, {len(truth.doors)} doors, "
         f"{len(truth.changes)} true room changes. Each robot is evaluated alone (its own H, "
         "synthesized from true poses and the building's landmarks: see "
-        "`lessmap.evaluation.simrun`).",
+        "`lessmap.evaluation.data.simrun`).",
         "",
         "### e per robot",
         "",
@@ -297,7 +297,7 @@ def sim_lines(sim: SimResults, figures: Sequence[str]) -> list[str]:
     lines += [
         "",
         "Commands: " + "; ".join(commands) + ". The true-room rows come from the "
-        "results command only (`lessmap.evaluation.diagnosis.room_labels`).",
+        "results command only (`lessmap.evaluation.studies.diagnosis.room_labels`).",
         "",
     ]
     lines += ["### Consistency with the true room changes (all robots)", ""]
@@ -318,12 +318,12 @@ def _loss(result: MethodResult) -> Loss:
 
 
 def areas_lines(tables: str) -> list[str]:
-    """The comparison of the paper's method with ``lessmap.core.areas`` (issue 18)."""
+    """The comparison of the paper's method with ``lessmap.core.areas.tracker`` (issue 18)."""
     p = AreaParams()
     return [
         "## Beyond the paper: areas",
         "",
-        "`lessmap segment --method areas` (`lessmap.core.areas`, rules in its module "
+        "`lessmap segment --method areas` (`lessmap.core.areas.tracker`, rules in its module "
         "docstring) drives the paper's partitioner as a proposer of new areas "
         f"(Ncut ≤ {p.proposal.ncut_min:g}, λ2 ≤ {p.proposal.lambda2_min:g}) on frames pooled "
         f"to {p.pool_min_features} features or {p.pool_max_frames} frames. A proposal "
@@ -358,7 +358,8 @@ def areas_lines(tables: str) -> list[str]:
         "over its stamps; the simulated open room is `simulate(seed, rooms=1, "
         "room_size_m=...)`: one room, no doors, wall landmarks, a 5 m sensor.",
         "",
-        "`python -m lessmap.evaluation.areabench --seeds 5` (1-2 minutes) prints these tables; "
+        "`python -m lessmap.evaluation.studies.areabench --seeds 5` (1-2 minutes) prints these "
+        "tables; "
         "`--first-seed 5` runs held-out seeds, on which no parameter was tuned. "
         "`lessmap segment --method areas FILE` and `lessmap eval FILE --no-sweep` (areas rows "
         "in both tables) give the per-file figures.",
@@ -376,7 +377,7 @@ def area_graph_lines(tables: str) -> list[str]:
         "`lessmap segment --method areas FILE --area-graph G.json [--shared-features]` "
         "writes each robot's area graph (areas as nodes; passages as edges with a count per "
         "direction and the boundary features seen there) and the fleet's "
-        "(`lessmap.core.area_graph`, merged by `lessmap_client.fleet_areas`; a running "
+        "(`lessmap.core.areas.graph`, merged by `lessmap_client.fleet_areas`; a running "
         "fleet's: `lessmap areas`); `lessmap plot --area-graph G.json --out G.png` draws "
         "it. With `--shared-features` (feature ids global across the robots) areas of "
         f"different robots sharing at least {MIN_SHARED} features and "
@@ -408,7 +409,8 @@ def area_graph_lines(tables: str) -> list[str]:
         "linked (requiring more than half lost 10 of 110 true pairs on seeds 0-4, 270° "
         "sparse), and an area wholly contained in another room's (one held-out pair).",
         "",
-        "`python -m lessmap.evaluation.areagraph --seeds 5` (1-2 minutes) prints these tables.",
+        "`python -m lessmap.evaluation.scores.area_graphs --seeds 5` (1-2 minutes) prints these "
+        "tables.",
         "",
         *tables.rstrip().splitlines(),
         "",
@@ -424,9 +426,9 @@ def render(
     areas: str | None = None,
     area_graph: str | None = None,
 ) -> str:
-    """Return the whole page (``areas``: the tables of ``lessmap.evaluation.areabench``).
+    """Return the whole page (``areas``: the tables of ``lessmap.evaluation.studies.areabench``).
 
-    ``area_graph`` holds those of ``lessmap.evaluation.areagraph``.
+    ``area_graph`` holds those of ``lessmap.evaluation.scores.area_graphs``.
     """
     lines = header_lines(argv) + summary_lines(rec, sim) + recorded_lines(rec, figures)
     if sim is not None:

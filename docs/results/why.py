@@ -7,13 +7,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from lessmap.evaluation.markdown import e1, e3, method, ratio, stream_table, table
+from lessmap.evaluation.report.markdown import e1, e3, method, ratio, stream_table, table
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from lessmap.evaluation.diagnosis import StreamStats, VariantRow
-    from lessmap.evaluation.results import RecordedResults, SimResults
+    from lessmap.evaluation.report.results_page import RecordedResults, SimResults
+    from lessmap.evaluation.studies.diagnosis import StreamStats, VariantRow
 
 
 def _stream(rec: RecordedResults, sim: SimResults | None) -> list[str]:
@@ -32,7 +32,7 @@ def _stream(rec: RecordedResults, sim: SimResults | None) -> list[str]:
         "the CovGraph is a thin chain of small cliques along the path; the Ncut of a chain "
         "falls as it grows, whatever the environment, so Eq. 4 can be met after a roughly "
         "fixed distance instead of at a door (section 2 tests this). Measured by the results "
-        "command (`lessmap.evaluation.diagnosis.stream_stats`).",
+        "command (`lessmap.evaluation.studies.diagnosis.stream_stats`).",
         "",
     ]
     return lines

@@ -4,6 +4,6 @@ from __future__ import annotations
 
 import sys
 
-from lessmap.cli import main
+from lessmap.cli.app import main
 
 sys.exit(main())

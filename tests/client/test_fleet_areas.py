@@ -19,7 +19,7 @@ import pytest
 
 from lessmap.core import PartitionParams
 from lessmap.core.segmenter import Method, make_segmenter
-from lessmap.graph_file import read_graph_file
+from lessmap.files.area_graph import read_graph_file
 from lessmap.runtime.sessions import wire_area_graph
 from lessmap.sim.simulator import simulate
 from lessmap_client import FleetClient, RobotPublisher

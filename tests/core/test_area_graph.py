@@ -7,9 +7,9 @@ import itertools
 
 import pytest
 
-from lessmap.core.area_graph import AreaEdge, AreaGraph, AreaGraphBuilder, AreaNode
-from lessmap.core.areas import AreaTracker, AreaTransition
-from lessmap.core.submaps import Reason, Submap, Transition
+from lessmap.core.areas.graph import AreaEdge, AreaGraph, AreaGraphBuilder, AreaNode
+from lessmap.core.areas.tracker import AreaTracker, AreaTransition
+from lessmap.core.paper.submaps import Reason, Submap, Transition
 from lessmap_client.fleet_areas import FleetParams, fleet_graph
 from tests.core.helpers import Frames, room_walk
 

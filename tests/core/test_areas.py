@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from lessmap.core import GraphError, PartitionParams, StaleFrameError
-from lessmap.core.areas import AreaParams, AreaTracker, AreaTransition
-from lessmap.core.areas_snapshot import AREAS_SNAPSHOT_VERSION, from_bytes, to_bytes
+from lessmap.core.areas.snapshot import AREAS_SNAPSHOT_VERSION, from_bytes, to_bytes
+from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
 from tests.core.helpers import Frames, room_walk
 
 

@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from lessmap.core import GraphError, Reason
-from lessmap.core.areas import (
+from lessmap.core.areas.rules import blind_gap, blind_run, missing_frames, seam
+from lessmap.core.areas.snapshot import from_bytes, to_bytes
+from lessmap.core.areas.tracker import (
     AreaParams,
     AreaReason,
     AreaTracker,
@@ -24,9 +26,7 @@ from lessmap.core.areas import (
     profile,
     rate_overlap,
 )
-from lessmap.core.areas_rules import blind_gap, blind_run, missing_frames, seam
-from lessmap.core.areas_snapshot import from_bytes, to_bytes
-from lessmap.core.params import PartitionParams
+from lessmap.core.paper.params import PartitionParams
 from tests.core.helpers import room_walk
 
 if TYPE_CHECKING:

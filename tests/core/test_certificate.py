@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 from scipy import sparse
 
 from lessmap.core import Partitioner, PartitionParams
-from lessmap.core.spectral import (
+from lessmap.core.paper.spectral import (
     CERTIFICATE_MAX_NODES,
     Bisection,
     Components,
@@ -18,7 +18,7 @@ from lessmap.core.spectral import (
     lambda2_exceeds,
     split_graph,
 )
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from tests.conftest import dataset
 from tests.core.helpers import random_connected, room_walk, two_cliques
 

@@ -11,8 +11,8 @@ from hypothesis import given, settings, strategies as st
 from scipy import sparse
 
 from lessmap.core import CovGraph, Partitioner, PartitionParams
-from lessmap.core.counts import DenseCounts, SparseCounts, UpperCounts
-from lessmap.core.spectral import (
+from lessmap.core.paper.counts import DenseCounts, SparseCounts, UpperCounts
+from lessmap.core.paper.spectral import (
     components,
     cut_endpoints,
     fiedler_pair,
@@ -24,7 +24,7 @@ from tests.core.helpers import brute_counts, brute_covrate, random_connected, ro
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from lessmap.core.counts import CountStore
+    from lessmap.core.paper.counts import CountStore
 
 NODES = 12
 STORES: list[Callable[[int, UpperCounts], CountStore]] = [

@@ -261,7 +261,7 @@ def test_feature_id_views_are_read_only() -> None:
 
 
 def test_memory_edges_charge_a_large_dense_store_its_bytes() -> None:
-    from lessmap.core.counts import SPARSE_BYTES_PER_EDGE, DenseCounts
+    from lessmap.core.paper.counts import SPARSE_BYTES_PER_EDGE, DenseCounts
 
     small = CovGraph(dense_max_nodes=400)
     small.add_frame(0, range(30))

@@ -7,8 +7,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import sparse
 
-from lessmap.core import CovGraph, Partitioner, PartitionParams, covgraph
-from lessmap.core.counts import BlockChanges, Changes
+from lessmap.core import CovGraph, Partitioner, PartitionParams
+from lessmap.core.paper import covgraph
+from lessmap.core.paper.counts import BlockChanges, Changes
 from tests.core.helpers import observe_all, room_walk
 
 
@@ -201,7 +202,7 @@ def test_the_dense_store_stops_at_its_node_cap(monkeypatch: pytest.MonkeyPatch) 
 
 
 def transitions_of(partitioner: Partitioner, frames: list[list[int]]) -> list[tuple[object, ...]]:
-    """Every decision's outcome (as ``tests.benchmarks.core_bench`` compares them)."""
+    """Every decision's outcome (as ``benchmarks.core_bench`` compares them)."""
     found: list[tuple[object, ...]] = []
     for seq, frame in enumerate(frames):
         transition = partitioner.observe(seq, float(seq), frame)

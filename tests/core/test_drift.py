@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lessmap.core import CovGraph, Partitioner, PartitionParams, drift
-from lessmap.core.counts import BlockChanges, Changes
-from lessmap.core.drift import Floor, carry, cross_norm
-from lessmap.core.snapshot import from_bytes, to_bytes
-from lessmap.core.spectral import fiedler_pair
-from lessmap.frames_file import read_frames
+from lessmap.core import CovGraph, Partitioner, PartitionParams
+from lessmap.core.paper import drift
+from lessmap.core.paper.counts import BlockChanges, Changes
+from lessmap.core.paper.drift import Floor, carry, cross_norm
+from lessmap.core.paper.snapshot import from_bytes, to_bytes
+from lessmap.core.paper.spectral import fiedler_pair
+from lessmap.files.frames import read_frames
 from tests.conftest import dataset
 from tests.core.helpers import random_connected, room_walk
 from tests.core.test_certificate import decisions

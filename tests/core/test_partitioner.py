@@ -19,7 +19,7 @@ from lessmap.core import (
     Submap,
     Transition,
 )
-from lessmap.core.partitioner import _feature_ids
+from lessmap.core.paper.partitioner import _feature_ids
 from tests.core.helpers import (
     TWO_ROOM_DOOR,
     assert_same_state,

@@ -13,9 +13,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
-from lessmap.core import GraphError, Partitioner, PartitionParams, StaleFrameError, snapshot
-from lessmap.core.area_graph import MAX_BOUNDARY_FEATURES, AreaGraph, AreaGraphBuilder
-from lessmap.core.areas import AreaParams, AreaTracker, AreaTransition
+from lessmap.core import GraphError, Partitioner, PartitionParams, StaleFrameError
+from lessmap.core.areas.graph import MAX_BOUNDARY_FEATURES, AreaGraph, AreaGraphBuilder
+from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
+from lessmap.core.paper import snapshot
+from lessmap.core.paper.submaps import Transition
 from lessmap.core.segmenter import (
     AreasSegmenter,
     Method,
@@ -26,8 +28,7 @@ from lessmap.core.segmenter import (
     segmenter_from_bytes,
 )
 from lessmap.core.segmenter_snapshot import MAGIC, pack
-from lessmap.core.submaps import Transition
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap.sim.simulator import simulate
 from tests.conftest import dataset
 from tests.core.helpers import room_walk, two_room_frames

@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from lessmap.core import GraphError, Partitioner, PartitionParams, SeedMode, Transition, covgraph
-from lessmap.core.snapshot import SNAPSHOT_VERSION, from_bytes, to_bytes
+from lessmap.core import GraphError, Partitioner, PartitionParams, SeedMode, Transition
+from lessmap.core.paper import covgraph
+from lessmap.core.paper.snapshot import SNAPSHOT_VERSION, from_bytes, to_bytes
 from tests.core.helpers import assert_same_state, observe_all, room_walk, two_room_frames
 from tests.core.test_dense_path import dense_frames
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 from scipy import linalg, sparse
 
 from lessmap.core import GraphError, normalized_bisection, normalized_cut
-from lessmap.core.spectral import components, fiedler_pair, two_means_1d
+from lessmap.core.paper.spectral import components, fiedler_pair, two_means_1d
 from tests.core.helpers import (
     as_partition,
     brute_ncut,

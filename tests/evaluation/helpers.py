@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lessmap.evaluation.dataset import SlamProblem, first_sighting
+from lessmap.evaluation.data.dataset import SlamProblem, first_sighting
 
 if TYPE_CHECKING:
     from pathlib import Path

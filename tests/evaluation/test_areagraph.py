@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from lessmap.evaluation.areabench import rows
-from lessmap.evaluation.areagraph import (
+from lessmap.evaluation.scores.area_graphs import (
     GraphTally,
     area_rooms,
     graph_table,
@@ -13,6 +12,7 @@ from lessmap.evaluation.areagraph import (
     score_run,
     sweep_table,
 )
+from lessmap.evaluation.studies.areabench import rows
 
 if TYPE_CHECKING:
     from lessmap.sim.simulator import SimRun

@@ -8,17 +8,17 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from lessmap.cli import main
-from lessmap.core.areas import AreaParams
-from lessmap.evaluation.areabench import Tally, dlr_loss, revisits_met, rows
-from lessmap.evaluation.areas import (
+from lessmap.cli.app import main
+from lessmap.core.areas.tracker import AreaParams
+from lessmap.evaluation.methods import (
     AreaEvent,
     RevisitScore,
     area_of_frames,
     revisit_score,
     run_method,
 )
-from lessmap.frames_file import FrameRow
+from lessmap.evaluation.studies.areabench import Tally, dlr_loss, revisits_met, rows
+from lessmap.files.frames import FrameRow
 from lessmap.sim.simulator import TruthRow, simulate
 from tests.core.helpers import room_walk
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from lessmap.evaluation.baselines import fixed_features, fixed_frames, single_submap
-from lessmap.evaluation.segmentation import submap_features, submap_stats
+from lessmap.evaluation.data.segmentation import submap_features, submap_stats
 
 
 def new_features_stream(frames: int, per_frame: int) -> list[list[int]]:

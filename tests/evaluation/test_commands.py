@@ -1,4 +1,4 @@
-"""The ``eval`` and ``plot`` subcommands, parsed and run as cli.py does."""
+"""The ``eval`` and ``plot`` subcommands, parsed and run as cli/app.py does."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from lessmap.cli import command_parser, main
+from lessmap.cli.app import command_parser, main
 from lessmap.errors import ConfigError, DatasetError
 from lessmap.sim.simulator import simulate, write_run
 from tests.evaluation.helpers import write_dataset

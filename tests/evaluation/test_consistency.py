@@ -9,14 +9,14 @@ from typing import TYPE_CHECKING
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.evaluation.consistency import (
+from lessmap.evaluation.data.simrun import load_truth
+from lessmap.evaluation.scores.consistency import (
     Detection,
     fixed_feature_detections,
     lessmap_detections,
     score,
 )
-from lessmap.evaluation.simrun import load_truth
-from lessmap.frames_file import FrameRow, read_frames
+from lessmap.files.frames import FrameRow, read_frames
 from lessmap.sim import groundtruth
 from lessmap.sim.building import Door
 from lessmap.sim.simulator import RoomChange, SimTruth, TruthRow

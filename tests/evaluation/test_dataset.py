@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lessmap.errors import DatasetError
-from lessmap.evaluation.dataset import companion_path, load_dataset
+from lessmap.evaluation.data.dataset import companion_path, load_dataset
 from tests.evaluation.helpers import two_rooms, write_dataset
 
 if TYPE_CHECKING:

@@ -9,8 +9,9 @@ import pytest
 
 from lessmap.core import PartitionParams
 from lessmap.evaluation.baselines import fixed_features
-from lessmap.evaluation.dataset import load_dataset
-from lessmap.evaluation.diagnosis import (
+from lessmap.evaluation.data.dataset import load_dataset
+from lessmap.evaluation.scores.infoloss import landmark_information
+from lessmap.evaluation.studies.diagnosis import (
     count_curve,
     limit_for_count,
     off_diagonal_share,
@@ -18,8 +19,7 @@ from lessmap.evaluation.diagnosis import (
     stream_stats,
     variant_row,
 )
-from lessmap.evaluation.infoloss import landmark_information
-from lessmap.frames_file import FrameRow
+from lessmap.files.frames import FrameRow
 from lessmap.sim.building import Door
 from lessmap.sim.simulator import RoomChange, SimTruth, TruthRow
 from tests.evaluation.helpers import write_dataset

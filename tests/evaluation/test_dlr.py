@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.evaluation.dataset import load_dataset
-from lessmap.evaluation.report import evaluate
+from lessmap.evaluation.data.dataset import load_dataset
+from lessmap.evaluation.report.evaluation import evaluate
 
 DATASETS = Path(__file__).resolve().parents[2] / ".." / "shared" / "datasets"
 DLR = DATASETS / "dlr.frames.jsonl"

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lessmap.errors import DatasetError
-from lessmap.evaluation.infoloss import (
+from lessmap.evaluation.scores.infoloss import (
     LandmarkInformation,
     block_mass,
     information_loss,

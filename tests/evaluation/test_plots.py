@@ -5,12 +5,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
-from lessmap.evaluation.dataset import load_dataset
-from lessmap.evaluation.infoloss import landmark_information
-from lessmap.evaluation.plots import write_plots
-from lessmap.evaluation.segmentation import run_lessmap
-from lessmap.evaluation.sweep import sweep
-from lessmap.frames_file import FrameRow
+from lessmap.evaluation.data.dataset import load_dataset
+from lessmap.evaluation.data.segmentation import run_lessmap
+from lessmap.evaluation.figures.segmentation import write_plots
+from lessmap.evaluation.scores.infoloss import landmark_information
+from lessmap.evaluation.studies.sweep import sweep
+from lessmap.files.frames import FrameRow
 from tests.evaluation.helpers import write_dataset
 
 if TYPE_CHECKING:

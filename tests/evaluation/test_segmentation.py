@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from lessmap.core import PartitionParams
-from lessmap.evaluation.segmentation import consecutive, labels_from_transitions, run_lessmap
-from lessmap.frames_file import FrameRow
+from lessmap.evaluation.data.segmentation import consecutive, labels_from_transitions, run_lessmap
+from lessmap.files.frames import FrameRow
 from tests.evaluation.helpers import two_rooms
 
 

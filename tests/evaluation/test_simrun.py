@@ -10,15 +10,19 @@ import numpy as np
 import pytest
 
 from lessmap.errors import DatasetError
-from lessmap.evaluation.infoloss import information_loss, landmark_information, landmark_submaps
-from lessmap.evaluation.simrun import (
+from lessmap.evaluation.data.simrun import (
     choose_robot,
     is_sim_run,
     load_for_eval,
     load_truth,
     sim_problem,
 )
-from lessmap.frames_file import FrameRow
+from lessmap.evaluation.scores.infoloss import (
+    information_loss,
+    landmark_information,
+    landmark_submaps,
+)
+from lessmap.files.frames import FrameRow
 from tests.evaluation.helpers import write_dataset
 
 if TYPE_CHECKING:

@@ -5,10 +5,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
-from lessmap.evaluation.dataset import load_dataset
-from lessmap.evaluation.infoloss import landmark_information
-from lessmap.evaluation.segmentation import run_lessmap
-from lessmap.evaluation.sweep import format_table, run_grid, sweep
+from lessmap.evaluation.data.dataset import load_dataset
+from lessmap.evaluation.data.segmentation import run_lessmap
+from lessmap.evaluation.scores.infoloss import landmark_information
+from lessmap.evaluation.studies.sweep import format_table, run_grid, sweep
 from tests.evaluation.helpers import write_dataset
 
 if TYPE_CHECKING:

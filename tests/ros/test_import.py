@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from lessmap.cli import main
+from lessmap.cli.app import main
 from lessmap.ros.extract import feature_id
 from tests.ros.conftest import (
     APRILTAG,

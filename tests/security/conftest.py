@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 import zenoh
 
-from lessmap.certs import Site, make_site
+from lessmap.security.certs import Site, make_site
 from lessmap_client import connect
 from lessmap_client.session import open_session
 from tests.conftest import ServeProcess, free_port, wait_until

@@ -15,10 +15,10 @@ import zenoh
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from lessmap.certs import make_site, templates
-from lessmap.cli import main
+from lessmap.cli.app import main
 from lessmap.errors import ConfigError
-from lessmap.siteconfig import render, usrpwd_client_config, usrpwd_router_config
+from lessmap.security.certs import make_site, templates
+from lessmap.security.siteconfig import render, usrpwd_client_config, usrpwd_router_config
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from tests.conftest import free_port, wait_until
@@ -95,7 +95,7 @@ def test_the_command_writes_a_site_and_refuses_to_overwrite_it(
 
 def test_a_missing_cryptography_names_the_extra(tmp_path: Path) -> None:
     code = (
-        "import sys; sys.modules['cryptography'] = None; from lessmap.cli import main; "
+        "import sys; sys.modules['cryptography'] = None; from lessmap.cli.app import main; "
         f"sys.exit(main(['certs', '--out', {str(tmp_path)!r}, '--fleet', 'f']))"
     )
     result = subprocess.run(

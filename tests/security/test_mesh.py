@@ -21,10 +21,10 @@ import pytest
 import zenoh
 from cryptography import x509
 
-from lessmap.certs import TEMPLATE_MESH, Site, make_site
-from lessmap.cli import main
+from lessmap.cli.app import main
 from lessmap.errors import ConfigError
-from lessmap.siteconfig import access_rules, mesh_router_config, render
+from lessmap.security.certs import TEMPLATE_MESH, Site, make_site
+from lessmap.security.siteconfig import access_rules, mesh_router_config, render
 from lessmap_client import connect
 from lessmap_client.session import open_session
 from lessmap_schemas import encode, encoding, keys

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import pytest
 import zenoh
 
-from lessmap.certs import make_site
+from lessmap.security.certs import make_site
 from lessmap_client import connect
 from lessmap_client.session import open_session
 from lessmap_schemas import encode, encoding, keys

@@ -11,9 +11,9 @@ from typing import TYPE_CHECKING
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.core.areas import AreaParams
+from lessmap.core.areas.tracker import AreaParams
 from lessmap.core.segmenter import Method, make_segmenter
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap.runtime.sessions import wire_area_graph
 from lessmap.sim.simulator import simulate
 from lessmap_client import FleetClient, RobotPublisher

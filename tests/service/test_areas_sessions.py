@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.core.area_graph import MAX_BOUNDARY_FEATURES
+from lessmap.core.areas.graph import MAX_BOUNDARY_FEATURES
 from lessmap.core.segmenter import Method, make_segmenter
 from lessmap.runtime.outbox import wire_transition
 from lessmap.runtime.sessions import SessionTable, wire_area_graph

@@ -4,7 +4,7 @@ Each test runs a well-behaved robot (DLR, paced like a fast sensor) beside an ab
 with the service's default coalescing, and compares the well-behaved robot's transitions
 with ``lessmap segment``'s for its file: another robot's load must change none of them.
 Nothing here asserts on speed; latency figures are in docs/BENCHMARKS.md
-(``tests/benchmarks/noisy_neighbour.py``).
+(``benchmarks/noisy_neighbour.py``).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import pytest
 import zenoh
 
-from lessmap.frames_file import FrameRow, read_frames
+from lessmap.files.frames import FrameRow, read_frames
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode, encode

@@ -5,7 +5,7 @@ evicted and the service gives most of the wave's memory back. An evicted robot t
 again resumes its session (no SESSION_CLOSED, no gap).
 
 Measured (``-s`` prints it; details in docs/BENCHMARKS.md "Session flood and memory",
-``python -m tests.benchmarks.session_flood``): 1.09-1.10 x before here (3 runs). ``lessmap serve``
+``python -m benchmarks.session_flood``): 1.09-1.10 x before here (3 runs). ``lessmap serve``
 runs on glibc's malloc with two arenas (``lessmap.runtime.memory``); once the store has written
 the records of sessions that left, its writer collects (emptying CPython's free lists), clears
 the type attribute cache and SQLite's page cache and trims the heap. What stays (+5-9 MiB) is
@@ -25,8 +25,7 @@ import zenoh
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.messages import Frame
-from tests.benchmarks.session_flood import new_robot_wait_s
-from tests.conftest import ServeProcess, metric_value, wait_until
+from tests.conftest import ServeProcess, metric_value, new_robot_wait_s, wait_until
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 import zenoh
 
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap.sim.simulator import simulate, write_run
 from lessmap_client.session import open_session
 from lessmap_schemas import keys

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import pytest
 import zenoh
 
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap_client import FleetClient, wait_for_service
 from tests.conftest import ServeProcess, dataset, wait_until
 from tests.service.test_serve_e2e import as_record, drain, offline_transitions

@@ -22,7 +22,7 @@ import zenoh
 
 from lessmap.core import PartitionParams
 from lessmap.core.segmenter import Method, make_segmenter
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_schemas import keys
 from lessmap_schemas.codec import decode
@@ -33,7 +33,7 @@ from tests.service.test_serve_e2e import as_record, drain, offline_transitions, 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from lessmap.frames_file import FrameRow
+    from lessmap.files.frames import FrameRow
 
 pytestmark = pytest.mark.timeout(300)
 

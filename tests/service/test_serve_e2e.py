@@ -13,9 +13,9 @@ import msgpack
 import pytest
 import zenoh
 
+from lessmap.cli.segment import segment
 from lessmap.core import PartitionParams
-from lessmap.frames_file import FrameRow, read_frames
-from lessmap.offline import segment
+from lessmap.files.frames import FrameRow, read_frames
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_client.session import wait_for_service
 from lessmap_schemas import keys

@@ -11,11 +11,11 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
+from lessmap.cli.flags import FlagSpec, flag_specs
+from lessmap.config.settings import EMBEDDED_ENDPOINT, LimitSettings, ServiceSettings, load_settings
 from lessmap.core import PartitionParams, SeedMode
 from lessmap.errors import ConfigError
-from lessmap.flags import FlagSpec, flag_specs
 from lessmap.runtime.zenoh_config import service_config
-from lessmap.settings import EMBEDDED_ENDPOINT, LimitSettings, ServiceSettings, load_settings
 from lessmap_schemas.keys import validate_name
 
 if TYPE_CHECKING:
@@ -351,8 +351,8 @@ def test_every_wire_limit_is_a_setting_and_format_bounds_only_tighten(
 
 def serve_settings(*argv: str) -> Any:
     """Parse ``lessmap serve ARGV`` as the CLI does and build its settings (no service)."""
-    from lessmap.cli import command_parser
-    from lessmap.settings import settings_from_args
+    from lessmap.cli.app import command_parser
+    from lessmap.config.settings import settings_from_args
 
     parser, _run = command_parser("serve")
     args = parser.parse_args(argv)
@@ -532,7 +532,7 @@ def test_a_list_variable_that_is_not_json_is_one_line(monkeypatch: pytest.Monkey
 def test_serve_reports_a_bad_setting_in_one_line(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from lessmap.cli import main
+    from lessmap.cli.app import main
 
     monkeypatch.setenv("LESSMAP_BATCH_LINGER_MS", "500")
     assert main(["serve"]) == 1

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap.runtime.store import STORE_FILE
 from lessmap_client import FleetClient, RobotPublisher
 from tests.conftest import ServeProcess, dataset, metric_value, wait_until

@@ -6,7 +6,7 @@ import time
 from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
-from lessmap.core.areas import AreaParams
+from lessmap.core.areas.tracker import AreaParams
 from lessmap.core.segmenter import SIGHTING_EDGES, Method
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission, pairs_of
 from lessmap.runtime.sessions import SessionTable, commit_checkpoints

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from lessmap.core import Partitioner, PartitionParams, Transition
-from lessmap.frames_file import read_frames
+from lessmap.files.frames import read_frames
 from lessmap.sim.building import FACE_OFFSET_M, Building, Door, generate_building
 from lessmap.sim.groundtruth import Score, changes_from_truth, score
 from lessmap.sim.simulator import (

@@ -406,7 +406,7 @@ def test_record_writes_the_same_channels_to_mcap(
 
 
 def test_record_refuses_to_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from lessmap.cli import main
+    from lessmap.cli.app import main
 
     existing = tmp_path / "x.mcap"
     existing.write_bytes(b"keep")

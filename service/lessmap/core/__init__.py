@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from lessmap.core.covgraph import CovGraph, CovGraphState
 from lessmap.core.errors import GraphError, StaleFrameError
-from lessmap.core.params import PROFILES, PartitionParams, SeedMode
-from lessmap.core.partitioner import Partitioner, PartitionerState
-from lessmap.core.spectral import Bisection, normalized_bisection, normalized_cut
-from lessmap.core.submaps import Evaluation, Reason, Submap, Transition
+from lessmap.core.paper.covgraph import CovGraph, CovGraphState
+from lessmap.core.paper.params import PROFILES, PartitionParams, SeedMode
+from lessmap.core.paper.partitioner import Partitioner, PartitionerState
+from lessmap.core.paper.spectral import Bisection, normalized_bisection, normalized_cut
+from lessmap.core.paper.submaps import Evaluation, Reason, Submap, Transition
 
 __all__ = [
     "PROFILES",

@@ -39,19 +39,21 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
-from lessmap.core import areas_snapshot, segmenter_snapshot as record, snapshot
-from lessmap.core.area_graph import (
+from lessmap.core import segmenter_snapshot as record
+from lessmap.core.areas import snapshot as areas_snapshot
+from lessmap.core.areas.graph import (
     MAX_BOUNDARY_FEATURES,
     AreaEdge,
     AreaGraph,
     AreaGraphBuilder,
     AreaNode,
 )
-from lessmap.core.areas import AreaParams, AreaTracker, AreaTransition
+from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
 from lessmap.core.errors import GraphError, StaleFrameError
-from lessmap.core.params import PartitionParams
-from lessmap.core.partitioner import Partitioner, _feature_ids  # rule 2: its own check
-from lessmap.core.submaps import Submap, Transition
+from lessmap.core.paper import snapshot
+from lessmap.core.paper.params import PartitionParams
+from lessmap.core.paper.partitioner import Partitioner, _feature_ids  # rule 2: its own check
+from lessmap.core.paper.submaps import Submap, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence

@@ -8,8 +8,8 @@ sections back to back: ``inner``, the wrapped method's own snapshot, then int64 
 
 Rules of this file:
 
-1. **The method's snapshot, whole.** ``inner`` is what ``lessmap.core.snapshot`` (paper) or
-   ``lessmap.core.areas_snapshot`` (areas) writes, untouched: each method keeps the one
+1. **The method's snapshot, whole.** ``inner`` is what ``lessmap.core.paper.snapshot`` (paper) or
+   ``lessmap.core.areas.snapshot`` (areas) writes, untouched: each method keeps the one
    format its own tests hold to, and this record only adds what a segmenter keeps beside it.
 2. **The partitioner snapshot's framing.** Magic, CRC and a JSON header; the standard library
    and numpy only (the core imports no codec); floats as hex strings, which keep them exact.
@@ -34,9 +34,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lessmap.core.area_graph import AreaGraphBuilder, _Stats
+from lessmap.core.areas.graph import AreaGraphBuilder, _Stats
 from lessmap.core.errors import GraphError
-from lessmap.core.submaps import Reason, Submap, Transition
+from lessmap.core.paper.submaps import Reason, Submap, Transition
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping

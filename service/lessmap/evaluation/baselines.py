@@ -1,6 +1,6 @@
 """Baseline segmentations the paper compares against (§4.1, Figs. 9-10).
 
-Each returns the frame → submap labels (see ``lessmap.evaluation.segmentation``), computed
+Each returns the frame → submap labels (see ``lessmap.evaluation.data.segmentation``), computed
 from the frames alone, in one pass, as an online mapper would.
 """
 

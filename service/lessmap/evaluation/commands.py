@@ -1,4 +1,4 @@
-"""The ``lessmap eval`` and ``lessmap plot`` subcommands (wired into ``lessmap.cli``)."""
+"""The ``lessmap eval`` and ``lessmap plot`` subcommands (wired into ``lessmap.cli.app``)."""
 
 from __future__ import annotations
 
@@ -9,21 +9,21 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lessmap.core import PartitionParams
-from lessmap.errors import ConfigError
-from lessmap.evaluation.consistency import DEFAULT_DOOR_DISTANCE_M, DEFAULT_TOLERANCE_FRAMES
-from lessmap.evaluation.infoloss import DEFAULT_ANCHOR_INFORMATION
-from lessmap.partition_options import (
+from lessmap.config.partitioning import (
     add_partition_options,
     area_params,
     partition_params,
     partition_settings,
 )
+from lessmap.core import PartitionParams
+from lessmap.errors import ConfigError
+from lessmap.evaluation.scores.consistency import DEFAULT_DOOR_DISTANCE_M, DEFAULT_TOLERANCE_FRAMES
+from lessmap.evaluation.scores.infoloss import DEFAULT_ANCHOR_INFORMATION
 
 if TYPE_CHECKING:
-    from lessmap.core.area_graph import AreaGraph
-    from lessmap.evaluation.consistency import Consistency, Detection
-    from lessmap.evaluation.dataset import Dataset
+    from lessmap.core.areas.graph import AreaGraph
+    from lessmap.evaluation.data.dataset import Dataset
+    from lessmap.evaluation.scores.consistency import Consistency, Detection
     from lessmap.sim.simulator import SimTruth
     from lessmap_client.fleet_areas import FleetGraph
 
@@ -80,11 +80,11 @@ def run_eval(args: argparse.Namespace) -> int:
     """Print e of LESS-mapping and the baselines, and the sweep; write files with --out.
 
     On a simulated run (``<name>.truth.jsonl`` next to FILE) it also scores the transitions
-    of every robot against the true room changes (``lessmap.evaluation.consistency``).
+    of every robot against the true room changes (``lessmap.evaluation.scores.consistency``).
     """
-    from lessmap.evaluation.markdown import describe, eval_markdown
-    from lessmap.evaluation.report import evaluate
-    from lessmap.evaluation.simrun import is_sim_run, load_for_eval
+    from lessmap.evaluation.data.simrun import is_sim_run, load_for_eval
+    from lessmap.evaluation.report.evaluation import evaluate
+    from lessmap.evaluation.report.markdown import describe, eval_markdown
 
     params = _params(args)
     if args.plots and args.out is None:
@@ -128,11 +128,11 @@ def run_eval(args: argparse.Namespace) -> int:
         (out / "eval.json").write_text(json.dumps(document, indent=1) + "\n", "utf-8")
         figures: list[Path] = []
         if args.plots:
-            from lessmap.evaluation.plots import write_plots
+            from lessmap.evaluation.figures.segmentation import write_plots
 
             figures += write_plots(out, dataset.frames, report.lessmap, report.sweep)
             if truth is not None:
-                from lessmap.evaluation.charts import write_consistency_figure
+                from lessmap.evaluation.figures.building import write_consistency_figure
 
                 path = out / "consistency.png"
                 figures.append(write_consistency_figure(path, truth, detections))
@@ -151,14 +151,14 @@ def _consistency(
     Returns:
         The truth, the scores (LESS-mapping first) and each method's detections.
     """
-    from lessmap.evaluation.consistency import (
+    from lessmap.evaluation.data.simrun import load_truth
+    from lessmap.evaluation.scores.consistency import (
         area_detections,
         fixed_feature_detections,
         lessmap_detections,
         score,
     )
-    from lessmap.evaluation.simrun import load_truth
-    from lessmap.frames_file import read_frames
+    from lessmap.files.frames import read_frames
 
     if args.tolerance_frames < 0 or not args.door_distance >= 0:
         msg = "--tolerance-frames and --door-distance must not be negative"
@@ -199,12 +199,12 @@ def run_plot(args: argparse.Namespace) -> int:
     if args.file is None:
         msg = "give FILE (frames) or --area-graph OUT.json"
         raise ConfigError(msg)
-    from lessmap.evaluation.dataset import load_frames
-    from lessmap.evaluation.infoloss import landmark_information
-    from lessmap.evaluation.plots import write_plots
-    from lessmap.evaluation.segmentation import run_lessmap
-    from lessmap.evaluation.simrun import choose_robot, load_for_eval
-    from lessmap.evaluation.sweep import sweep
+    from lessmap.evaluation.data.dataset import load_frames
+    from lessmap.evaluation.data.segmentation import run_lessmap
+    from lessmap.evaluation.data.simrun import choose_robot, load_for_eval
+    from lessmap.evaluation.figures.segmentation import write_plots
+    from lessmap.evaluation.scores.infoloss import landmark_information
+    from lessmap.evaluation.studies.sweep import sweep
 
     params = _params(args)
     ncuts, lams = _grid(args)
@@ -225,8 +225,8 @@ def run_plot(args: argparse.Namespace) -> int:
 
 def _plot_area_graph(source: Path, robot: str | None, out: Path) -> int:
     """Draw an area-graph file's fleet graph, or one robot's."""
-    from lessmap.evaluation.graph_plot import draw_area_graph
-    from lessmap.graph_file import read_graph_file
+    from lessmap.evaluation.figures.area_graph import draw_area_graph
+    from lessmap.files.area_graph import read_graph_file
 
     robots, fleet = read_graph_file(source)
     if robot is None:

@@ -12,8 +12,8 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lessmap.cli.foreground import StopSignal, add_run_options, stop_signals
 from lessmap.errors import ConfigError
-from lessmap.foreground import StopSignal, add_run_options, stop_signals
 
 if TYPE_CHECKING:
     import argparse

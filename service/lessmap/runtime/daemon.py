@@ -11,18 +11,18 @@ from typing import TYPE_CHECKING
 import zenoh
 from threadpoolctl import threadpool_limits
 
-from lessmap.coexist import join_existing_router
+from lessmap.config.coexist import join_existing_router
+from lessmap.config.settings import add_settings_flags, settings_from_args
 from lessmap.runtime.memory import tune_allocator, use_system_malloc
 from lessmap.runtime.service import Service
-from lessmap.settings import add_settings_flags, settings_from_args
 
 if TYPE_CHECKING:
     import argparse
     from collections.abc import Sequence
     from types import FrameType
 
-    from lessmap.flags import FlagSpec
-    from lessmap.settings import ServiceSettings
+    from lessmap.cli.flags import FlagSpec
+    from lessmap.config.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ thousands of sessions are evicted the process stays at its peak size. ``malloc_t
 (glibc) returns the free pages at the top and in the middle of the heap; elsewhere (musl,
 macOS) it is a no-op.
 
-Trimming alone is not enough (``python -m tests.benchmarks.session_flood``, docs/BENCHMARKS.md
+Trimming alone is not enough (``python -m benchmarks.session_flood``, docs/BENCHMARKS.md
 "Session flood and memory"): after 10,000 one-frame sessions are evicted, most of what stays
 is pymalloc arenas (1 MiB each, given back only when every block in them is free: a few
 hundred surviving small objects keep dozens alive) and glibc's per-thread arenas (Zenoh's

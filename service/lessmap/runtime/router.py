@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from lessmap.config.settings import EMBEDDED_ENDPOINT, ServiceSettings
 from lessmap.errors import ConfigError
 from lessmap.runtime.zenoh_config import service_config
-from lessmap.settings import EMBEDDED_ENDPOINT, ServiceSettings
 
 if TYPE_CHECKING:
     import argparse

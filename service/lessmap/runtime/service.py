@@ -38,9 +38,10 @@ import zenoh
 from prometheus_client import start_http_server
 
 from lessmap import __version__
+from lessmap.config.partitioning import area_params
+from lessmap.config.settings import EMBEDDED_ENDPOINT
 from lessmap.core.segmenter import Method
 from lessmap.errors import ConfigError
-from lessmap.partition_options import area_params
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
@@ -51,7 +52,6 @@ from lessmap.runtime.sessions import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, PROBE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
 from lessmap.runtime.zenoh_config import service_config
-from lessmap.settings import EMBEDDED_ENDPOINT
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import WireError
@@ -62,8 +62,8 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
     from wsgiref.simple_server import WSGIServer
 
+    from lessmap.config.settings import ServiceSettings
     from lessmap.runtime.sessions import CatchupRequest
-    from lessmap.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
 

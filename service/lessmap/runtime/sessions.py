@@ -75,7 +75,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from lessmap.core import GraphError, PartitionParams
-from lessmap.core.areas import AreaParams
+from lessmap.core.areas.tracker import AreaParams
 from lessmap.core.segmenter import (
     DEFAULT_METHOD,
     Method,
@@ -99,7 +99,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
     from lessmap.core import Submap
-    from lessmap.core.area_graph import AreaGraph as CoreAreaGraph
+    from lessmap.core.areas.graph import AreaGraph as CoreAreaGraph
     from lessmap.core.segmenter import SegmentChange, Segmenter
     from lessmap.runtime.budget import EdgeLedger, SessionAdmission
     from lessmap.runtime.store import CheckpointStore

@@ -59,7 +59,7 @@ class SessionRecord:
     status: str  # "open" | "evicted" | "closed"
     last_seq: int | None  # highest seq received when the record was taken
     meta: dict[str, Any]  # counters, gap ranges, closed session ids, final state (JSON)
-    snapshot: bytes | None  # lessmap.core.snapshot bytes; None once closed
+    snapshot: bytes | None  # lessmap.core.paper.snapshot bytes; None once closed
     updated_s: float  # wall clock (time.time) of the record
 
     @property

@@ -12,13 +12,13 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
+from lessmap.config.settings import EMBEDDED_ENDPOINT
 from lessmap.errors import ConfigError
-from lessmap.settings import EMBEDDED_ENDPOINT
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from lessmap.settings import ServiceSettings
+    from lessmap.config.settings import ServiceSettings
 
 
 def service_config(settings: ServiceSettings, extra: Sequence[str] = ()) -> zenoh.Config:

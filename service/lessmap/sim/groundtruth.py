@@ -1,7 +1,8 @@
 """Score detected transitions against true room changes (simulation or surveyed ground truth).
 
-The one scorer of the project: the demo and the evaluation (``lessmap.evaluation.consistency``,
-which adds the door spreads) both call ``score``, each passing its window and distance.
+The one scorer of the project: the demo and the evaluation
+(``lessmap.evaluation.scores.consistency``, which adds the door spreads) both call ``score``,
+each passing its window and distance.
 
 Pure Python, no I/O: feed it what you have in memory, whether ``RoomChange`` objects from the
 simulator, rows read back from a ``<name>.truth.jsonl``, core ``Transition`` objects, wire

@@ -11,8 +11,8 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lessmap.cli.foreground import StopSignal, add_run_options, stop_signals
 from lessmap.errors import ConfigError
-from lessmap.foreground import StopSignal, add_run_options, stop_signals
 
 if TYPE_CHECKING:
     import argparse
@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 #: How long view and record wait for the lessmap router by default: they are often started
 #: together with ``lessmap serve``, which can take tens of seconds to listen on a loaded
-#: machine (the other foreground commands keep ``lessmap.foreground``'s default).
+#: machine (the other foreground commands keep ``lessmap.cli.foreground``'s default).
 CONNECT_TIMEOUT_S = 60.0
 #: Seconds between two fleet area queries with --shared-features (each asks every robot's
 #: area graph: less often than the state table's once a second).

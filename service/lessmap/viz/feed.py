@@ -28,7 +28,7 @@ the live server's context, never into an MCAP file.
 
 Poses. The trajectories come from the robots' frames keys; a secured site's access control
 lets a fleet app (``app.<fleet>``) read the transitions but not the frames, a viewer
-(``viewer.<fleet>``, ``lessmap.siteconfig``) both. When transitions arrive and no frame has
+(``viewer.<fleet>``, ``lessmap.security.siteconfig``) both. When transitions arrive and no frame has
 reached the view ``NO_FRAMES_WARNING_S`` later, the feed says so once.
 """
 

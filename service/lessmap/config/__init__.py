@@ -1,0 +1,1 @@
+"""Configuration: the service's settings, the partitioning options, sharing a host's router."""

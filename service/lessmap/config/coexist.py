@@ -1,0 +1,67 @@
+"""Share a machine with another Zenoh router, such as ROS 2's ``rmw_zenohd``.
+
+``lessmap serve`` with no Zenoh option opens its own router on ``tcp/127.0.0.1:7447``, the
+port ``rmw_zenohd`` (and any Zenoh router by default) takes too. When that port is already
+served by a Zenoh router, the service joins it as a *client* instead of failing: rmw_zenohd
+disables peer brokering, so a client is the mode that reaches every participant. lessmap's
+keys all start with ``lessmap/`` and ROS 2's with a domain id or ``@ros2_lv``, so the two
+never meet on one router. A port taken by something that is not a Zenoh router is an error
+that says what to do.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from typing import TYPE_CHECKING
+
+from lessmap.config.settings import EMBEDDED_ENDPOINT
+from lessmap.errors import ConfigError
+
+if TYPE_CHECKING:
+    from lessmap.config.settings import ServiceSettings
+
+log = logging.getLogger(__name__)
+
+
+def listening(endpoint: str, timeout_s: float = 0.5) -> bool:
+    """Return whether something accepts TCP connections at ``tcp/HOST:PORT``."""
+    host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+def join_existing_router(
+    settings: ServiceSettings, endpoint: str = EMBEDDED_ENDPOINT, timeout_s: float = 3.0
+) -> ServiceSettings:
+    """Return the settings to start with: a client of the router at ``endpoint`` if one is there.
+
+    Only when no Zenoh option was given (``settings.embedded``) and ``endpoint`` is taken;
+    otherwise ``settings`` unchanged.
+
+    Raises:
+        ConfigError: the endpoint is taken by something that is not a Zenoh router.
+    """
+    if not settings.embedded or not listening(endpoint):
+        return settings
+    from lessmap_client.session import open_session
+
+    try:
+        open_session([endpoint], timeout_s=timeout_s).close()
+    except ConnectionError:
+        msg = (
+            f"{endpoint} is taken by a program that is not a Zenoh router: stop it, or give "
+            f"lessmap its own port (lessmap serve -l tcp/127.0.0.1:7448; robots and apps "
+            f"then connect there with -e)"
+        )
+        raise ConfigError(msg) from None
+    log.info(
+        "a Zenoh router already listens on %s (rmw_zenohd?): joining it as a client "
+        "(same as -m client -e %s; give -l to run lessmap's own router elsewhere)",
+        endpoint,
+        endpoint,
+    )
+    return settings.model_copy(update={"mode": "client", "connect": (endpoint,)})

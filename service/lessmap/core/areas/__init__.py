@@ -1,0 +1,1 @@
+"""Areas on top of LESS-mapping: pooled evidence, confirmed splits, recognised revisits."""

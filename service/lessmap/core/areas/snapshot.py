@@ -1,0 +1,175 @@
+"""An ``AreaTracker``'s whole state as bytes and back, bit-exact.
+
+Format: an uncompressed NumPy ``.npz`` archive (``allow_pickle=False``), like the paper
+partitioner's (``lessmap.core.paper.snapshot``): ``proposer`` holds that snapshot's bytes, ragged
+int64 arrays hold the areas' counts (in their dicts' order, which the likelihoods of rule 5
+are summed in) and the kept frames, and ``meta`` is a UTF-8 JSON document of the scalars,
+the areas' frame counts and the merged areas. The version number changes whenever the layout
+does (2: frame counts per area and merges, for recognition and merging; 3: the parameter
+``familiar_relative``; 4: ``weak_ncut`` and ``weak_frames``; 5: ``blind_span`` and
+``blind_margin``; 6: ``seam_frames``; 7: ``period_steps``, the last stamp steps and the
+kept frames that follow a stamp gap; 8: ``max_area_sightings``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from lessmap.core.areas.tracker import AreaParams, AreaTracker, Candidate
+from lessmap.core.errors import GraphError
+from lessmap.core.paper import snapshot
+from lessmap.core.paper.submaps import Reason
+
+AREAS_SNAPSHOT_VERSION = 8
+#: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions
+#: checkpointed before the bound resume under it.
+READABLE_VERSIONS = (7, AREAS_SNAPSHOT_VERSION)
+
+_POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
+_INT_FIELDS = (
+    "segment_id",
+    "segment_first_seq",
+    "segment_frame_count",
+    "current",
+    "last_seq",
+    "frames_applied",
+    "transitions",
+)
+
+
+def _pack(rows: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Pack int lists as (offsets, values)."""
+    lengths = np.array([len(row) for row in rows], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    flat = [value for row in rows for value in row]
+    return offsets, np.asarray(flat, dtype=np.int64).reshape(-1)
+
+
+def _unpack(offsets: np.ndarray, values: np.ndarray) -> list[list[int]]:
+    return [values[offsets[i] : offsets[i + 1]].tolist() for i in range(offsets.size - 1)]
+
+
+def to_bytes(tracker: AreaTracker) -> bytes:
+    """Serialize an area tracker's whole state."""
+    params = asdict(tracker.params)
+    params["proposal"] = {
+        k: str(v) if k == "seed_mode" else v for k, v in params["proposal"].items()
+    }
+    candidate = tracker.candidate
+    meta: dict[str, Any] = {
+        "version": AREAS_SNAPSHOT_VERSION,
+        "params": params,
+        "pool": sorted(tracker.pool.features),
+        "pool_starts": [list(pair) for pair in tracker.pool.starts],
+        "frame_seqs": [seq for seq, _ in tracker.frames],
+        "steps": [step.hex() for step in tracker.steps],
+        "gaps": [list(gap) for gap in tracker.gaps],
+        "area_frames": list(tracker.area_frames),
+        "merged": [[gone, into] for gone, into in tracker.merged.items()],
+        "last_stamp_s": tracker.last_stamp_s.hex(),  # hex keeps the float exact
+        "candidate": None
+        if candidate is None
+        else {
+            "boundary_seq": candidate.boundary_seq,
+            "seq": candidate.seq,
+            "reason": str(candidate.reason),
+            "ncut": None if candidate.ncut is None else candidate.ncut.hex(),
+            "lambda2": None if candidate.lambda2 is None else candidate.lambda2.hex(),
+            "boundary_features": list(candidate.boundary_features),
+        },
+        **{name: getattr(tracker.pool, field) for name, field in _POOL_FIELDS.items()},
+        **{name: getattr(tracker, name) for name in _INT_FIELDS},
+    }
+    frame_offsets, frame_values = _pack([list(features) for _, features in tracker.frames])
+    area_offsets, area_features = _pack([list(counts) for counts in tracker.areas])
+    _, area_counts = _pack([list(counts.values()) for counts in tracker.areas])
+    arrays = {
+        "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+        "proposer": np.frombuffer(snapshot.to_bytes(tracker.proposer), dtype=np.uint8),
+        "frame_offsets": frame_offsets,
+        "frame_values": frame_values,
+        "area_offsets": area_offsets,
+        "area_features": area_features,
+        "area_counts": area_counts,
+        "segment_features": np.asarray(list(tracker.segment_counts), dtype=np.int64),
+        "segment_counts": np.asarray(list(tracker.segment_counts.values()), dtype=np.int64),
+    }
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    return buffer.getvalue()
+
+
+def from_bytes(data: bytes) -> AreaTracker:
+    """Rebuild an area tracker from ``to_bytes`` output.
+
+    Raises:
+        GraphError: the bytes are not an area snapshot of a supported version.
+    """
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+            arrays = {name: archive[name] for name in archive.files}
+        meta = json.loads(arrays["meta"].tobytes().decode())
+        if meta.get("version") not in READABLE_VERSIONS:
+            msg = f"area snapshot version {meta.get('version')!r}, expected one of "
+            msg += ", ".join(map(str, READABLE_VERSIONS))
+            raise GraphError(msg)
+        proposer = snapshot.from_bytes(arrays["proposer"].tobytes())
+        fields = dict(meta["params"])
+        fields["proposal"] = proposer.params
+        tracker = AreaTracker(AreaParams(**fields))
+        tracker.proposer = proposer
+        tracker.pool.features = set(meta["pool"])
+        tracker.pool.starts.extend((int(i), int(s)) for i, s in meta["pool_starts"])
+        frames = _unpack(arrays["frame_offsets"], arrays["frame_values"])
+        tracker.frames.extend(
+            (int(seq), tuple(features))
+            for seq, features in zip(meta["frame_seqs"], frames, strict=True)
+        )
+        tracker.areas = [
+            dict(zip(features, counts, strict=True))
+            for features, counts in zip(
+                _unpack(arrays["area_offsets"], arrays["area_features"]),
+                _unpack(arrays["area_offsets"], arrays["area_counts"]),
+                strict=True,
+            )
+        ]
+        tracker.segment_counts = dict(
+            zip(
+                arrays["segment_features"].tolist(),
+                arrays["segment_counts"].tolist(),
+                strict=True,
+            )
+        )
+        tracker.steps.extend(float.fromhex(step) for step in meta["steps"])
+        tracker.gaps.extend((int(seq), int(missing)) for seq, missing in meta["gaps"])
+        tracker.sightings = sum(map(len, tracker.areas))
+        tracker.area_frames = [int(n) for n in meta["area_frames"]]
+        tracker.merged = {int(gone): int(into) for gone, into in meta["merged"]}
+        for name, field in _POOL_FIELDS.items():
+            setattr(tracker.pool, field, meta[name])
+        for name in _INT_FIELDS:
+            setattr(tracker, name, meta[name])
+        tracker.last_stamp_s = float.fromhex(meta["last_stamp_s"])
+        found = meta["candidate"]
+        if found is not None:
+            tracker.candidate = Candidate(
+                boundary_seq=found["boundary_seq"],
+                seq=found["seq"],
+                reason=Reason(found["reason"]),
+                ncut=None if found["ncut"] is None else float.fromhex(found["ncut"]),
+                lambda2=None if found["lambda2"] is None else float.fromhex(found["lambda2"]),
+                boundary_features=tuple(found["boundary_features"]),
+            )
+    except GraphError:
+        raise
+    except Exception as exc:
+        # Snapshot bytes come from storage or another instance: anything malformed, however
+        # numpy, zipfile or json report it, is one error type for the caller.
+        msg = f"not an area snapshot: {type(exc).__name__}: {exc}"
+        raise GraphError(msg) from exc
+    return tracker

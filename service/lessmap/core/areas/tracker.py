@@ -1,0 +1,527 @@
+"""Areas on top of LESS-mapping: pooled evidence, confirmed splits, recognised revisits.
+
+The paper's partitioner (``lessmap.core.paper.partitioner``) declares a transition whenever its
+CovGraph passes Eq. 4 or falls apart. On sparse landmark streams that makes fragments of one
+or two features; with a 360° sensor it answers late, because the room left behind stays in
+view through the door; and every return to a room opens an anonymous new submap.
+``AreaTracker`` drives one ``Partitioner`` as a *proposer* of new areas, keeps a model of
+every area it confirmed, and recognises a known area when the robot comes back to it.
+
+Rules of this file (the comment at each ``AreaParams`` field says why its default is what
+it is, measured with ``python -m lessmap.evaluation.studies.areabench``):
+
+1. **Minimum evidence.** Frames are pooled before they reach the proposer: a pool closes
+   when it holds ``pool_min_features`` distinct features or spans ``pool_max_frames``
+   frames, and enters the proposer as one frame.
+2. **Proposals.** The proposer runs the paper's test (Eq. 4 or a disconnected graph) with
+   its own thresholds (``proposal``; looser than the paper's so it answers sooner). A
+   proposal names a boundary frame: the first frame of the pool where the proposer's new
+   side starts. A later proposal replaces a pending one.
+3. **Confirmation.** A proposal becomes a transition when all of these hold:
+
+   a. the frames of the current segment before the boundary hold ``min_area_features``
+      distinct features (else the proposal is dropped: no closed area is that small), and
+      the frames from the boundary on hold as many within ``confirm_frames`` frames of the
+      proposal (else it expires);
+   b. the boundary does not follow ``blind_frames`` empty frames, and no run of
+      ``blind_span`` empty frames lies in the frames from ``blind_margin`` non-empty frames
+      before the boundary on: a robot that saw nothing saw no boundary (a room wider than
+      the sensor's range, crossed blind, perhaps glimpsing a wall on the way). A stream
+      declared to leave out its empty frames (``period_steps`` above 0) shows them as a gap
+      between stamps: a frame that follows the one before by ``k + 1`` periods (rounded;
+      the period is the median of the last ``period_steps`` stamp steps) has ``k`` empty
+      frames before it. Other streams' stamps are not read: there a gap is a stall or a
+      loss, not blindness;
+   c. the frames from the boundary on are not the current area's own: when ``stay_share``
+      of their sightings are of features *familiar* to the current area (seen in
+      ``familiar_rate`` of its non-empty frames, or in ``familiar_relative`` times the mean
+      count of its features if that is less, as with a sparse sensor; leaving out the
+      frames from the boundary on and the ``familiar_margin_frames`` non-empty frames before
+      it, where a doorway shows the next room), the robot moved within its area and the
+      proposal is dropped;
+   d. a *weak* proposal, spectral with an Ncut above ``weak_ncut``, waits until the frames
+      from its boundary on span ``weak_frames`` frames (else it expires as in a): weaker
+      evidence must last longer before it counts.
+
+4. **Which area, on a proposal.** The features seen from the boundary on are compared with
+   every known area other than the current one: the share of them that the area has seen.
+   The best area with a share of at least ``revisit_overlap`` is entered again
+   (``revisit_of``); otherwise a new area is opened.
+5. **Recognition.** An area's *profile* gives each feature the probability
+   ``(count + 1/2) / (frames + 1)`` of a sighting in one of its frames, features
+   independent. When each of the last ``recognise_frames`` non-empty frames is more likely
+   under a known area's profile than under the current area's (fitted without those
+   frames), by ``recognise_llr`` nats per frame on average, the robot is back in that
+   area: the change needs no proposal. Its boundary walks back over the earlier frames
+   that also fit the known area better. Rules 3a (without waiting), 3b and 6 apply.
+6. **Merging.** When a change (rule 4 or 5) would enter a known area whose *rate overlap*
+   with the current area as it would be left (without the frames from the boundary on),
+   ``Σ_f min(r_A(f), r_B(f)) / min(Σ_f r_A(f), Σ_f r_B(f))`` with ``r_X(f)`` the share of
+   X's non-empty frames that saw f, is at least ``merge_overlap``, the two are one area seen
+   in two parts: they merge (the later id into the earlier), the frames stay where they
+   are, and no transition is reported.
+7. **Area model.** Each area keeps, per feature, the number of its frames that saw it, and
+   its number of non-empty frames. On a transition the frames from the boundary on move
+   from the area left to the area entered. Area ids count from 0 per tracker, in order of
+   opening; a merged id is never reused. The *segment* entered (the submap reported:
+   ``Transition.boundary_seq``, ``opened``) starts at the *seam*: of the frames from the
+   boundary to ``seam_frames`` frames after it, the one with the most features seen both in
+   the ``seam_frames`` frames before it and in those from it on (the earliest of equals;
+   both segments keep ``min_area_features``). The frames between boundary and seam are the
+   area entered's but the segment closed's: two submaps share the landmarks their robot saw
+   at the door (Eq. 5 counts a landmark in every submap that saw it).
+8. **State.** Everything that influences a later decision is in ``AreaTracker``'s fields and
+   round-trips through ``lessmap.core.areas.snapshot`` bit for bit; the proposer is a
+   ``Partitioner``, so its state is the paper's snapshot. Cached profiles are derived from
+   those fields, summed in their (preserved) order, so a restored tracker gets equal floats.
+9. **Bounded models.** The area models hold at most ``max_area_sightings`` (feature, area)
+   sightings. Above it the areas other than the current one with the fewest non-empty
+   frames (then the lowest id) forget their features, until 3/4 of the bound is left: a
+   forgotten area keeps its id, its frame count and its place in the area graph, but is no
+   longer entered again or recognised (rules 4-6 skip it). Checked after each frame added
+   and each settle; the number of sightings is derived from the models, not stored.
+
+No I/O, no clock, no logging: frames in, ``AreaTransition`` out. The parameters are in
+``areas_params``, the reported types in ``areas_events``, the likelihoods and overlaps in
+``areas_profile``, the tests of rules 3-5 in ``areas_rules``; all are importable from here.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+from lessmap.core.areas import rules
+from lessmap.core.areas.events import (
+    AreaReason,
+    AreaTransition,
+    Candidate,
+    Rule,
+    segment_transition,
+)
+from lessmap.core.areas.model import merge, move
+from lessmap.core.areas.params import EMPTY_OMITTED_PERIOD_STEPS, AreaParams
+from lessmap.core.areas.pool import Pool
+from lessmap.core.areas.profile import (
+    Frame,
+    Profile,
+    count,
+    distinct,
+    profile,
+    rate_overlap,
+    tally,
+    without,
+)
+from lessmap.core.errors import StaleFrameError
+from lessmap.core.paper.partitioner import Partitioner
+from lessmap.core.paper.submaps import Reason, Submap
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+__all__ = [
+    "EMPTY_OMITTED_PERIOD_STEPS",
+    "AreaParams",
+    "AreaReason",
+    "AreaTracker",
+    "AreaTransition",
+    "Candidate",
+    "Frame",
+    "Profile",
+    "Rule",
+    "profile",
+    "rate_overlap",
+]
+
+
+class AreaTracker:
+    """Areas of one robot session from its frames. No I/O."""
+
+    def __init__(self, params: AreaParams | None = None) -> None:
+        """Start an empty session in area 0."""
+        self.params = params if params is not None else AreaParams()
+        self.proposer = Partitioner(self.params.proposal)
+        p = self.params
+        self.pool = Pool(p.pool_min_features, p.pool_max_frames, p.proposal.history_frames + 1)
+        # the current segment (frames since the last transition)
+        self.segment_id = 0
+        self.segment_first_seq: int | None = None
+        self.segment_frame_count = 0
+        self.segment_counts: dict[int, int] = {}  # feature -> frames of the segment
+        self.frames: deque[Frame] = deque(maxlen=self.params.history_frames)
+        # rule 3b: the last stamp steps, and (frame, frames missing before it) of kept frames
+        self.steps: deque[float] = deque(maxlen=self.params.period_steps or None)
+        self.gaps: deque[tuple[int, int]] = deque()
+        # areas (rule 7); a merged area keeps its slot, empty, and its entry in ``merged``
+        self.areas: list[dict[int, int]] = [{}]
+        self.area_frames: list[int] = [0]  # non-empty frames per area
+        self.merged: dict[int, int] = {}  # merged area -> the area it merged into
+        self.sightings = 0  # entries of ``areas`` (rule 9), derived: not in the snapshot
+        self.current = 0
+        self.candidate: Candidate | None = None
+        self.last_seq: int | None = None
+        self.last_stamp_s = 0.0
+        self.frames_applied = 0
+        self.transitions = 0
+        self._profiles: dict[int, Profile | None] = {}  # derived from areas (rule 8)
+
+    # -- read ------------------------------------------------------------------------------
+
+    @property
+    def area_count(self) -> int:
+        """Areas opened so far and not merged into another (the current one included)."""
+        return len(self.areas) - len(self.merged)
+
+    def area_of(self, area: int) -> int:
+        """The area an id stands for now: itself, or the area it was merged into."""
+        while area in self.merged:
+            area = self.merged[area]
+        return area
+
+    def area_features(self, area: int) -> tuple[int, ...]:
+        """The features an area's frames have seen, ascending."""
+        return tuple(sorted(self.areas[self.area_of(area)]))
+
+    def current_segment(self) -> Submap:
+        """The open segment: its frames so far and their features."""
+        first = self.segment_first_seq
+        return Submap(
+            id=self.segment_id,
+            first_seq=first if first is not None else 0,
+            last_seq=self.last_seq if self.last_seq is not None else 0,
+            frame_count=self.segment_frame_count,
+            features=tuple(sorted(self.segment_counts)),
+        )
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
+        """Add one frame and settle at once; return the area change it confirms, if any.
+
+        Raises:
+            StaleFrameError: seq is not greater than the last seq.
+            GraphError: a feature ID is not an integer.
+        """
+        self.add(seq, stamp_s, features)
+        return self.settle()
+
+    def add(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """Count one frame in: the segment's and area's sightings, the pool, the proposer's graph.
+
+        The tests that can change the area (the proposer's Eq. 4, rules 3-6) wait for
+        ``settle``. Called after every frame, the two are ``observe``; a service behind its
+        load settles once for several frames, as the paper's partitioner decides once for
+        several, and then the tests run once (they were most of the method's cost, and
+        would not shrink under load if each frame ran them).
+
+        Raises:
+            StaleFrameError: seq is not greater than the last seq.
+            GraphError: a feature ID is not an integer.
+        """
+        if self.last_seq is not None and seq <= self.last_seq:
+            msg = f"frame seq {seq} is not after the last applied seq {self.last_seq}"
+            raise StaleFrameError(msg)
+        seen = distinct(seq, features)
+        self._step(seq, float(stamp_s))
+        self.last_seq = seq
+        self.last_stamp_s = float(stamp_s)
+        self.frames_applied += 1
+        if self.segment_first_seq is None:
+            self.segment_first_seq = seq
+        self.segment_frame_count += 1
+        self.frames.append((seq, seen))
+        self._forget_gaps()
+        count(self.segment_counts, seen)
+        if seen:
+            counts = self.areas[self.current]
+            known = len(counts)
+            count(counts, seen)
+            self.sightings += len(counts) - known
+            self.area_frames[self.current] += 1
+            self._profiles.pop(self.current, None)
+            self._bound_models()
+        closed = self.pool.add(seq, seen)
+        if closed is not None:
+            self.proposer.apply(closed[0], self.last_stamp_s, closed[1])
+
+    def settle(self) -> AreaTransition | None:
+        """Run the tests on the frames added since the last settle; return the change found.
+
+        The proposer decides once on the pools closed meanwhile (rules 1, 2), then a pending
+        proposal is confirmed, kept or dropped (rules 3, 4, 6) and the last frame, if it saw
+        anything, may be recognised (rule 5), all at the last frame added. Call it once after
+        the frames it covers: it tests the last frame again if called twice.
+        """
+        change = self._settle()
+        self._bound_models()
+        return change
+
+    def _settle(self) -> AreaTransition | None:
+        seq = self.last_seq
+        if seq is None:
+            return None
+        self._propose(seq)
+        if self.candidate is not None:
+            change = self._confirm(seq)
+            if change is not None:
+                return change
+        if self.frames and self.frames[-1][1] and self.params.recognise_frames:
+            return self._recognise(seq)
+        return None
+
+    def _step(self, seq: int, stamp_s: float) -> None:
+        """Note the frames missing before this one, at the stream's period (rule 3b).
+
+        A stream without its empty frames (a frame only when something is seen) shows the
+        robot's blindness only in its stamps.
+        """
+        if not self.params.period_steps or self.last_seq is None:
+            return
+        step = stamp_s - self.last_stamp_s
+        if step <= 0.0:
+            return  # equal stamps tell no period
+        if self.steps:
+            missing = rules.missing_frames(step, self.steps)
+            if missing:
+                self.gaps.append((seq, missing))
+        self.steps.append(step)
+
+    def _forget_gaps(self) -> None:
+        """Drop the gaps before the first kept frame (no rule looks there)."""
+        first = self.frames[0][0] if self.frames else None
+        while self.gaps and (first is None or self.gaps[0][0] < first):
+            self.gaps.popleft()
+
+    def _propose(self, seq: int) -> None:
+        """Let the proposer decide on the pools it was handed since (rules 1, 2)."""
+        proposal = self.proposer.decide()
+        if proposal is not None:
+            self.candidate = Candidate(
+                boundary_seq=self.pool.start_of(proposal.boundary_seq, seq),
+                seq=seq,
+                reason=proposal.reason,
+                ncut=proposal.ncut,
+                lambda2=proposal.lambda2,
+                boundary_features=proposal.boundary_features,
+            )
+
+    # -- rules 3, 4: a proposal ------------------------------------------------------------
+
+    def _confirm(self, seq: int) -> AreaTransition | None:
+        """Confirm, keep waiting on, or drop the pending proposal (rules 3, 4, 6)."""
+        candidate = self.candidate
+        assert candidate is not None
+        boundary = candidate.boundary_seq
+        p = self.params
+        weak = candidate.ncut is not None and candidate.ncut > p.weak_ncut
+        if weak and seq - boundary < p.weak_frames:  # rule 3d
+            if seq - candidate.seq >= p.confirm_frames:
+                self.candidate = None
+            return None
+        after, before, moved = rules.sides(self.frames, self.segment_counts, boundary)
+        minimum = self.params.min_area_features
+        if len(before) < minimum:
+            self.candidate = None  # no closed area is this small: the segment goes on
+            return None
+        if len(after) < minimum:
+            if seq - candidate.seq >= self.params.confirm_frames:
+                self.candidate = None
+            return None
+        share = rules.familiar_share(
+            self.frames,
+            self.areas[self.current],
+            self.area_frames[self.current],
+            boundary,
+            after,
+            rate=p.familiar_rate,
+            margin=p.familiar_margin_frames,
+            relative=p.familiar_relative,
+        )
+        if self._blind(boundary) or share >= p.stay_share:
+            self.candidate = None
+            return None
+        known, overlap = rules.known_area(
+            self.areas, self._live(), self.current, after, p.revisit_overlap
+        )
+        if known is not None and self._merges_with(known, after, moved):
+            self.candidate = None
+            return None
+        return self._enter(candidate, seq, known, overlap, Rule.SPLIT)
+
+    # -- rule 5: recognition ---------------------------------------------------------------
+
+    def _recognise(self, seq: int) -> AreaTransition | None:
+        """Enter the known area the last frames fit better than the current one, if any."""
+        first = self.segment_first_seq
+        window = rules.last_nonempty(self.frames, self.params.recognise_frames)
+        if first is None or window is None or window[0][0] <= first:
+            return None
+        leave, left = tally(window)
+        # Only the window's frames are weighed against known areas, so the current area's
+        # profile needs only their features' gains (rule 5 costs a profile every frame).
+        counts, frames = self.areas[self.current], self.area_frames[self.current]
+        here = profile(counts, frames, leave, left, only=leave)
+        if here is None:
+            return None
+        best = rules.best_fit(
+            window,
+            here,
+            self._live(),
+            lambda area: self._profile(area) if area != self.current else None,
+            self.params.recognise_llr,
+        )
+        if best is None:
+            return None
+        there = self._profile(best)
+        assert there is not None
+        here = profile(counts, frames, leave, left)  # all gains: walk_back reads earlier frames
+        assert here is not None
+        boundary = rules.walk_back(self.frames, window[0][0], first, there, here)
+        after, before, moved = rules.sides(self.frames, self.segment_counts, boundary)
+        minimum = self.params.min_area_features
+        if len(before) < minimum or len(after) < minimum:
+            return None
+        if self._blind(boundary):
+            return None
+        if self._merges_with(best, after, moved):
+            return None
+        candidate = Candidate(
+            boundary_seq=boundary,
+            seq=seq,
+            reason=Reason.SPECTRAL,
+            ncut=None,
+            lambda2=None,
+            boundary_features=(),
+        )
+        overlap = rules.seen_share(self.areas[best], after)
+        return self._enter(candidate, seq, best, overlap, Rule.RECOGNISED)
+
+    def _blind(self, boundary: int) -> bool:
+        """Whether the robot reached the new side blind (rule 3b)."""
+        p = self.params
+        if rules.blind_before(self.frames, boundary, p.blind_frames):
+            return True
+        if rules.blind_gap(
+            self.frames, self.gaps, boundary, (p.blind_frames, p.blind_span), p.blind_margin
+        ):
+            return True
+        return bool(p.blind_span) and (
+            rules.blind_run(self.frames, boundary, p.blind_margin) >= p.blind_span
+        )
+
+    def _profile(self, area: int) -> Profile | None:
+        if area not in self._profiles:
+            self._profiles[area] = profile(self.areas[area], self.area_frames[area])
+        return self._profiles[area]
+
+    # -- rules 6, 7: the area model --------------------------------------------------------
+
+    def _live(self) -> Iterable[int]:
+        """The areas a robot can enter again: neither merged nor forgotten (rule 9)."""
+        return (
+            area
+            for area in range(len(self.areas))
+            if area not in self.merged and (self.areas[area] or not self.area_frames[area])
+        )
+
+    def _bound_models(self) -> None:
+        """Forget the smallest areas' features while the models hold too many (rule 9)."""
+        bound = self.params.max_area_sightings
+        if not bound or self.sightings <= bound:
+            return
+        keep = bound - bound // 4
+        order = sorted(
+            (self.area_frames[area], area)
+            for area in range(len(self.areas))
+            if area != self.current and self.areas[area]
+        )
+        for _, area in order:
+            if self.sightings <= keep:
+                break
+            self.sightings -= len(self.areas[area])
+            self.areas[area] = {}
+            self._profiles.pop(area, None)
+
+    def _count_sightings(self) -> None:
+        self.sightings = sum(map(len, self.areas))
+
+    def _merges_with(self, known: int, after: dict[int, int], moved: int) -> bool:
+        """Merge ``known`` and the current area if they overlap enough (rule 6).
+
+        The current area is compared as it would be left: without the frames from the
+        boundary on (``after``, ``moved`` of them non-empty), which would go to ``known``.
+        """
+        current = self.current
+        left = without(self.areas[current], after)
+        overlap = rate_overlap(
+            left, self.area_frames[current] - moved, self.areas[known], self.area_frames[known]
+        )
+        if overlap < self.params.merge_overlap:
+            return False
+        keep = merge(self.areas, self.area_frames, self.merged, current, known)
+        self._count_sightings()
+        self.current = keep
+        self._profiles.pop(current, None)
+        self._profiles.pop(known, None)
+        return True
+
+    def _enter(
+        self,
+        candidate: Candidate,
+        seq: int,
+        known: int | None,
+        overlap: float,
+        rule: Rule,
+    ) -> AreaTransition:
+        """Close the segment at the boundary, move its new frames to the area entered."""
+        boundary = candidate.boundary_seq
+        after, _, moved_nonempty = rules.sides(self.frames, self.segment_counts, boundary)
+        left = self.current
+        if known is None:
+            self.areas.append({})
+            self.area_frames.append(0)
+            area = len(self.areas) - 1
+        else:
+            area = known
+        move(self.areas, self.area_frames, left, area, after, moved_nonempty)
+        self._count_sightings()
+        self._profiles.pop(left, None)
+        self._profiles.pop(area, None)
+        # the segments (submaps) meet at the seam, at or after the area boundary
+        p = self.params
+        seam = rules.seam(
+            self.frames, self.segment_counts, boundary, p.seam_frames, p.min_area_features
+        )
+        if seam != boundary:
+            candidate = replace(candidate, boundary_seq=seam)
+            after, before, _ = rules.sides(self.frames, self.segment_counts, seam)
+        else:
+            before = without(self.segment_counts, after)
+        moved = [frame for frame in self.frames if frame[0] >= seam]
+        first = self.segment_first_seq if self.segment_first_seq is not None else seq
+        transition = segment_transition(
+            candidate,
+            seq,
+            self.last_stamp_s,
+            closed=(self.segment_id, first, self.segment_frame_count - len(moved), before),
+            opened=(len(moved), after),
+        )
+        self.frames.clear()
+        self.frames.extend(moved)
+        self._forget_gaps()
+        self.segment_id += 1
+        self.segment_first_seq = seam
+        self.segment_frame_count = len(moved)
+        self.segment_counts = dict(after)
+        self.current = area
+        self.candidate = None
+        self.transitions += 1
+        return AreaTransition(
+            transition=transition,
+            area=area,
+            left_area=left,
+            revisit_of=known,
+            overlap=overlap,
+            rule=rule,
+        )

@@ -1,0 +1,1 @@
+"""What the evaluation reads: data sets, simulated runs, segmentations as frame labels."""

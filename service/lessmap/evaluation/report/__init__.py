@@ -1,0 +1,1 @@
+"""Reports: ``lessmap eval``'s evaluation and Markdown, the measured figures of RESULTS.md."""

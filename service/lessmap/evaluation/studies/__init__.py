@@ -1,0 +1,1 @@
+"""Studies that compare methods and parameters: the areas benchmark, sweeps, diagnosis."""

@@ -1,0 +1,1 @@
+"""File formats the offline tools read and write: frames files and area-graph files."""

@@ -1,0 +1,1 @@
+"""Who may do what on a site: certificates, access rules and the Zenoh configs that carry them."""
