@@ -75,7 +75,7 @@ if TYPE_CHECKING:
 
     from lessmap.core.paper.submaps import Evaluation
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 SIZES = (50, 100, 200, 400, 800, 1600, 3200)
 QUICK_SIZES = (50, 200, 800)
 ARPACK_TOL = 1e-10

@@ -35,7 +35,7 @@ from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.messages import Frame, Transition
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 DLR = REPO / ".." / "shared" / "datasets" / "dlr.frames.jsonl"
 
 

@@ -97,7 +97,7 @@ __all__ = [
     "simulated_streams",
 ]
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 _KNEE_ROBOTS = (25, 50, 100, 150, 200, 300, 400, 600, 800, 1000)
 
 

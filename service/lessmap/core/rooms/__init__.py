@@ -1,0 +1,1 @@
+"""Rooms: a windowed normalized cut of the frame stream, confirmed by familiarity, areas named."""

@@ -1,0 +1,52 @@
+"""``RoomParams``: how a ``RoomTracker`` sizes its window, cuts it and confirms a cut.
+
+The rules the fields tune are in ``lessmap.core.rooms.tracker``'s docstring. Every size is
+counted in evidence (the view's own change), never in frames or seconds, so one setting
+serves a robot sending 2 frames a second and one sending 30, a laser and a camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from lessmap.core.errors import GraphError
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RoomParams:
+    """How a ``RoomTracker`` finds and names rooms (rules in ``lessmap.core.rooms.tracker``)."""
+
+    # Rule 1: a window side spans the frames over which the view keeps this CovRate with
+    # its first frame, learnt from the stream; so its length follows speed, rate and range.
+    window_similarity: float = 0.7
+    window_min_frames: int = 3  # fewer frames make a noisy mean of similarities
+    window_max_frames: int = 30  # the memory a side may take, and the decision's lag
+    lag_smoothing: float = 0.02  # weight of a new frame in the learnt lag profile
+    # Rule 2: the cut of a window, (within-side similarity) - (across-side similarity).
+    cut_min: float = 0.15
+    # Rule 3: a cut is a room change only when the new side is not the segment's own.
+    familiar_relative: float = 0.5  # familiar: seen this share of the mean sightings
+    stay_share: float = 0.5  # of the new side's sightings, familiar ones at least this
+    min_side_features: int = 5  # distinct features on each side of a change
+    # Rule 4: the area entered, when the new side's features are mostly an area's.
+    revisit_overlap: float = 0.5
+    # Rule 6: sightings (feature, area) the area models hold at most; 0: no bound.
+    max_area_sightings: int = 100_000
+
+    def __post_init__(self) -> None:
+        checks = {
+            "window_similarity": 0.0 < self.window_similarity < 1.0,
+            "window_min_frames": self.window_min_frames >= 2,
+            "window_max_frames": self.window_max_frames >= self.window_min_frames,
+            "lag_smoothing": 0.0 < self.lag_smoothing <= 1.0,
+            "cut_min": self.cut_min > 0.0,
+            "familiar_relative": self.familiar_relative >= 0.0,
+            "stay_share": self.stay_share > 0.0,
+            "min_side_features": self.min_side_features >= 1,
+            "revisit_overlap": 0.0 < self.revisit_overlap <= 1.0,
+            "max_area_sightings": self.max_area_sightings >= 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                msg = f"invalid room parameter {name}={getattr(self, name)!r}"
+                raise GraphError(msg)

@@ -1,0 +1,273 @@
+"""Rooms of one robot session from its frames: a windowed cut, confirmed, its areas named.
+
+The paper cuts the CovGraph of everything seen since the last transition, so a small room
+must outweigh the whole area before it, and a 360° sensor, which keeps the room behind in
+view, decides late. Here the cut is local: the frames just seen against the frames before
+them, in windows sized by how fast the view changes.
+
+1. **Window.** Non-empty frames enter a window; a half spans the frames over which the view
+   keeps ``window_similarity`` of CovRate with its first frame, learnt from the stream's
+   own lag profile (so a half is about the same stretch of building at any speed or rate).
+2. **Cut.** At every frame the window is cut between its newer half and the half before:
+   score = mean similarity within the halves - mean similarity across them. A score of at
+   least ``cut_min`` that is a peak (above the scores of the half before it and of the next
+   frame) proposes a change whose boundary is the newer half's first frame.
+3. **Confirmation.** A proposal is a change unless (a) a side holds fewer than
+   ``min_side_features`` distinct features, or (b) the new half is the segment's own: at
+   least ``stay_share`` of its sightings are of features the segment saw often (at least
+   ``familiar_relative`` times its mean sightings per feature), as after a turn in a room.
+4. **Naming.** The features of the new half are compared with every other known area: the
+   best holding at least ``revisit_overlap`` of them is entered again, else a new area opens.
+5. **Models.** A segment's and an area's counts of sightings per feature; on a change the
+   frames from the boundary on move to the new segment and area. Area ids count from 0.
+6. **Bounded.** The area models hold at most ``max_area_sightings``; above it the areas other
+   than the current one with the fewest frames forget their features (never entered again).
+7. **State.** Everything a later decision reads is in the fields and round-trips through
+   ``lessmap.core.rooms.snapshot`` bit for bit. No I/O, no clock, no logging.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import TYPE_CHECKING
+
+from lessmap.core.areas.events import AreaTransition, Candidate, Rule
+from lessmap.core.areas.profile import count, distinct
+from lessmap.core.errors import StaleFrameError
+from lessmap.core.paper.submaps import Reason, Submap
+from lessmap.core.rooms.params import RoomParams
+from lessmap.core.rooms.window import Cut, FrameWindow
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+from lessmap.core.areas.events import segment_transition
+
+#: Frames (empty ones too) whose seqs are kept to count a new segment's frames.
+SEQ_MEMORY = 4096
+
+
+class RoomTracker:
+    """Rooms of one robot session. No I/O."""
+
+    def __init__(self, params: RoomParams | None = None) -> None:
+        """Start an empty session in area 0."""
+        self.params = params if params is not None else RoomParams()
+        self.window = FrameWindow(self.params)
+        self.cuts: deque[Cut] = deque(maxlen=self.params.window_max_frames + 1)
+        self.seqs: deque[int] = deque(maxlen=SEQ_MEMORY)  # every applied frame's seq
+        self.segment_id = 0
+        self.segment_first_seq: int | None = None
+        self.segment_frame_count = 0
+        self.segment_counts: dict[int, int] = {}
+        self.segment_nonempty = 0
+        self.areas: list[dict[int, int]] = [{}]
+        self.area_frames: list[int] = [0]
+        self.current = 0
+        self.last_boundary: int | None = None
+        self.last_seq: int | None = None
+        self.last_stamp_s = 0.0
+        self.frames_applied = 0
+        self.transitions = 0
+        self.pending: AreaTransition | None = None
+
+    # -- read ------------------------------------------------------------------------------
+
+    @property
+    def sightings(self) -> int:
+        """(feature, area) entries the area models hold (rule 6)."""
+        return sum(len(area) for area in self.areas)
+
+    @property
+    def area_count(self) -> int:
+        """Areas opened so far."""
+        return len(self.areas)
+
+    def area_of(self, area: int) -> int:
+        """The area an id stands for (areas never merge here)."""
+        return area
+
+    def area_features(self, area: int) -> tuple[int, ...]:
+        """The features an area's frames have seen, ascending."""
+        return tuple(sorted(self.areas[area]))
+
+    def current_segment(self) -> Submap:
+        """The open segment: its frames so far and their features."""
+        first = self.segment_first_seq
+        return Submap(
+            id=self.segment_id,
+            first_seq=first if first is not None else 0,
+            last_seq=self.last_seq if self.last_seq is not None else 0,
+            frame_count=self.segment_frame_count,
+            features=tuple(sorted(self.segment_counts)),
+        )
+
+    def feature_known(self, feature: int) -> bool:
+        """Whether the current segment or window has seen a feature."""
+        return feature in self.segment_counts
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def add(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
+        """Count one frame in and cut the window (rules 1, 2); confirmation waits for settle.
+
+        Raises:
+            StaleFrameError: seq is not greater than the last seq.
+            GraphError: a feature ID is not an integer.
+        """
+        if self.last_seq is not None and seq <= self.last_seq:
+            msg = f"frame seq {seq} is not after the last applied seq {self.last_seq}"
+            raise StaleFrameError(msg)
+        seen = distinct(seq, features)
+        self.last_seq = seq
+        self.last_stamp_s = float(stamp_s)
+        self.frames_applied += 1
+        self.seqs.append(seq)
+        if self.segment_first_seq is None:
+            self.segment_first_seq = seq
+        self.segment_frame_count += 1
+        if not seen:
+            return  # a robot that saw nothing saw no boundary
+        count(self.segment_counts, seen)
+        self.segment_nonempty += 1
+        count(self.areas[self.current], seen)
+        self.area_frames[self.current] += 1
+        self.window.add(seq, frozenset(seen))
+        cut = self.window.cut()
+        if cut is not None:
+            self.cuts.append(cut)
+            if self.pending is None:
+                self.pending = self._proposal()
+        self._bound_models()
+
+    def settle(self) -> AreaTransition | None:
+        """Return the change found since the last settle, if any."""
+        change, self.pending = self.pending, None
+        return change
+
+    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
+        """``add`` then ``settle``."""
+        self.add(seq, stamp_s, features)
+        return self.settle()
+
+    # -- rules 2-5 -------------------------------------------------------------------------
+
+    def _proposal(self) -> AreaTransition | None:
+        """The change at the peak one cut back, if it is one and passes rule 3."""
+        if len(self.cuts) < 2:
+            return None
+        peak, after = self.cuts[-2], self.cuts[-1]
+        p = self.params
+        if peak.score < p.cut_min or peak.score <= after.score:
+            return None
+        earlier = [c.score for c in self.cuts if peak.boundary_seq - peak.width <= c.boundary_seq]
+        if max(earlier[:-2], default=0.0) > peak.score:
+            return None
+        if self.last_boundary is not None and peak.boundary_seq <= self.last_boundary:
+            return None
+        new = [f for s, f in self.window.frames if s >= peak.boundary_seq]
+        return self._confirm(peak, new)
+
+    def _confirm(self, peak: Cut, new: list[frozenset[int]]) -> AreaTransition | None:
+        p = self.params
+        moved: dict[int, int] = {}
+        for frame in new:
+            count(moved, frame)
+        before = {f: c - moved.get(f, 0) for f, c in self.segment_counts.items()}
+        before = {f: c for f, c in before.items() if c > 0}
+        if len(before) < p.min_side_features or len(moved) < p.min_side_features:
+            return None
+        sightings = sum(moved.values())
+        mean = sum(before.values()) / len(before)
+        familiar = sum(
+            c for f, c in moved.items() if before.get(f, 0) >= p.familiar_relative * mean
+        )
+        if familiar >= p.stay_share * sightings and self._known_area(moved)[1] < p.revisit_overlap:
+            return None
+        return self._change(peak, moved, before)
+
+    def _known_area(self, moved: dict[int, int]) -> tuple[int | None, float]:
+        """The other area holding the largest share of the new half's features (rule 4)."""
+        best, overlap = None, 0.0
+        for area, counts in enumerate(self.areas):
+            if area == self.current or not counts:
+                continue
+            share = sum(1 for f in moved if f in counts) / len(moved)
+            if share > overlap:
+                best, overlap = area, share
+        return best, overlap
+
+    def _change(self, peak: Cut, moved: dict[int, int], before: dict[int, int]) -> AreaTransition:
+        """Close the segment at the peak's boundary and enter the named area (rules 4, 5)."""
+        p = self.params
+        boundary = peak.boundary_seq
+        assert self.last_seq is not None
+        new_frames = sum(1 for s in self.seqs if s >= boundary)
+        left = self.current
+        best, overlap = self._known_area(moved)
+        revisit = best if best is not None and overlap >= p.revisit_overlap else None
+        entered = revisit if revisit is not None else len(self.areas)
+        if revisit is None:
+            self.areas.append({})
+            self.area_frames.append(0)
+        # rule 5: the frames from the boundary on move to the segment and area entered
+        left_counts = self.areas[left]
+        for f, c in moved.items():
+            left_counts[f] -= c
+            if left_counts[f] <= 0:
+                del left_counts[f]
+        count_into = self.areas[entered]
+        for f, c in moved.items():
+            count_into[f] = count_into.get(f, 0) + c
+        new_nonempty = sum(1 for s, _ in self.window.frames if s >= boundary)
+        self.area_frames[left] -= new_nonempty
+        self.area_frames[entered] += new_nonempty
+        ncut, lambda2 = self.window.figures(boundary)
+        candidate = Candidate(
+            boundary_seq=boundary,
+            seq=self.last_seq,
+            reason=Reason.SPECTRAL,
+            ncut=ncut,
+            lambda2=lambda2,
+            boundary_features=(),
+        )
+        first = self.segment_first_seq if self.segment_first_seq is not None else boundary
+        transition = segment_transition(
+            candidate,
+            self.last_seq,
+            self.last_stamp_s,
+            closed=(self.segment_id, first, self.segment_frame_count - new_frames, before),
+            opened=(new_frames, moved),
+        )
+        self.segment_id += 1
+        self.segment_first_seq = boundary
+        self.segment_frame_count = new_frames
+        self.segment_counts = dict(moved)
+        self.segment_nonempty = new_nonempty
+        self.current = entered
+        self.last_boundary = boundary
+        self.transitions += 1
+        return AreaTransition(
+            transition=transition,
+            area=entered,
+            left_area=left,
+            revisit_of=revisit,
+            overlap=overlap if revisit is not None else 0.0,
+            rule=Rule.SPLIT,
+        )
+
+    def _bound_models(self) -> None:
+        """Rule 6: forget the smallest other areas' features above the bound."""
+        bound = self.params.max_area_sightings
+        if not bound or self.sightings <= bound:
+            return
+        order = sorted(
+            (a for a in range(len(self.areas)) if a != self.current and self.areas[a]),
+            key=lambda a: (self.area_frames[a], a),
+        )
+        total = self.sightings
+        for area in order:
+            if total <= bound * 3 // 4:
+                break
+            total -= len(self.areas[area])
+            self.areas[area] = {}

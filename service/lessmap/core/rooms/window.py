@@ -1,0 +1,120 @@
+"""Rules 1-2: the frame window, its learnt width, and the cut of its two halves.
+
+A frame's similarity to another is the paper's CovRate between two frames, shared features
+over the smaller frame's. Each new non-empty frame is compared once with the frames kept
+before it; the window's matrix is assembled from those rows, so a frame costs
+``2 * window_max_frames`` set intersections and one small numpy reduction.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lessmap.core.rooms.params import RoomParams
+
+Frame = tuple[int, frozenset[int]]  # (seq, distinct features), non-empty
+
+
+@dataclass(frozen=True, slots=True)
+class Cut:
+    """The cut of the window at one boundary: its score and the paper's figures."""
+
+    boundary_seq: int  # first frame of the newer half
+    score: float  # within-half minus across-half mean similarity (rule 2)
+    width: int  # frames in each half
+
+
+def covrate(a: frozenset[int], b: frozenset[int]) -> float:
+    """Shared features over the smaller frame's (both non-empty)."""
+    return len(a & b) / min(len(a), len(b))
+
+
+class FrameWindow:
+    """The last non-empty frames, their similarities, and the learnt lag profile."""
+
+    def __init__(self, params: RoomParams) -> None:
+        """An empty window."""
+        self.params = params
+        capacity = 2 * params.window_max_frames
+        self.frames: deque[Frame] = deque(maxlen=capacity)
+        # rows[i][d - 1]: similarity of frames[i] to the frame d places before it (0 if none)
+        self.rows: deque[NDArray[np.float64]] = deque(maxlen=capacity)
+        # mean similarity of frames d apart (index d - 1) and how many pairs it has seen
+        self.lag_mean = np.zeros(params.window_max_frames, dtype=np.float64)
+        self.lag_seen = np.zeros(params.window_max_frames, dtype=np.int64)
+
+    def add(self, seq: int, features: frozenset[int]) -> None:
+        """Take one non-empty frame: its row of similarities and the lag profile."""
+        span = self.frames.maxlen or 1
+        row = np.zeros(span - 1, dtype=np.float64)
+        for d, (_, earlier) in enumerate(reversed(self.frames), start=1):
+            if d >= span:
+                break  # the oldest frame leaves as this one enters
+            row[d - 1] = covrate(features, earlier)
+        self.frames.append((seq, features))
+        self.rows.append(row)
+        lags = min(len(self.frames) - 1, self.params.window_max_frames)
+        if lags:
+            seen = self.lag_seen[:lags] + 1
+            # a running mean at first, then an exponential one: early frames teach fast
+            weight = np.maximum(1.0 / seen, self.params.lag_smoothing)
+            self.lag_mean[:lags] += weight * (row[:lags] - self.lag_mean[:lags])
+            self.lag_seen[:lags] = seen
+
+    def width(self) -> int | None:
+        """Frames in a half: the first lag at which the view has changed enough (rule 1).
+
+        None until the profile knows a lag where similarity fell to ``window_similarity``
+        or it has seen every lag up to the maximum.
+        """
+        p = self.params
+        known = int(np.count_nonzero(self.lag_seen))
+        for d in range(p.window_min_frames, known + 1):
+            if self.lag_mean[d - 1] <= p.window_similarity:
+                return d
+        return p.window_max_frames if known >= p.window_max_frames else None
+
+    def matrix(self, n: int) -> NDArray[np.float64]:
+        """Similarities of the last ``n`` frames, symmetric, zero diagonal."""
+        rows = np.stack(list(self.rows)[-n:])
+        i, j = np.tril_indices(n, -1)
+        m = np.zeros((n, n), dtype=np.float64)
+        m[i, j] = rows[i, i - j - 1]
+        return m + m.T
+
+    def cut(self) -> Cut | None:
+        """The cut between the last ``width`` frames and the ``width`` before them (rule 2)."""
+        w = self.width()
+        if w is None or len(self.frames) < 2 * w:
+            return None
+        m = self.matrix(2 * w)
+        pairs = w * (w - 1)
+        within = (m[:w, :w].sum() / pairs + m[w:, w:].sum() / pairs) / 2.0
+        across = m[:w, w:].mean()
+        return Cut(boundary_seq=self.frames[-w][0], score=float(within - across), width=w)
+
+    def figures(self, boundary_seq: int) -> tuple[float, float]:
+        """Ncut and λ2 of the window's frame graph split at ``boundary_seq`` (for reports).
+
+        The window's frames are the nodes and their CovRate the weights: the split is the
+        temporal bipartition the cut chose, scored as Shi–Malik score any bipartition.
+        """
+        seqs = [seq for seq, _ in self.frames]
+        n = len(seqs)
+        m = self.matrix(n)
+        new = np.array([seq >= boundary_seq for seq in seqs])
+        cut = float(m[new][:, ~new].sum())
+        degree = m.sum(axis=1)
+        ncut = 0.0
+        for side in (new, ~new):
+            assoc = float(degree[side].sum())
+            ncut += cut / assoc if assoc > 0 else 1.0
+        safe = np.where(degree > 0, degree, 1.0)
+        scale = 1.0 / np.sqrt(safe)
+        normalized = np.eye(n) - scale[:, None] * m * scale[None, :]
+        values = np.linalg.eigvalsh(normalized)
+        return ncut, float(values[1]) if n > 1 else 0.0
