@@ -109,9 +109,10 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         gt=0.0,
         description="seconds before an idle session is evicted (closed when memory-only)",
     )
-    method: Literal["paper", "areas"] = Field(
+    method: Literal["paper", "areas", "rooms"] = Field(
         DEFAULT_METHOD,
         description="segmentation of new sessions: areas = confirmed splits, revisits named; "
+        "rooms = a windowed cut for buildings, revisits named (on the wire: areas); "
         "paper = LESS-mapping as published (a session keeps the method it started with)",
     )
     # Rule 3b of the areas method reads a stamp gap as blindness only in a stream that

@@ -35,8 +35,6 @@ Rules of this file:
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
-from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from lessmap.core import segmenter_snapshot as record
@@ -48,42 +46,45 @@ from lessmap.core.areas.graph import (
     AreaGraphBuilder,
     AreaNode,
 )
-from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
+from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.params import PartitionParams
 from lessmap.core.paper.partitioner import Partitioner, _feature_ids  # rule 2: its own check
-from lessmap.core.paper.submaps import Submap, Transition
+from lessmap.core.paper.submaps import Submap
+from lessmap.core.rooms.params import RoomParams
+from lessmap.core.rooms.tracker import RoomTracker
+from lessmap.core.segment_change import (
+    SIGHTING_EDGES,
+    Method,
+    SegmentChange,
+    change_from,
+    change_json,
+    change_of,
+)
+from lessmap.core.segmenter_rooms import RoomsSegmenter
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
 
 
-class Method(StrEnum):
-    """Which method segments a session."""
-
-    PAPER = "paper"  # LESS-mapping's partitioner: every transition opens a new area
-    AREAS = "areas"  # ``AreaTracker``: confirmed changes, recognised revisits
+__all__ = [
+    "DEFAULT_METHOD",
+    "SIGHTING_EDGES",
+    "AreasSegmenter",
+    "Method",
+    "PaperSegmenter",
+    "RoomsSegmenter",
+    "SegmentChange",
+    "Segmenter",
+    "make_segmenter",
+    "segmenter_from_bytes",
+]
 
 
 #: The method of a new session and of the offline commands unless one is chosen (issue 18:
 #: ``areas`` met its targets). ``paper`` stays one flag away (``--method paper``).
 DEFAULT_METHOD: Final = Method.AREAS
-
-#: Edges' worth (24 B each, the sparse store's) of one sighting in an area model: a dict
-#: entry with its own int key measures 65 B (tracemalloc, 500,000 entries).
-SIGHTING_EDGES: Final = 3
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SegmentChange:
-    """The robot left one area for another: the segment closed and opened, and the areas."""
-
-    transition: Transition  # closed / opened are segments (rule 4)
-    reason: str  # "SPECTRAL", "DISCONNECTED" or "RECOGNISED" (areas only)
-    area: int  # the area entered
-    left_area: int  # the area left
-    revisit_of: int | None  # == area when the area was known before, else None
 
 
 class Segmenter(Protocol):
@@ -157,6 +158,7 @@ def make_segmenter(
     method: Method | str,
     params: PartitionParams | None = None,
     area_params: AreaParams | None = None,
+    room_params: RoomParams | None = None,
 ) -> Segmenter:
     """A new session's segmenter; each method reads its own parameters, not the other's.
 
@@ -170,6 +172,8 @@ def make_segmenter(
         raise GraphError(msg) from None
     if chosen is Method.PAPER:
         return PaperSegmenter(Partitioner(params))
+    if chosen is Method.ROOMS:
+        return RoomsSegmenter(RoomTracker(room_params))
     return AreasSegmenter(AreaTracker(area_params))
 
 
@@ -190,6 +194,8 @@ def segmenter_from_bytes(data: bytes) -> Segmenter:
             return PaperSegmenter._from_record(found)
         if found.method == Method.AREAS:
             return AreasSegmenter._from_record(found)
+        if found.method == Method.ROOMS:
+            return RoomsSegmenter.from_record(found)
     except GraphError:
         raise
     except Exception as exc:  # a well-framed record with a malformed part: one error type
@@ -426,7 +432,7 @@ class AreasSegmenter:
             if found is not None:
                 self.builder.add(found)
                 self._closed.append(found.transition.closed)
-                self._held.append(_change(found))
+                self._held.append(change_from(found))
         changes = tuple(self._held)
         self._held.clear()
         self._pending_frames = 0
@@ -447,7 +453,7 @@ class AreasSegmenter:
             "pending_frames": self._pending_frames,
             "builder": record.builder_json(self.builder),
             "closed": rows,
-            "held": [_change_json(change) for change in self._held],
+            "held": [change_json(change) for change in self._held],
         }
         return record.pack(Method.AREAS, meta, areas_snapshot.to_bytes(self.tracker), arrays)
 
@@ -462,36 +468,6 @@ class AreasSegmenter:
             areas_snapshot.from_bytes(found.inner),
             record.builder_of(meta["builder"]),
             closed=record.submaps_unpack(meta["closed"], found.arrays),
-            held=[_change_of(d) for d in meta["held"]],
+            held=[change_of(d) for d in meta["held"]],
             pending_frames=pending,
         )
-
-
-def _change(found: AreaTransition) -> SegmentChange:
-    return SegmentChange(
-        transition=found.transition,
-        reason=found.reason.value,
-        area=found.area,
-        left_area=found.left_area,
-        revisit_of=found.revisit_of,
-    )
-
-
-def _change_json(change: SegmentChange) -> dict[str, Any]:
-    return {
-        "transition": record.transition_json(change.transition),
-        "reason": change.reason,
-        "area": change.area,
-        "left_area": change.left_area,
-        "revisit_of": change.revisit_of,
-    }
-
-
-def _change_of(d: Mapping[str, Any]) -> SegmentChange:
-    return SegmentChange(
-        transition=record.transition_of(d["transition"]),
-        reason=str(d["reason"]),
-        area=int(d["area"]),
-        left_area=int(d["left_area"]),
-        revisit_of=None if d["revisit_of"] is None else int(d["revisit_of"]),
-    )

@@ -31,11 +31,29 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     from lessmap.core.areas.events import AreaTransition
-    from lessmap.core.areas.tracker import AreaTracker
+    from lessmap.core.paper.submaps import Submap
+
+
+class AreaModel(Protocol):
+    """What a graph reads of a tracker: its areas now (``AreaTracker``, ``RoomTracker``)."""
+
+    @property
+    def current(self) -> int:
+        """The area of the open segment."""
+
+    def area_of(self, area: int) -> int:
+        """The area an id stands for now."""
+
+    def area_features(self, area: int) -> tuple[int, ...]:
+        """The features an area's frames have seen."""
+
+    def current_segment(self) -> Submap:
+        """The open segment."""
+
 
 #: Boundary features kept per edge (rule 4): enough to name a doorway's landmarks.
 MAX_BOUNDARY_FEATURES = 16
@@ -132,7 +150,7 @@ class AreaGraphBuilder:
         if len(seen) > 2 * self.max_boundary_features:
             self._boundary[pair] = Counter(dict(_top(seen, self.max_boundary_features)))
 
-    def graph(self, tracker: AreaTracker) -> AreaGraph:
+    def graph(self, tracker: AreaModel) -> AreaGraph:
         """The graph so far, the tracker's open segment included and its merges resolved."""
         resolve = tracker.area_of
         stats: dict[int, _Stats] = {}

@@ -69,7 +69,6 @@ class RoomTracker:
         self.last_stamp_s = 0.0
         self.frames_applied = 0
         self.transitions = 0
-        self.pending: AreaTransition | None = None
 
     # -- read ------------------------------------------------------------------------------
 
@@ -108,8 +107,8 @@ class RoomTracker:
 
     # -- frames ----------------------------------------------------------------------------
 
-    def add(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
-        """Count one frame in and cut the window (rules 1, 2); confirmation waits for settle.
+    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
+        """Add one frame, cut the window and test the cut; return the change it confirms.
 
         Raises:
             StaleFrameError: seq is not greater than the last seq.
@@ -127,28 +126,19 @@ class RoomTracker:
             self.segment_first_seq = seq
         self.segment_frame_count += 1
         if not seen:
-            return  # a robot that saw nothing saw no boundary
+            return None  # a robot that saw nothing saw no boundary
         count(self.segment_counts, seen)
         self.segment_nonempty += 1
         count(self.areas[self.current], seen)
         self.area_frames[self.current] += 1
         self.window.add(seq, frozenset(seen))
+        change = None
         cut = self.window.cut()
         if cut is not None:
             self.cuts.append(cut)
-            if self.pending is None:
-                self.pending = self._proposal()
+            change = self._proposal()
         self._bound_models()
-
-    def settle(self) -> AreaTransition | None:
-        """Return the change found since the last settle, if any."""
-        change, self.pending = self.pending, None
         return change
-
-    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
-        """``add`` then ``settle``."""
-        self.add(seq, stamp_s, features)
-        return self.settle()
 
     # -- rules 2-5 -------------------------------------------------------------------------
 
@@ -163,8 +153,12 @@ class RoomTracker:
         earlier = [c.score for c in self.cuts if peak.boundary_seq - peak.width <= c.boundary_seq]
         if max(earlier[:-2], default=0.0) > peak.score:
             return None
-        if self.last_boundary is not None and peak.boundary_seq <= self.last_boundary:
+        older = [seq for seq, _ in self.window.frames if seq < peak.boundary_seq]
+        span = round(p.min_segment_widths * peak.width)
+        if len(older) < span:
             return None
+        if self.last_boundary is not None and older[-span] < self.last_boundary:
+            return None  # a segment spans this many older halves before it may end
         new = [f for s, f in self.window.frames if s >= peak.boundary_seq]
         return self._confirm(peak, new)
 
@@ -177,13 +171,16 @@ class RoomTracker:
         before = {f: c for f, c in before.items() if c > 0}
         if len(before) < p.min_side_features or len(moved) < p.min_side_features:
             return None
-        sightings = sum(moved.values())
-        mean = sum(before.values()) / len(before)
-        familiar = sum(
-            c for f, c in moved.items() if before.get(f, 0) >= p.familiar_relative * mean
-        )
-        if familiar >= p.stay_share * sightings and self._known_area(moved)[1] < p.revisit_overlap:
-            return None
+        # Known before the window: the frames just before a boundary may stand past the door.
+        older = [seq for seq, _ in self.window.frames if seq < peak.boundary_seq]
+        recent: dict[int, int] = {}
+        for seq, frame in self.window.frames:
+            if seq >= older[-peak.width]:
+                count(recent, frame)
+        area = self.areas[self.current]
+        known = sum(1 for f in moved if area.get(f, 0) > recent.get(f, 0))
+        if known >= p.known_share * len(moved):
+            return None  # the area had seen nearly all of it before: the same place again
         return self._change(peak, moved, before)
 
     def _known_area(self, moved: dict[int, int]) -> tuple[int | None, float]:
