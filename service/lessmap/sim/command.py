@@ -8,7 +8,13 @@ import sys
 from pathlib import Path
 
 from lessmap.sim.simulator import simulate, write_run
-from lessmap_client.cli_client import add_zenoh_options, endpoints
+from lessmap_client.cli_options import (
+    add_zenoh_options,
+    float_up_to,
+    positive_float,
+    positive_int,
+    zenoh_options,
+)
 
 
 def configure(sim: argparse.ArgumentParser) -> None:
@@ -18,24 +24,34 @@ def configure(sim: argparse.ArgumentParser) -> None:
         "range- and wall-limited laser) walked by robots. --out writes <name>.frames.jsonl, "
         "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live."
     )
-    sim.add_argument("--seed", type=int, default=0)
-    sim.add_argument("--rooms", type=int, default=8)
-    sim.add_argument("--robots", type=int, default=3)
-    sim.add_argument("--frames", type=int, default=600, help="frames per robot (2 Hz)")
-    sim.add_argument("--fov", type=float, default=None, help="sensor field of view, degrees")
-    sim.add_argument("--out", type=Path, help="write the run to this folder")
-    sim.add_argument("--name", default="sim", help="file name stem (default: sim)")
+    sim.add_argument("--seed", type=int, default=0, help="building, routes and sensors seed")
+    sim.add_argument("--rooms", type=positive_int, default=8, help="rooms of the building")
+    sim.add_argument("--robots", type=positive_int, default=3, help="robots")
+    sim.add_argument("--frames", type=positive_int, default=600, help="frames per robot (2 Hz)")
+    sim.add_argument(
+        "--fov",
+        type=float_up_to(360.0),
+        default=None,
+        help="sensor field of view, degrees (default: 270)",
+    )
+    sim.add_argument("-o", "--out", type=Path, metavar="DIR", help="write the run to this folder")
+    sim.add_argument("--name", default="sim", help="file name stem")
     sim.add_argument("--publish", action="store_true", help="publish the frames live")
-    sim.add_argument("--fleet", default="sim")
-    sim.add_argument("--speed", type=float, default=1.0, help="playback rate with --publish")
+    sim.add_argument("--fleet", default="sim", help="fleet of the published robots")
+    sim.add_argument(
+        "--speed", type=positive_float, default=1.0, help="playback rate with --publish"
+    )
     add_zenoh_options(sim)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap sim``."""
     from lessmap_client.adapters.replay import RecordedFrame, replay
-    from lessmap_client.session import open_session
 
+    if not args.out and not args.publish:
+        sys.stderr.write("lessmap sim: nothing to do; give --out DIR and/or --publish\n")
+        return 1
+    net = zenoh_options(args)
     options = {} if args.fov is None else {"fov_deg": args.fov}
     run = simulate(
         args.seed, rooms=args.rooms, robots=args.robots, frames_per_robot=args.frames, **options
@@ -54,10 +70,7 @@ def run(args: argparse.Namespace) -> int:
             )
             for f in run.frames
         ]
-        with open_session(endpoints(args), args.mode) as session:
+        with net.open_session() as session:
             stats = replay(frames, session, args.fleet, speed=args.speed)
         sys.stdout.write(json.dumps({"published": stats.frames, "robots": stats.robots}) + "\n")
-    if not args.out and not args.publish:
-        sys.stderr.write("lessmap sim: nothing to do; give --out DIR and/or --publish\n")
-        return 1
     return 0
