@@ -162,6 +162,8 @@ def test_evaluation_builds_on_the_core_and_the_simulator_only(path: Path) -> Non
         "lessmap.cli.flags",
         # The fleet merge: one rule for fleet apps (over the bus) and the offline tools.
         "lessmap_client.fleet_areas",
+        # The command-line grammar every command shares (argparse types, no transport).
+        "lessmap_client.cli_options",
     )
     assert all(within(m, *allowed) for m in project_imports(path)), project_imports(path)
     assert "zenoh" not in roots(imported_modules(path))

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -23,7 +24,7 @@ if TYPE_CHECKING:
     from lessmap_client.fleet import FleetClient
     from lessmap_client.subscription import Subscription
     from lessmap_client.watch import FleetView
-    from lessmap_schemas.messages import Error, Health, SessionState
+    from lessmap_schemas.messages import Error, Health, SessionState, Transition
 
 
 def configure_replay(rep: argparse.ArgumentParser) -> None:
@@ -105,16 +106,26 @@ def run_replay(args: argparse.Namespace) -> int:
         replay,
         settled_states,
     )
+    from lessmap_schemas.framesfile import sparse_frames_warning
 
     net = zenoh_options(args)
     # Every line is checked before the first frame goes out.
     frames = list(read_recorded(args.file, robot_prefix=args.robot_prefix))
+    if not frames:
+        sys.stderr.write(f"lessmap replay: {args.file}: no frames to publish\n")
+        return 1
+    features = sum(len(frame.features) for frame in frames)
+    warning = sparse_frames_warning(str(args.file), len(frames), features)
+    if warning is not None:
+        sys.stderr.write(f"lessmap replay: {warning}\n")
     stats = ReplayStats()
+    batches = Batches()
     with net.connection() as conn:
         served = conn.wait_for_service(net.connect_timeout_s)
         if not served:
             sys.stderr.write("lessmap replay: no lessmap service answered; publishing anyway\n")
         reports = conn.subscribe_errors(args.fleet)
+        decisions = conn.subscribe_transitions(args.fleet, history=False, handler=batches.add)
 
         def sessions() -> set[tuple[str, str]]:
             return {(name, r.session_id) for name, r in dict(stats.per_robot).items()}
@@ -148,8 +159,12 @@ def run_replay(args: argparse.Namespace) -> int:
         finally:
             reporter.stop()
         counted = _count_reports(reports, sessions())
+        decisions.close()
     summary, problems = replay_summary(stats, final, counted)
+    summary["coalesced"] = batches.coalesced(sessions())
     sys.stdout.write(json.dumps(summary) + "\n")
+    if summary["coalesced"]["transitions"]:
+        sys.stderr.write(f"lessmap replay: {coalescing_note(summary['coalesced'])}\n")
     if problems:
         sys.stderr.write(
             "lessmap replay: the service did not apply every frame offered: "
@@ -158,6 +173,41 @@ def run_replay(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+class Batches:
+    """The frames each transition's decision covered, as the service reports them."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._seen: list[tuple[str, str, int]] = []  # robot, session, batch_frames
+
+    def add(self, transition: Transition) -> None:
+        """Note one transition (called on the subscription's thread)."""
+        with self._lock:
+            self._seen.append((transition.robot, transition.session, transition.batch_frames))
+
+    def coalesced(self, sessions: set[tuple[str, str]]) -> dict[str, int]:
+        """Return how many of the sessions' transitions were decided over several frames."""
+        with self._lock:
+            batches = [b for robot, session, b in self._seen if (robot, session) in sessions]
+        over = [b for b in batches if b > 1]
+        return {
+            "transitions": len(over),
+            "of": len(batches),
+            "largest_batch_frames": max(over, default=1),
+        }
+
+
+def coalescing_note(coalesced: dict[str, int]) -> str:
+    """Say that the service decided over batches of frames, and what that changes."""
+    return (
+        f"the service was behind and decided over batches of frames (up to "
+        f"{coalesced['largest_batch_frames']} a decision; {coalesced['transitions']} of the "
+        f"{coalesced['of']} transitions seen): fewer decisions find fewer transitions than "
+        "lessmap segment does on the same file; replay at a --speed the service keeps up with "
+        "to compare"
+    )
 
 
 def _count_reports(

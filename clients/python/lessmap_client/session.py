@@ -24,11 +24,13 @@ def client_config(
     mode: str = "client",
     config_file: str | None = None,
     listen: Sequence[str] = (),
+    open_timeout_s: float | None = None,
 ) -> zenoh.Config:
     """Return a Zenoh config that connects to ``connect`` without multicast scouting.
 
     ``config_file`` (JSON5, e.g. a secured site's) is the base: its endpoints stay unless
-    ``connect``/``listen`` name others.
+    ``connect``/``listen`` name others. ``open_timeout_s`` bounds one handshake (Zenoh's
+    default is 10 s: a port held by something else than Zenoh takes that long to refuse).
 
     Raises:
         ZenohConfigError: the file cannot be read or an endpoint is malformed (one line).
@@ -40,6 +42,9 @@ def client_config(
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        if open_timeout_s is not None:
+            open_timeout_ms = max(1, round(open_timeout_s * 1000))
+            conf.insert_json5("transport/unicast/open_timeout", str(open_timeout_ms))
         # Explicit endpoints: scouting would only find unrelated peers on the LAN.
         conf.insert_json5("scouting/multicast/enabled", "false")
         # AdvancedPublisher's cache orders samples by timestamp; only routers stamp by default.
@@ -59,18 +64,20 @@ def open_session(
     *,
     listen: Sequence[str] = (),
     hint: str = ROUTER_HINT,
+    open_timeout_s: float | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session for a lessmap client (the caller closes it).
 
     A client-mode session fails at once when no router answers yet; retry until
     ``timeout_s`` so a client started next to the service does not race it. ``hint`` is
-    what the error asks the user to check when no router answers.
+    what the error asks the user to check when no router answers; ``open_timeout_s``
+    bounds one handshake (``client_config``).
 
     Raises:
         ConnectionError: no router could be reached within ``timeout_s``.
         ZenohConfigError: the configuration is invalid, or a listen port is taken.
     """
-    conf = client_config(connect, mode, config_file, listen)
+    conf = client_config(connect, mode, config_file, listen, open_timeout_s)
     deadline = time.monotonic() + timeout_s
     while True:
         try:

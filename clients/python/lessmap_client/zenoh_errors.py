@@ -19,6 +19,7 @@ ROUTER_HINT = "is `lessmap serve` or `lessmap router` running there?"
 _SOURCE_LOCATION = re.compile(r"\s*\bat \S+\.rs:\d+\.?")
 _DEBUG_MESSAGE = re.compile(r'Message \{ msg: "(?P<msg>.*?)", location: .*?\}\)?', re.DOTALL)
 _LISTENER = re.compile(r"listener bound to (?P<endpoint>\S+?):? \[")
+_UNREACHED = re.compile(r"Single\((?P<endpoint>[^)]+)\)")
 _ENDPOINT_FORM = re.compile(r"Endpoints must be of the form .*?: (?P<endpoint>\S+)")
 
 
@@ -48,7 +49,8 @@ def explain(text: str, *, connect: Sequence[str] = (), hint: str = ROUTER_HINT) 
             f"that holds it or choose another port with -l/--listen"
         )
     if "Unable to connect to any of" in text:
-        where = ", ".join(connect) or "the configured endpoints"
+        named = connect or [m.group("endpoint") for m in _UNREACHED.finditer(text)]
+        where = ", ".join(named) or "the configured endpoints"
         return f"no Zenoh router answered at {where} (-e/--connect): {hint}"
     match = _ENDPOINT_FORM.search(text)
     if match:

@@ -45,7 +45,9 @@ from lessmap.config.partitioning import (
 from lessmap.errors import ConfigError
 from lessmap_client.cli_options import (
     CONNECT_HELP,
+    DEFAULT_CONNECT_TIMEOUT_S,
     LISTEN_HELP,
+    TIMEOUT_HELP,
     ZENOH_CONFIG_HELP,
     add_zenoh_options,
     mode_help,
@@ -70,7 +72,7 @@ ENV_PREFIX = "LESSMAP_"
 
 _MODES = ("client", "peer", "router")
 #: The settings that are Zenoh options: their flags are the shared grammar's.
-ZENOH_FIELDS = frozenset({"zenoh_config", "mode", "connect", "listen"})
+ZENOH_FIELDS = frozenset({"zenoh_config", "mode", "connect", "listen", "connect_timeout"})
 
 
 class LimitSettings(BaseModel):
@@ -300,6 +302,9 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     mode: Literal["peer", "client", "router"] | None = Field(None, description=mode_help(_MODES))
     connect: tuple[str, ...] = Field((), description=CONNECT_HELP)
     listen: tuple[str, ...] = Field((), description=LISTEN_HELP)
+    connect_timeout: float = Field(
+        DEFAULT_CONNECT_TIMEOUT_S, gt=0.0, allow_inf_nan=False, description=TIMEOUT_HELP
+    )
 
     limits: LimitSettings = LimitSettings()
 
@@ -491,10 +496,10 @@ def add_settings_flags(parser: argparse.ArgumentParser) -> list[FlagSpec]:
         "mode": f"default: router when no Zenoh option is given, else Zenoh's peer; "
         f"env {ENV_PREFIX}MODE",
         "zenoh_config": f"env {ENV_PREFIX}ZENOH_CONFIG",
+        "connect_timeout": f"client mode; default: {DEFAULT_CONNECT_TIMEOUT_S:g}; "
+        f"env {ENV_PREFIX}CONNECT_TIMEOUT",
     }
-    add_zenoh_options(
-        parser, modes=_MODES, connect_timeout=False, notes=notes, suppress_defaults=True
-    )
+    add_zenoh_options(parser, modes=_MODES, notes=notes, suppress_defaults=True)
     specs += [s for s in flag_specs(ServiceSettings) if s.dest in ZENOH_FIELDS]
     return specs
 

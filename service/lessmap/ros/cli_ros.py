@@ -230,8 +230,15 @@ def run_import(args: argparse.Namespace) -> int:
     from lessmap.ros.bags import import_bags
 
     converter = converter_from_args(args)
+    missing = [str(bag) for bag in args.bags if not bag.exists()]
+    if missing:
+        msg = f"{', '.join(missing)}: no such file or folder"
+        raise ConfigError(msg)
     first: Path = args.bags[0]
     out: Path = args.out or Path(f"{first.stem or first.name}.frames.jsonl")
+    if not out.resolve().parent.is_dir():  # before reading the bags, not after
+        msg = f"-o/--out {out}: no folder {out.parent}"
+        raise ConfigError(msg)
     stats = import_bags(
         args.bags,
         out,

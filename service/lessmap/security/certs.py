@@ -469,7 +469,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "mTLS and deny-by-default access control. "
         "Keys are written mode 0600. See docs/SECURITY.md."
     )
-    parser.add_argument("--out", type=Path, required=True, help="folder to write to")
+    parser.add_argument(
+        "-o", "--out", type=Path, required=True, metavar="DIR", help="folder to write to"
+    )
     parser.add_argument(
         "--fleet", action="append", default=[], help="a fleet name (repeat for more fleets)"
     )
