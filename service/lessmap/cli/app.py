@@ -270,7 +270,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not is_known(exc):
             raise
         print(f"lessmap {args.command}: {one_line(exc)}", file=sys.stderr)
-        return 1
+        usage = getattr(sys.modules.get("lessmap.errors"), "UsageError", None)
+        return 2 if usage is not None and isinstance(exc, usage) else 1
     return code
 
 

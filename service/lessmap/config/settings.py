@@ -42,7 +42,7 @@ from lessmap.config.partitioning import (
     TITLE as PARTITION_TITLE,
     PartitionSettings,
 )
-from lessmap.errors import ConfigError
+from lessmap.errors import ConfigError, setting_error
 from lessmap_client.cli_options import (
     CONNECT_HELP,
     DEFAULT_CONNECT_TIMEOUT_S,
@@ -436,8 +436,9 @@ def build_settings(values: Mapping[str, Any], flags: Mapping[str, str]) -> Servi
         path = tuple(error["loc"])
         where = describe_path(path) or "settings"
         msg = f"invalid setting {where} = {error.get('input')!r} from "
-        msg += f"{_source_of(path, values, flags)}: {error['msg'].removeprefix('Value error, ')}"
-        raise ConfigError(msg) from None
+        source = _source_of(path, values, flags)
+        msg += f"{source}: {error['msg'].removeprefix('Value error, ')}"
+        raise setting_error(msg, error["type"], from_flag=source.startswith("flag ")) from None
     except SettingsError as exc:
         # The environment holds a value that is not JSON where a list or object is expected.
         match = re.search(r'field "(\w+)"', str(exc))
