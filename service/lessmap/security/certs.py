@@ -399,7 +399,7 @@ def templates() -> dict[str, str]:
             mesh_router_config(d, name, TEMPLATE_MESH, [fleet], [service]),
             f"Zenoh router {name} of a lessmap mesh: TLS, certificates required on every link\n"
             "(clients and the other router), deny-by-default access control by certificate CN.\n"
-            f"Run: lessmap router --config zenoh-router-{name}-mtls.json5 (or zenohd -c ...).\n"
+            f"Run: lessmap router -c zenoh-router-{name}-mtls.json5 (or zenohd -c ...).\n"
             + MESH_NOTE.format(
                 name=name,
                 other=other,
