@@ -90,7 +90,7 @@ def check_endpoints(settings: ServiceSettings) -> None:
                 "that holds it or choose another port with -l/--listen"
             )
             raise ConfigError(msg)
-    if settings.mode == "client" and settings.connect:
+    if settings.mode == "client" and (settings.connect or settings.zenoh_config is not None):
         from lessmap_client.session import open_session
 
         config = None if settings.zenoh_config is None else str(settings.zenoh_config)

@@ -71,6 +71,9 @@ def run(args: argparse.Namespace) -> int:
             for f in run.frames
         ]
         with net.open_session() as session:
-            stats = replay(frames, session, args.fleet, speed=args.speed)
+            # Each robot's first frame waits for its partition's owner, as replay's does.
+            stats = replay(
+                frames, session, args.fleet, speed=args.speed, wait_service_s=net.connect_timeout_s
+            )
         sys.stdout.write(json.dumps({"published": stats.frames, "robots": stats.robots}) + "\n")
     return 0
