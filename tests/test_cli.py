@@ -117,7 +117,8 @@ def test_a_missing_optional_extra_is_one_line(tmp_path: Path) -> None:
     )
     assert result.returncode == 1, result.stderr
     assert result.stderr.strip().splitlines() == [
-        "lessmap plot: this needs matplotlib, from the optional extra: pip install 'lessmap[eval]'"
+        "lessmap plot: this needs matplotlib, from lessmap's optional extra eval: "
+        "pip install '.[eval]' in the repository (README, Install)"
     ]
 
 

@@ -134,6 +134,7 @@ CASES: dict[str, list[Case]] = {
         Case(("demo", "-l", "{taken}", "--duration", "1"), 1, "-l/--listen"),
         Case(("demo", "--robots", "0"), 2, "--robots"),
         Case(("demo", "--duration", "-5"), 2, "--duration"),
+        Case(("demo", "--duration", "0"), 2, "--duration"),
     ],
     "certs": [
         Case(("certs",), 2, "-o/--out"),

@@ -73,7 +73,7 @@ def configure_watch(watch: argparse.ArgumentParser) -> None:
     watch.add_argument("--fleet", default="*", help="fleet to follow (default: all)")
     watch.add_argument(
         "--duration",
-        type=positive_float,
+        type=non_negative_float,
         metavar="S",
         help="stop after S seconds, the wait for a router included (default: until Ctrl-C)",
     )

@@ -261,8 +261,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         extra = OPTIONAL_MODULES[exc.name.partition(".")[0]]
         print(
-            f"lessmap {args.command}: this needs {exc.name}, from the optional extra: "
-            f"pip install 'lessmap[{extra}]'",
+            f"lessmap {args.command}: this needs {exc.name}, from lessmap's optional extra "
+            f"{extra}: pip install '.[{extra}]' in the repository (README, Install)",
             file=sys.stderr,
         )
         return 1

@@ -9,7 +9,7 @@ import time
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-from lessmap_client.cli_options import positive_float
+from lessmap_client.cli_options import non_negative_float
 
 if TYPE_CHECKING:
     import argparse
@@ -66,7 +66,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     """Add ``--duration``, the option every foreground command has."""
     parser.add_argument(
         "--duration",
-        type=positive_float,
+        type=non_negative_float,
         default=None,
         metavar="S",
         help="stop after S seconds (default: run until SIGINT/SIGTERM)",
