@@ -98,7 +98,6 @@ class DeprecatedAlias(argparse.Action):
 
     def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
         self.use = kwargs.pop("use")
-        self.append = kwargs.pop("append", False)
         super().__init__(option_strings, dest, **kwargs)
 
     def __call__(
@@ -108,10 +107,8 @@ class DeprecatedAlias(argparse.Action):
         values: Any,
         option_string: str | None = None,
     ) -> None:
-        """Store the value under the new option's name; warn once on stderr."""
+        """Store the value under the new option's name; say so on stderr."""
         sys.stderr.write(f"{parser.prog}: {option_string} is deprecated; use {self.use}\n")
-        if self.append:
-            values = [*(getattr(namespace, self.dest, None) or []), values]
         setattr(namespace, self.dest, values)
 
 
