@@ -292,7 +292,6 @@ OVERSIZED = {
     "service/lessmap/runtime/sessions.py": "the session table: being split by concern",
     "service/lessmap/runtime/service.py": "the service: being split by concern",
     "service/lessmap/runtime/shard.py": "the shard: being split by concern",
-    "clients/python/lessmap_client/robot.py": "RobotPublisher: not yet split",
 }
 
 
