@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
+import pytest
 from prometheus_client import generate_latest
 
 from lessmap.core import Partitioner, PartitionParams
