@@ -110,9 +110,8 @@ class BlockChanges:
     in ``moved`` (those rows, minus the mark; unchanged entries are 0 there) or in ``new``
     (the rows of the nodes added since, whose entries were 0 at the mark). Each changed
     pair of old nodes appears once or twice (twice when both rows moved); ``entries`` lists
-    each pair once. Blocks cost one row gather and one subtraction; listing the entries cost
-    masks and index arrays several times larger, the carried decision's largest cost at
-    400 nodes (profiled).
+    each pair once. Blocks cost one row gather and one subtraction, where listing the entries
+    would cost masks and index arrays several times larger.
     """
 
     old: int  # nodes at the mark

@@ -408,7 +408,7 @@ class Partitioner:
         frame, so the boundary is never the submap's first frame when it has several.
         """
         records = list(self._history)
-        new_set = set(new_ids.tolist())  # set look-ups: np.isin costs ~20 µs per short frame
+        new_set = set(new_ids.tolist())  # set look-ups: cheaper than np.isin on short frames
         start = len(records) - 1
         for index in range(len(records) - 1, -1, -1):
             features = records[index].features.tolist()

@@ -262,7 +262,7 @@ def _dense_lambda2_exceeds(w: NDArray[np.float64], bound: float) -> bool:
     shift = bound + CERTIFICATE_MARGIN
     matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
     matrix -= w
-    # The diagonal through a flat view: ``ndarray.flat`` costs 3 µs more at tens of nodes.
+    # The diagonal through a flat view: cheaper than ``ndarray.flat`` at tens of nodes.
     matrix.reshape(-1)[:: n + 1] += (1.0 - shift) * degrees
     _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
     return bool(info == 0)
