@@ -25,7 +25,9 @@ class RoomParams:
     ahead_share: float = 0.5  # the newer half's frames, as a share of the older half's
     # Rule 2: the cut of a window, (within-side similarity) - (across-side similarity).
     cut_min: float = 0.15
-    min_segment_widths: float = 1.0  # a segment spans at least this many older halves
+    # A peak must stay the highest over this share of a newer half's cuts after it: a door
+    # looked at from the room shows first, the door passed shows more.
+    settle_share: float = 0.0
     # Rule 3: a cut is a room change only when the new side is not the segment's own.
     known_share: float = 0.9  # of the new half's features, the area's own at least this
     min_side_features: int = 5  # distinct features on each side of a change
@@ -42,7 +44,7 @@ class RoomParams:
             "lag_smoothing": 0.0 < self.lag_smoothing <= 1.0,
             "ahead_share": 0.0 < self.ahead_share <= 1.0,
             "cut_min": self.cut_min > 0.0,
-            "min_segment_widths": self.min_segment_widths >= 1.0,
+            "settle_share": 0.0 <= self.settle_share <= 2.0,
             "known_share": self.known_share > 0.0,
             "min_side_features": self.min_side_features >= 1,
             "revisit_overlap": 0.0 < self.revisit_overlap <= 1.0,

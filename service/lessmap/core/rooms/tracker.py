@@ -54,7 +54,7 @@ class RoomTracker:
         """Start an empty session in area 0."""
         self.params = params if params is not None else RoomParams()
         self.window = FrameWindow(self.params)
-        self.cuts: deque[Cut] = deque(maxlen=self.params.window_max_frames + 1)
+        self.cuts: deque[Cut] = deque(maxlen=2 * self.params.window_max_frames + 1)
         self.seqs: deque[int] = deque(maxlen=SEQ_MEMORY)  # every applied frame's seq
         self.segment_id = 0
         self.segment_first_seq: int | None = None
@@ -133,7 +133,7 @@ class RoomTracker:
         self.area_frames[self.current] += 1
         self.window.add(seq, frozenset(seen))
         change = None
-        cut = self.window.cut()
+        cut = self.window.cut(self.last_boundary)
         if cut is not None:
             self.cuts.append(cut)
             change = self._proposal()
@@ -143,22 +143,24 @@ class RoomTracker:
     # -- rules 2-5 -------------------------------------------------------------------------
 
     def _proposal(self) -> AreaTransition | None:
-        """The change at the peak one cut back, if it is one and passes rule 3."""
-        if len(self.cuts) < 2:
-            return None
-        peak, after = self.cuts[-2], self.cuts[-1]
+        """The change at the peak a few cuts back, if it is one and passes rule 3."""
         p = self.params
-        if peak.score < p.cut_min or peak.score <= after.score:
+        settle = max(1, round(self.cuts[-1].ahead * p.settle_share))
+        if len(self.cuts) <= settle:
             return None
-        earlier = [c.score for c in self.cuts if peak.boundary_seq - peak.width <= c.boundary_seq]
-        if max(earlier[:-2], default=0.0) > peak.score:
+        peak = self.cuts[-1 - settle]
+        later = [c.score for c in list(self.cuts)[-settle:]]
+        if peak.score < p.cut_min or peak.score <= max(later):
             return None
-        older = [seq for seq, _ in self.window.frames if seq < peak.boundary_seq]
-        span = round(p.min_segment_widths * peak.width)
-        if len(older) < span:
+        earlier = [
+            c.score
+            for c in list(self.cuts)[: -1 - settle]
+            if peak.boundary_seq - peak.width <= c.boundary_seq
+        ]
+        if max(earlier, default=0.0) > peak.score:
             return None
-        if self.last_boundary is not None and older[-span] < self.last_boundary:
-            return None  # a segment spans this many older halves before it may end
+        if self.last_boundary is not None and peak.boundary_seq <= self.last_boundary:
+            return None
         new = [f for s, f in self.window.frames if s >= peak.boundary_seq]
         return self._confirm(peak, new)
 
@@ -175,7 +177,7 @@ class RoomTracker:
         older = [seq for seq, _ in self.window.frames if seq < peak.boundary_seq]
         recent: dict[int, int] = {}
         for seq, frame in self.window.frames:
-            if seq >= older[-peak.width]:
+            if seq >= older[-min(peak.width, len(older))]:
                 count(recent, frame)
         area = self.areas[self.current]
         known = sum(1 for f in moved if area.get(f, 0) > recent.get(f, 0))

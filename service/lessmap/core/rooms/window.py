@@ -87,17 +87,26 @@ class FrameWindow:
         m[i, j] = rows[i, i - j - 1]
         return m + m.T
 
-    def cut(self) -> Cut | None:
-        """The cut between the newest frames and the ``width`` frames before them (rule 2).
+    def cut(self, since_seq: int | None = None) -> Cut | None:
+        """The cut between the newest frames and the frames before them (rule 2).
 
         The newer half holds ``ahead_share`` of a half's frames: a change is told after
-        that many frames past its boundary, while the older half keeps the full width.
+        that many frames past its boundary. The older half holds ``width`` frames, or those
+        of the open segment (from ``since_seq``) if fewer, but at least the minimum: a cut
+        compares the segment's own frames with the newest, never frames across a change.
         """
         w = self.width()
         if w is None:
             return None
-        r = max(self.params.window_min_frames, round(w * self.params.ahead_share))
-        if len(self.frames) < w + r:
+        least = self.params.window_min_frames
+        r = max(least, round(w * self.params.ahead_share))
+        if len(self.frames) < r + least:
+            return None
+        if since_seq is not None:
+            own = sum(1 for seq, _ in self.frames if seq >= since_seq) - r
+            w = min(w, own)
+        w = min(w, len(self.frames) - r)
+        if w < least:
             return None
         m = self.matrix(w + r)
         within = (m[:w, :w].sum() / (w * (w - 1)) + m[w:, w:].sum() / (r * (r - 1))) / 2.0
