@@ -24,11 +24,12 @@ use std::fmt;
 use std::time::{Duration, Instant};
 
 use zenoh::session::ZenohId;
+use zenoh::Session;
 
-use crate::connection::{current_states, get_all, instances, ClientError};
+use crate::error::ClientError;
 use crate::messages::SessionState;
 use crate::names::keys;
-use crate::robot::{progress_of, EndProgress, RobotPublisher};
+use crate::query::{current_states, get_all, instances};
 
 /// Pauses before the state polls, in ms: the first is short (a live end is handled within a
 /// receiver sweep, 10-50 ms); later ones grow, so a slow take-over costs few queries.
@@ -114,11 +115,78 @@ impl CloseReport {
     }
 }
 
+/// What the service's state of a robot says about a session end the robot sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EndProgress {
+    /// The session is closed: the end is confirmed and the cache is no longer needed.
+    Closed,
+    /// Open with every frame up to the last seq applied: only the end is missing (it may have
+    /// been dropped at a deposed owner), so it is put again after a short grace.
+    CaughtUp,
+    /// Frames still to apply, no state yet (a take-over in progress), or the newest state is
+    /// about another session: the cache may still be needed.
+    Pending,
+}
+
+/// Where the end of `session` (last frame `last_seq`) of `fleet`/`robot` stands, per the
+/// `SessionState` replies of its `state` key: of several replies (an old and a new owner),
+/// the highest epoch is current.
+pub fn end_progress(
+    replies: Vec<SessionState>,
+    fleet: &str,
+    robot: &str,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
+    let current = current_states(replies)
+        .into_iter()
+        .find(|state| state.fleet == fleet && state.robot == robot);
+    progress_of(current.as_ref(), session, last_seq)
+}
+
+/// Where the end of `session` (last frame `last_seq`) stands per the robot's current state.
+pub(crate) fn progress_of(
+    current: Option<&SessionState>,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
+    match current {
+        // Another session is no proof either way: it may be older than this one.
+        Some(state) if state.session == session => {
+            if !state.open {
+                EndProgress::Closed
+            } else if state.last_seq.is_some_and(|seq| seq >= last_seq) {
+                EndProgress::CaughtUp
+            } else {
+                EndProgress::Pending
+            }
+        }
+        _ => EndProgress::Pending,
+    }
+}
+
+/// What the wait for the ends asks of a robot publisher. `RobotPublisher` implements it; a
+/// trait keeps this module below the publisher's, which calls [`confirm_ends`].
+pub(crate) trait EndingPublisher {
+    /// Fleet of the robot.
+    fn fleet(&self) -> &str;
+    /// The robot.
+    fn robot(&self) -> &str;
+    /// The Zenoh session the publisher puts on: one query per session serves its robots.
+    fn zenoh_session(&self) -> &Session;
+    /// Whether the publisher has seen a live instance's token.
+    fn knows_live_instance(&self) -> bool;
+    /// Whether the service reported the current session closed.
+    fn closed_by_service(&self) -> bool;
+    /// Put the end of `session_id` again (ignored by the service if it had it).
+    fn resend_end(&self, session_id: &str, last_seq: u64);
+}
+
 /// A session end sent and not confirmed yet (one per robot publisher).
 pub(crate) struct PendingEnd<'a> {
     /// Position of the publisher among those closed together (the report's order).
     pub(crate) index: usize,
-    pub(crate) robot: &'a RobotPublisher,
+    pub(crate) robot: &'a dyn EndingPublisher,
     pub(crate) session: String,
     pub(crate) last_seq: u64,
     caught_up_at: Option<Instant>,
@@ -127,7 +195,7 @@ pub(crate) struct PendingEnd<'a> {
 impl<'a> PendingEnd<'a> {
     pub(crate) fn new(
         index: usize,
-        robot: &'a RobotPublisher,
+        robot: &'a dyn EndingPublisher,
         session: String,
         last_seq: u64,
     ) -> Self {

@@ -10,11 +10,12 @@
 //! * Serde checks types; `validate` checks ranges, names and consistency, with the code the
 //!   contract gives each failure.
 
+use rmpv::Value;
 use serde::de::{DeserializeOwned, Error as _};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::codec::{ErrorCode, WireError};
+use crate::error::{ErrorCode, WireError};
 use crate::names::{validate_name, PARTITIONS, WIRE_VERSION};
 
 /// Largest seq and counter: the largest integer a JavaScript number holds exactly.
@@ -55,15 +56,41 @@ fn nullable<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<Opti
 
 /// A nested struct: only from a msgpack map, never from an array.
 fn nested<'de, D: Deserializer<'de>, T: DeserializeOwned>(d: D) -> Result<T, D::Error> {
-    let value = rmpv::Value::deserialize(d)?;
-    crate::codec::from_value(value).map_err(D::Error::custom)
+    let value = Value::deserialize(d)?;
+    from_value(value).map_err(D::Error::custom)
 }
 
 fn nested_list<'de, D: Deserializer<'de>, T: DeserializeOwned>(d: D) -> Result<Vec<T>, D::Error> {
-    Vec::<rmpv::Value>::deserialize(d)?
+    Vec::<Value>::deserialize(d)?
         .into_iter()
-        .map(|value| crate::codec::from_value(value).map_err(D::Error::custom))
+        .map(|value| from_value(value).map_err(D::Error::custom))
         .collect()
+}
+
+/// Deserialize a value that must be a msgpack map (a struct never comes from an array).
+pub(crate) fn from_value<T: DeserializeOwned>(value: Value) -> Result<T, rmpv::ext::Error> {
+    if !value.is_map() {
+        return Err(serde::de::Error::custom(format!(
+            "expected a map, got a msgpack {}",
+            kind_of(&value)
+        )));
+    }
+    rmpv::ext::from_value(value)
+}
+
+/// The msgpack kind of a value, as error messages name it.
+pub(crate) fn kind_of(value: &Value) -> &'static str {
+    match value {
+        Value::Nil => "nil",
+        Value::Boolean(_) => "bool",
+        Value::Integer(_) => "int",
+        Value::F32(_) | Value::F64(_) => "float",
+        Value::String(_) => "str",
+        Value::Binary(_) => "bin",
+        Value::Array(_) => "array",
+        Value::Map(_) => "map",
+        Value::Ext(..) => "ext",
+    }
 }
 
 fn pose<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {

@@ -40,11 +40,16 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
-use crate::closing::{confirm_ends, CloseFailure, CloseReport, PendingEnd, UnconfirmedEnd};
-use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
-use crate::connection::{current_area_graphs, current_states, get_all, ClientError};
+use crate::closing::{
+    confirm_ends, CloseFailure, CloseReport, EndingPublisher, PendingEnd, UnconfirmedEnd,
+};
+// Their old home: `robot::EndProgress` and `robot::end_progress` still resolve.
+pub use crate::closing::{end_progress, EndProgress};
+use crate::codec::{decode, encode, encoding, WireLimits};
+use crate::error::{ClientError, ErrorCode, WireError};
 use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
+use crate::query::{current_area_graphs, current_states, get_all};
 
 /// Error reports waiting for the follower thread; more are dropped and counted.
 const INBOX_MAX: usize = 1000;
@@ -207,56 +212,6 @@ impl Shared {
         self.inbox
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-}
-
-/// What the service's state of a robot says about a session end the robot sent.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum EndProgress {
-    /// The session is closed: the end is confirmed and the cache is no longer needed.
-    Closed,
-    /// Open with every frame up to the last seq applied: only the end is missing (it may have
-    /// been dropped at a deposed owner), so it is put again after a short grace.
-    CaughtUp,
-    /// Frames still to apply, no state yet (a take-over in progress), or the newest state is
-    /// about another session: the cache may still be needed.
-    Pending,
-}
-
-/// Where the end of `session` (last frame `last_seq`) of `fleet`/`robot` stands, per the
-/// `SessionState` replies of its `state` key: of several replies (an old and a new owner),
-/// the highest epoch is current.
-pub fn end_progress(
-    replies: Vec<SessionState>,
-    fleet: &str,
-    robot: &str,
-    session: &str,
-    last_seq: u64,
-) -> EndProgress {
-    let current = current_states(replies)
-        .into_iter()
-        .find(|state| state.fleet == fleet && state.robot == robot);
-    progress_of(current.as_ref(), session, last_seq)
-}
-
-/// Where the end of `session` (last frame `last_seq`) stands per the robot's current state.
-pub(crate) fn progress_of(
-    current: Option<&SessionState>,
-    session: &str,
-    last_seq: u64,
-) -> EndProgress {
-    match current {
-        // Another session is no proof either way: it may be older than this one.
-        Some(state) if state.session == session => {
-            if !state.open {
-                EndProgress::Closed
-            } else if state.last_seq.is_some_and(|seq| seq >= last_seq) {
-                EndProgress::CaughtUp
-            } else {
-                EndProgress::Pending
-            }
-        }
-        _ => EndProgress::Pending,
     }
 }
 
@@ -795,23 +750,30 @@ impl RobotPublisher {
         }
         first
     }
+}
 
-    pub(crate) fn zenoh_session(&self) -> &Session {
+impl EndingPublisher for RobotPublisher {
+    fn fleet(&self) -> &str {
+        &self.fleet
+    }
+
+    fn robot(&self) -> &str {
+        &self.robot
+    }
+
+    fn zenoh_session(&self) -> &Session {
         &self.session
     }
 
-    /// Whether the publisher has seen a live instance's token.
-    pub(crate) fn knows_live_instance(&self) -> bool {
+    fn knows_live_instance(&self) -> bool {
         !self.shared.lock().live.is_empty()
     }
 
-    /// Whether the service reported the current session closed.
-    pub(crate) fn closed_by_service(&self) -> bool {
+    fn closed_by_service(&self) -> bool {
         self.shared.lock().closed_report
     }
 
-    /// Put the end of `session_id` again (ignored by the service if it had it).
-    pub(crate) fn resend_end(&self, session_id: &str, last_seq: u64) {
+    fn resend_end(&self, session_id: &str, last_seq: u64) {
         if let Err(err) = self.send_end(session_id, Some(last_seq)) {
             tracing::debug!(
                 "{}/{}: putting the end again: {err}",
