@@ -102,18 +102,49 @@ fn pose<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
     }
 }
 
+/// Field checks labelled by the field's path, so a label cannot drift from its field; in the
+/// order given, which is the order a message's checks report in.
+///
+/// * `check!(self, names: fleet, robot)`: `validate_name(&self.fleet, "fleet")?`, ...;
+///   `names?:` skips a `None`.
+/// * `check!(self, "Frame", seq: seq, ...)`: `seq(self.seq, "Frame.seq")?`, ...; `seq?:`
+///   skips a `None`. A path that is not a literal (a nested item's) is formatted at run time.
+macro_rules! check {
+    ($item:expr, names: $($field:ident),+) => {
+        $(validate_name(&$item.$field, stringify!($field))?;)+
+    };
+    ($item:expr, names?: $($field:ident),+) => {
+        $(if let Some(value) = &$item.$field {
+            validate_name(value, stringify!($field))?;
+        })+
+    };
+    ($item:expr, $at:literal, $check:ident?: $($field:ident),+) => {
+        $(if let Some(value) = $item.$field {
+            $check(value, concat!($at, ".", stringify!($field)))?;
+        })+
+    };
+    ($item:expr, $at:literal, $check:ident: $($field:ident),+) => {
+        $($check($item.$field, concat!($at, ".", stringify!($field)))?;)+
+    };
+    ($item:expr, $at:expr, $check:ident: $($field:ident),+) => {
+        $($check($item.$field, &format!("{}.{}", $at, stringify!($field)))?;)+
+    };
+}
+
 fn invalid(message: String) -> WireError {
     WireError::new(ErrorCode::Invalid, message)
 }
 
-fn name(value: &str, what: &str) -> Result<(), WireError> {
-    validate_name(value, what)
+/// An `INVALID` failure with `message` unless `holds` (the message is built only on failure).
+fn ensure(holds: bool, message: impl FnOnce() -> String) -> Result<(), WireError> {
+    if holds {
+        Ok(())
+    } else {
+        Err(invalid(message()))
+    }
 }
 
-fn opt_name(value: &Option<String>, what: &str) -> Result<(), WireError> {
-    value.as_deref().map_or(Ok(()), |v| validate_name(v, what))
-}
-
+/// A seq: at most `MAX_SEQ`, else `LIMIT_EXCEEDED` (`max_seq`).
 fn seq(value: u64, field: &str) -> Result<(), WireError> {
     if value > MAX_SEQ {
         return Err(WireError::with_limit(
@@ -125,25 +156,25 @@ fn seq(value: u64, field: &str) -> Result<(), WireError> {
     Ok(())
 }
 
+/// A count or an id: at most 2**53-1.
 fn count(value: u64, field: &str) -> Result<(), WireError> {
-    if value > MAX_SEQ {
-        return Err(invalid(format!("{field}={value} is above 2**53-1")));
-    }
-    Ok(())
+    ensure(value <= MAX_SEQ, || {
+        format!("{field}={value} is above 2**53-1")
+    })
 }
 
-fn epoch(value: u64, field: &str) -> Result<(), WireError> {
-    if value == 0 || value > MAX_SEQ {
-        return Err(invalid(format!("{field}={value} is not in 1..2**53-1")));
-    }
-    Ok(())
+/// A count that cannot be 0, or an epoch: in 1..2**53-1.
+fn positive(value: u64, field: &str) -> Result<(), WireError> {
+    ensure(value != 0 && value <= MAX_SEQ, || {
+        format!("{field}={value} is not in 1..2**53-1")
+    })
 }
 
 fn features(values: &[u64], field: &str) -> Result<(), WireError> {
-    if let Some(big) = values.iter().find(|id| **id > MAX_FEATURE_ID) {
-        return Err(feature_limit(*big, field));
+    match values.iter().find(|id| **id > MAX_FEATURE_ID) {
+        Some(big) => Err(feature_limit(*big, field)),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 fn feature_limit(id: u64, field: &str) -> WireError {
@@ -154,35 +185,40 @@ fn feature_limit(id: u64, field: &str) -> WireError {
     )
 }
 
-/// An integer in 1..2**53-1 (a count that cannot be 0).
-fn positive(value: u64, field: &str) -> Result<(), WireError> {
-    if value == 0 || value > MAX_SEQ {
-        return Err(invalid(format!("{field}={value} is not in 1..2**53-1")));
-    }
-    Ok(())
-}
-
 fn finite(value: f64, field: &str) -> Result<(), WireError> {
-    if !value.is_finite() {
-        return Err(invalid(format!("{field} must be finite, not {value}")));
-    }
-    Ok(())
+    ensure(value.is_finite(), || {
+        format!("{field} must be finite, not {value}")
+    })
 }
 
 fn non_negative(value: f64, field: &str) -> Result<(), WireError> {
     finite(value, field)?;
-    if value < 0.0 {
-        return Err(invalid(format!("{field} must be >= 0, not {value}")));
-    }
-    Ok(())
+    ensure(value >= 0.0, || {
+        format!("{field} must be >= 0, not {value}")
+    })
 }
 
 fn partition(value: u16, field: &str) -> Result<(), WireError> {
-    if value >= PARTITIONS {
-        return Err(invalid(format!(
-            "{field}={value} is not in 0..{}",
-            PARTITIONS - 1
-        )));
+    ensure(value < PARTITIONS, || {
+        format!("{field}={value} is not in 0..{}", PARTITIONS - 1)
+    })
+}
+
+/// A span of frames: `first_seq <= last_seq`.
+fn seq_span(first_seq: u64, last_seq: u64, at: &str) -> Result<(), WireError> {
+    ensure(first_seq <= last_seq, || {
+        format!("{at}: first_seq {first_seq} is after last_seq {last_seq}")
+    })
+}
+
+/// Validate each item of a nested list, labelled `<at>.<index>`.
+fn each<T>(
+    items: &[T],
+    at: &str,
+    validate: impl Fn(&T, &str) -> Result<(), WireError>,
+) -> Result<(), WireError> {
+    for (index, item) in items.iter().enumerate() {
+        validate(item, &format!("{at}.{index}"))?;
     }
     Ok(())
 }
@@ -208,9 +244,9 @@ impl Message for Frame {
     const TYPE: &'static str = "Frame";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.session, "session")?;
-        seq(self.seq, "Frame.seq")?;
-        finite(self.stamp_s, "Frame.stamp_s")?;
+        check!(self, names: session);
+        check!(self, "Frame", seq: seq);
+        check!(self, "Frame", finite: stamp_s);
         features(&self.features, "Frame.features")?;
         for value in self.pose.iter().flatten() {
             finite(*value, "Frame.pose")?;
@@ -237,11 +273,10 @@ impl Message for SessionEnd {
     const TYPE: &'static str = "SessionEnd";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.session, "session")?;
-        if let Some(last) = self.last_seq {
-            seq(last, "SessionEnd.last_seq")?;
-        }
-        finite(self.stamp_s, "SessionEnd.stamp_s")
+        check!(self, names: session);
+        check!(self, "SessionEnd", seq?: last_seq);
+        check!(self, "SessionEnd", finite: stamp_s);
+        Ok(())
     }
 }
 wire_map!(SessionEnd, [session, last_seq, stamp_s]);
@@ -264,18 +299,11 @@ pub struct SubmapSummary {
 
 impl SubmapSummary {
     fn validate(&self, at: &str) -> Result<(), WireError> {
-        count(self.id, &format!("{at}.id"))?;
-        seq(self.first_seq, &format!("{at}.first_seq"))?;
-        seq(self.last_seq, &format!("{at}.last_seq"))?;
-        count(self.frame_count, &format!("{at}.frame_count"))?;
+        check!(self, at, count: id);
+        check!(self, at, seq: first_seq, last_seq);
+        check!(self, at, count: frame_count);
         features(&self.features, &format!("{at}.features"))?;
-        if self.first_seq > self.last_seq {
-            return Err(invalid(format!(
-                "{at}: first_seq {} is after last_seq {}",
-                self.first_seq, self.last_seq
-            )));
-        }
-        Ok(())
+        seq_span(self.first_seq, self.last_seq, at)
     }
 }
 
@@ -408,44 +436,42 @@ impl Message for Transition {
     const TYPE: &'static str = "Transition";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        seq(self.seq, "Transition.seq")?;
-        seq(self.boundary_seq, "Transition.boundary_seq")?;
-        finite(self.stamp_s, "Transition.stamp_s")?;
+        check!(self, names: fleet, robot, session);
+        check!(self, "Transition", seq: seq, boundary_seq);
+        check!(self, "Transition", finite: stamp_s);
         for value in [self.ncut, self.lambda2].into_iter().flatten() {
             finite(value, "Transition.ncut/lambda2")?;
         }
         self.closed.validate("Transition.closed")?;
         self.opened.validate("Transition.opened")?;
         features(&self.boundary_features, "Transition.boundary_features")?;
-        count(self.area, "Transition.area")?;
-        count(self.left_area, "Transition.left_area")?;
-        positive(self.batch_frames, "Transition.batch_frames")?;
-        name(&self.instance, "instance")?;
-        partition(self.partition, "Transition.partition")?;
-        epoch(self.epoch, "Transition.epoch")?;
-        if self.boundary_seq > self.seq {
-            return Err(invalid(format!(
+        check!(self, "Transition", count: area, left_area);
+        check!(self, "Transition", positive: batch_frames);
+        check!(self, names: instance);
+        check!(self, "Transition", partition: partition);
+        check!(self, "Transition", positive: epoch);
+        ensure(self.boundary_seq <= self.seq, || {
+            format!(
                 "boundary_seq {} is after seq {}",
                 self.boundary_seq, self.seq
-            )));
-        }
+            )
+        })?;
         let spectral = self.reason == Reason::Spectral;
-        if self.ncut.is_some() != spectral || self.lambda2.is_some() != spectral {
-            return Err(invalid(format!(
-                "{}: ncut, lambda2 are set for SPECTRAL only, null otherwise",
-                self.reason.as_str()
-            )));
-        }
-        if self.area == self.left_area {
-            return Err(invalid(format!(
+        ensure(
+            self.ncut.is_some() == spectral && self.lambda2.is_some() == spectral,
+            || {
+                format!(
+                    "{}: ncut, lambda2 are set for SPECTRAL only, null otherwise",
+                    self.reason.as_str()
+                )
+            },
+        )?;
+        ensure(self.area != self.left_area, || {
+            format!(
                 "Transition: area {} equals left_area; a transition changes area",
                 self.area
-            )));
-        }
-        Ok(())
+            )
+        })
     }
 }
 wire_map!(
@@ -506,9 +532,7 @@ impl Message for Error {
     const TYPE: &'static str = "Error";
 
     fn validate(&self) -> Result<(), WireError> {
-        opt_name(&self.fleet, "fleet")?;
-        opt_name(&self.robot, "robot")?;
-        opt_name(&self.session, "session")?;
+        check!(self, names?: fleet, robot, session);
         let chars = self.detail.chars().count();
         if chars > MAX_DETAIL_CHARS {
             return Err(WireError::with_limit(
@@ -517,14 +541,10 @@ impl Message for Error {
                 format!("Error.detail has {chars} characters; max_detail_len={MAX_DETAIL_CHARS}"),
             ));
         }
-        if let Some(value) = self.seq {
-            seq(value, "Error.seq")?;
-        }
-        finite(self.stamp_s, "Error.stamp_s")?;
-        name(&self.instance, "instance")?;
-        if let Some(value) = self.epoch {
-            epoch(value, "Error.epoch")?;
-        }
+        check!(self, "Error", seq?: seq);
+        check!(self, "Error", finite: stamp_s);
+        check!(self, names: instance);
+        check!(self, "Error", positive?: epoch);
         Ok(())
     }
 }
@@ -582,27 +602,28 @@ impl Message for SessionState {
     const TYPE: &'static str = "SessionState";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        name(&self.instance, "instance")?;
-        epoch(self.epoch, "SessionState.epoch")?;
-        if let Some(value) = self.last_seq {
-            seq(value, "SessionState.last_seq")?;
-        }
-        count(self.frames_applied, "SessionState.frames_applied")?;
-        count(self.frames_duplicate, "SessionState.frames_duplicate")?;
-        count(self.frames_missing, "SessionState.frames_missing")?;
-        count(self.frames_rejected, "SessionState.frames_rejected")?;
-        count(self.transitions, "SessionState.transitions")?;
-        count(self.current_area, "SessionState.current_area")?;
+        check!(self, names: fleet, robot, session, instance);
+        check!(self, "SessionState", positive: epoch);
+        check!(self, "SessionState", seq?: last_seq);
+        check!(
+            self,
+            "SessionState",
+            count: frames_applied,
+            frames_duplicate,
+            frames_missing,
+            frames_rejected,
+            transitions,
+            current_area
+        );
         self.current_submap
             .validate("SessionState.current_submap")?;
-        for (index, summary) in self.closed_submaps.iter().enumerate() {
-            summary.validate(&format!("SessionState.closed_submaps.{index}"))?;
-        }
-        count(self.nodes, "SessionState.nodes")?;
-        count(self.edges, "SessionState.edges")
+        each(
+            &self.closed_submaps,
+            "SessionState.closed_submaps",
+            SubmapSummary::validate,
+        )?;
+        check!(self, "SessionState", count: nodes, edges);
+        Ok(())
     }
 }
 wire_map!(
@@ -650,9 +671,7 @@ impl Message for Submap {
     const TYPE: &'static str = "Submap";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
+        check!(self, names: fleet, robot, session);
         self.summary.validate("Submap.summary")
     }
 }
@@ -678,19 +697,11 @@ pub struct AreaNode {
 
 impl AreaNode {
     fn validate(&self, at: &str) -> Result<(), WireError> {
-        count(self.id, &format!("{at}.id"))?;
-        count(self.frames, &format!("{at}.frames"))?;
-        positive(self.visits, &format!("{at}.visits"))?;
-        seq(self.first_seq, &format!("{at}.first_seq"))?;
-        seq(self.last_seq, &format!("{at}.last_seq"))?;
+        check!(self, at, count: id, frames);
+        check!(self, at, positive: visits);
+        check!(self, at, seq: first_seq, last_seq);
         features(&self.features, &format!("{at}.features"))?;
-        if self.first_seq > self.last_seq {
-            return Err(invalid(format!(
-                "{at}: first_seq {} is after last_seq {}",
-                self.first_seq, self.last_seq
-            )));
-        }
-        Ok(())
+        seq_span(self.first_seq, self.last_seq, at)
     }
 }
 
@@ -714,10 +725,7 @@ pub struct Passage {
 
 impl Passage {
     fn validate(&self, at: &str) -> Result<(), WireError> {
-        count(self.a, &format!("{at}.a"))?;
-        count(self.b, &format!("{at}.b"))?;
-        count(self.a_to_b, &format!("{at}.a_to_b"))?;
-        count(self.b_to_a, &format!("{at}.b_to_a"))?;
+        check!(self, at, count: a, b, a_to_b, b_to_a);
         for (index, (id, reports)) in self.boundary_features.iter().enumerate() {
             let field = format!("{at}.boundary_features.{index}");
             if *id > MAX_FEATURE_ID {
@@ -725,20 +733,13 @@ impl Passage {
             }
             count(*reports, &field)?;
         }
-        if self.a >= self.b {
-            return Err(invalid(format!(
-                "{at}: a={} must be below b={}",
-                self.a, self.b
-            )));
-        }
+        ensure(self.a < self.b, || {
+            format!("{at}: a={} must be below b={}", self.a, self.b)
+        })?;
         // Both are at most 2**53-1 here: the sum cannot overflow.
-        if self.a_to_b + self.b_to_a == 0 {
-            return Err(invalid(format!(
-                "{at}: passage {}-{} counts no passage",
-                self.a, self.b
-            )));
-        }
-        Ok(())
+        ensure(self.a_to_b + self.b_to_a > 0, || {
+            format!("{at}: passage {}-{} counts no passage", self.a, self.b)
+        })
     }
 }
 
@@ -790,22 +791,14 @@ impl Message for AreaGraph {
     const TYPE: &'static str = "AreaGraph";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        name(&self.instance, "instance")?;
-        epoch(self.epoch, "AreaGraph.epoch")?;
-        for (index, area) in self.areas.iter().enumerate() {
-            area.validate(&format!("AreaGraph.areas.{index}"))?;
-        }
-        for (index, passage) in self.passages.iter().enumerate() {
-            passage.validate(&format!("AreaGraph.passages.{index}"))?;
-        }
-        if self.areas.windows(2).any(|pair| pair[1].id <= pair[0].id) {
-            return Err(invalid(
-                "AreaGraph: areas must be listed by strictly ascending id".into(),
-            ));
-        }
+        check!(self, names: fleet, robot, session, instance);
+        check!(self, "AreaGraph", positive: epoch);
+        each(&self.areas, "AreaGraph.areas", AreaNode::validate)?;
+        each(&self.passages, "AreaGraph.passages", Passage::validate)?;
+        ensure(
+            self.areas.windows(2).all(|pair| pair[0].id < pair[1].id),
+            || "AreaGraph: areas must be listed by strictly ascending id".into(),
+        )?;
         // The ids are sorted now, so `area` may search them.
         if let Some(passage) = self
             .passages
@@ -817,16 +810,12 @@ impl Message for AreaGraph {
                 passage.a, passage.b
             )));
         }
-        if self
-            .passages
-            .windows(2)
-            .any(|pair| (pair[1].a, pair[1].b) <= (pair[0].a, pair[0].b))
-        {
-            return Err(invalid(
-                "AreaGraph: passages must be listed by strictly ascending (a, b)".into(),
-            ));
-        }
-        Ok(())
+        ensure(
+            self.passages
+                .windows(2)
+                .all(|pair| (pair[0].a, pair[0].b) < (pair[1].a, pair[1].b)),
+            || "AreaGraph: passages must be listed by strictly ascending (a, b)".into(),
+        )
     }
 }
 wire_map!(
@@ -862,21 +851,20 @@ impl Message for Health {
     const TYPE: &'static str = "Health";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.instance, "instance")?;
+        check!(self, names: instance);
         let chars = self.version.chars().count();
-        if chars == 0 || chars > 64 {
-            return Err(invalid(format!(
-                "Health.version has {chars} characters, not 1..64"
-            )));
-        }
-        count(self.sessions, "Health.sessions")?;
-        non_negative(self.uptime_s, "Health.uptime_s")?;
-        count(self.frames_applied, "Health.frames_applied")?;
+        ensure((1..=64).contains(&chars), || {
+            format!("Health.version has {chars} characters, not 1..64")
+        })?;
+        check!(self, "Health", count: sessions);
+        check!(self, "Health", non_negative: uptime_s);
+        check!(self, "Health", count: frames_applied);
         for p in self.partitions.iter().chain(&self.standby) {
             partition(*p, "Health.partitions")?;
         }
-        count(self.queue_depth, "Health.queue_depth")?;
-        non_negative(self.lag_s, "Health.lag_s")
+        check!(self, "Health", count: queue_depth);
+        check!(self, "Health", non_negative: lag_s);
+        Ok(())
     }
 }
 wire_map!(
