@@ -15,8 +15,9 @@
 use rmpv::{Utf8String, Value};
 
 pub use crate::error::{ErrorCode, WireError};
-use crate::messages::{from_value, kind_of, Frame, Message, SessionEnd};
+use crate::messages::{Frame, Message, SessionEnd};
 use crate::names::WIRE_VERSION;
+use crate::wire_serde::{from_value, kind_of};
 
 /// Zenoh encoding of every lessmap payload; the schema suffix names the message.
 pub const MEDIA_TYPE: &str = "application/msgpack";

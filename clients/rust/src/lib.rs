@@ -10,8 +10,10 @@
 //! Modules and what each uses of the crate (no cycles; a module uses only those above it):
 //!
 //! * [`error`]: nothing (every error type: [`ErrorCode`], [`WireError`], [`FleetMergeError`],
-//!   [`ClientError`]);
-//! * [`names`]: error; [`messages`]: error, names; [`codec`]: error, messages, names;
+//!   [`ClientError`]); `wire_serde` (serde glue of the wire maps): nothing;
+//! * [`names`]: error; `checks` (the messages' range checks): error, names;
+//! * [`messages`]: checks, error, names, wire_serde; [`codec`]: error, messages, names,
+//!   wire_serde;
 //! * [`fleet_areas`]: error, messages;
 //! * [`query`]: error, codec, fleet_areas, messages, names;
 //! * [`subscription`]: error, codec, messages;
@@ -33,6 +35,7 @@
 //! # Ok::<(), lessmap_client::ClientError>(())
 //! ```
 
+mod checks;
 pub mod closing;
 pub mod codec;
 pub mod connection;
@@ -43,6 +46,7 @@ pub mod names;
 pub mod query;
 pub mod robot;
 pub mod subscription;
+mod wire_serde;
 
 pub use closing::{
     end_progress, CloseFailure, CloseReport, EndProgress, UnconfirmedEnd, UnconfirmedReason,

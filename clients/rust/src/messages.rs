@@ -10,18 +10,20 @@
 //! * Serde checks types; `validate` checks ranges, names and consistency, with the code the
 //!   contract gives each failure.
 
-use rmpv::Value;
 use serde::de::{DeserializeOwned, Error as _};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+use crate::checks::{
+    check, count, each, ensure, feature_limit, features, finite, invalid, non_negative, partition,
+    positive, seq, seq_span,
+};
+// Their old home: `messages::MAX_SEQ` and `messages::MAX_FEATURE_ID` still resolve.
+pub use crate::checks::{MAX_FEATURE_ID, MAX_SEQ};
 use crate::error::{ErrorCode, WireError};
-use crate::names::{validate_name, PARTITIONS, WIRE_VERSION};
+use crate::names::WIRE_VERSION;
+use crate::wire_serde::{nested, nested_list, nullable, pose};
 
-/// Largest seq and counter: the largest integer a JavaScript number holds exactly.
-pub const MAX_SEQ: u64 = (1 << 53) - 1;
-/// Largest feature ID: fits a signed 64-bit integer.
-pub const MAX_FEATURE_ID: u64 = (1 << 63) - 1;
 /// Longest `Error.detail`, in characters.
 pub const MAX_DETAIL_CHARS: usize = 1024;
 
@@ -47,180 +49,6 @@ macro_rules! wire_map {
             }
         }
     };
-}
-
-/// A field that must be present but may be `nil` (serde would default a missing `Option`).
-fn nullable<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<Option<T>, D::Error> {
-    Option::<T>::deserialize(d)
-}
-
-/// A nested struct: only from a msgpack map, never from an array.
-fn nested<'de, D: Deserializer<'de>, T: DeserializeOwned>(d: D) -> Result<T, D::Error> {
-    let value = Value::deserialize(d)?;
-    from_value(value).map_err(D::Error::custom)
-}
-
-fn nested_list<'de, D: Deserializer<'de>, T: DeserializeOwned>(d: D) -> Result<Vec<T>, D::Error> {
-    Vec::<Value>::deserialize(d)?
-        .into_iter()
-        .map(|value| from_value(value).map_err(D::Error::custom))
-        .collect()
-}
-
-/// Deserialize a value that must be a msgpack map (a struct never comes from an array).
-pub(crate) fn from_value<T: DeserializeOwned>(value: Value) -> Result<T, rmpv::ext::Error> {
-    if !value.is_map() {
-        return Err(serde::de::Error::custom(format!(
-            "expected a map, got a msgpack {}",
-            kind_of(&value)
-        )));
-    }
-    rmpv::ext::from_value(value)
-}
-
-/// The msgpack kind of a value, as error messages name it.
-pub(crate) fn kind_of(value: &Value) -> &'static str {
-    match value {
-        Value::Nil => "nil",
-        Value::Boolean(_) => "bool",
-        Value::Integer(_) => "int",
-        Value::F32(_) | Value::F64(_) => "float",
-        Value::String(_) => "str",
-        Value::Binary(_) => "bin",
-        Value::Array(_) => "array",
-        Value::Map(_) => "map",
-        Value::Ext(..) => "ext",
-    }
-}
-
-fn pose<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
-    match Option::<Vec<f64>>::deserialize(d)? {
-        None => Ok(None),
-        Some(values) => <[f64; 3]>::try_from(values.as_slice())
-            .map(Some)
-            .map_err(|_| D::Error::custom(format!("a pose has 3 values, not {}", values.len()))),
-    }
-}
-
-/// Field checks labelled by the field's path, so a label cannot drift from its field; in the
-/// order given, which is the order a message's checks report in.
-///
-/// * `check!(self, names: fleet, robot)`: `validate_name(&self.fleet, "fleet")?`, ...;
-///   `names?:` skips a `None`.
-/// * `check!(self, "Frame", seq: seq, ...)`: `seq(self.seq, "Frame.seq")?`, ...; `seq?:`
-///   skips a `None`. A path that is not a literal (a nested item's) is formatted at run time.
-macro_rules! check {
-    ($item:expr, names: $($field:ident),+) => {
-        $(validate_name(&$item.$field, stringify!($field))?;)+
-    };
-    ($item:expr, names?: $($field:ident),+) => {
-        $(if let Some(value) = &$item.$field {
-            validate_name(value, stringify!($field))?;
-        })+
-    };
-    ($item:expr, $at:literal, $check:ident?: $($field:ident),+) => {
-        $(if let Some(value) = $item.$field {
-            $check(value, concat!($at, ".", stringify!($field)))?;
-        })+
-    };
-    ($item:expr, $at:literal, $check:ident: $($field:ident),+) => {
-        $($check($item.$field, concat!($at, ".", stringify!($field)))?;)+
-    };
-    ($item:expr, $at:expr, $check:ident: $($field:ident),+) => {
-        $($check($item.$field, &format!("{}.{}", $at, stringify!($field)))?;)+
-    };
-}
-
-fn invalid(message: String) -> WireError {
-    WireError::new(ErrorCode::Invalid, message)
-}
-
-/// An `INVALID` failure with `message` unless `holds` (the message is built only on failure).
-fn ensure(holds: bool, message: impl FnOnce() -> String) -> Result<(), WireError> {
-    if holds {
-        Ok(())
-    } else {
-        Err(invalid(message()))
-    }
-}
-
-/// A seq: at most `MAX_SEQ`, else `LIMIT_EXCEEDED` (`max_seq`).
-fn seq(value: u64, field: &str) -> Result<(), WireError> {
-    if value > MAX_SEQ {
-        return Err(WireError::with_limit(
-            ErrorCode::LimitExceeded,
-            "max_seq",
-            format!("{field}={value} exceeds max_seq={MAX_SEQ}"),
-        ));
-    }
-    Ok(())
-}
-
-/// A count or an id: at most 2**53-1.
-fn count(value: u64, field: &str) -> Result<(), WireError> {
-    ensure(value <= MAX_SEQ, || {
-        format!("{field}={value} is above 2**53-1")
-    })
-}
-
-/// A count that cannot be 0, or an epoch: in 1..2**53-1.
-fn positive(value: u64, field: &str) -> Result<(), WireError> {
-    ensure(value != 0 && value <= MAX_SEQ, || {
-        format!("{field}={value} is not in 1..2**53-1")
-    })
-}
-
-fn features(values: &[u64], field: &str) -> Result<(), WireError> {
-    match values.iter().find(|id| **id > MAX_FEATURE_ID) {
-        Some(big) => Err(feature_limit(*big, field)),
-        None => Ok(()),
-    }
-}
-
-fn feature_limit(id: u64, field: &str) -> WireError {
-    WireError::with_limit(
-        ErrorCode::LimitExceeded,
-        "max_feature_id",
-        format!("{field} holds {id}; max_feature_id={MAX_FEATURE_ID}"),
-    )
-}
-
-fn finite(value: f64, field: &str) -> Result<(), WireError> {
-    ensure(value.is_finite(), || {
-        format!("{field} must be finite, not {value}")
-    })
-}
-
-fn non_negative(value: f64, field: &str) -> Result<(), WireError> {
-    finite(value, field)?;
-    ensure(value >= 0.0, || {
-        format!("{field} must be >= 0, not {value}")
-    })
-}
-
-fn partition(value: u16, field: &str) -> Result<(), WireError> {
-    ensure(value < PARTITIONS, || {
-        format!("{field}={value} is not in 0..{}", PARTITIONS - 1)
-    })
-}
-
-/// A span of frames: `first_seq <= last_seq`.
-fn seq_span(first_seq: u64, last_seq: u64, at: &str) -> Result<(), WireError> {
-    ensure(first_seq <= last_seq, || {
-        format!("{at}: first_seq {first_seq} is after last_seq {last_seq}")
-    })
-}
-
-/// Validate each item of a nested list, labelled `<at>.<index>`.
-fn each<T>(
-    items: &[T],
-    at: &str,
-    validate: impl Fn(&T, &str) -> Result<(), WireError>,
-) -> Result<(), WireError> {
-    for (index, item) in items.iter().enumerate() {
-        validate(item, &format!("{at}.{index}"))?;
-    }
-    Ok(())
 }
 
 /// One sensor frame of a robot session (robot -> service, `frames` key).
