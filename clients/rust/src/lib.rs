@@ -18,7 +18,8 @@
 //! * [`query`]: error, codec, fleet_areas, messages, names;
 //! * [`subscription`]: error, codec, messages;
 //! * [`closing`]: error, messages, names, query;
-//! * [`robot`]: error, closing, codec, messages, names, query;
+//! * `follower` (what a robot follows besides its frames): error, codec, messages, names, query;
+//! * [`robot`]: error, closing, codec, follower, messages, names, query;
 //! * [`connection`]: error, fleet_areas, messages, names, query, robot, subscription.
 //!
 //! Types that moved keep their old paths too (`connection::ClientError`,
@@ -41,6 +42,7 @@ pub mod codec;
 pub mod connection;
 pub mod error;
 pub mod fleet_areas;
+mod follower;
 pub mod messages;
 pub mod names;
 pub mod query;

@@ -7,16 +7,8 @@
 //!   frames it missed (contract section 6, rule 8). Congestion control is *block*: a frame is
 //!   never dropped silently.
 //! * `SessionEnd` goes on the same key as the frames, so it never overtakes them.
-//! * The robot follows its own `errors` key: Zenoh's callback only hands the payload to a
-//!   bounded channel; the robot's follower thread decodes it, fences it by epoch, updates the
-//!   status and calls `on_error`. A `SESSION_CLOSED` about the current session becomes a flag
-//!   the next `publish` acts on, so frames are never renumbered behind the caller's back.
-//! * The robot follows the instances' liveliness tokens; `status().owner` ranks them for its
-//!   partition (section 2a). The follower logs one warning when the robot becomes unserved
-//!   (or still is 2 s after the start) and one info line when it is served again.
-//! * After a `SESSION_CLOSED` for the current session, with `auto_new_session`, the follower
-//!   asks the robot's state: another publisher's open session of the robot name (a holder)
-//!   makes `publish` fail instead of starting a session that would close that one.
+//! * The robot follows its own `errors` key (on a follower thread) and the instances'
+//!   liveliness tokens (`follower.rs` has the rules); `publish` acts on what they report.
 //! * Closing keeps the publication cache after the `SessionEnd` until the service confirms
 //!   the end (its `SessionState` shows the session closed, or open with every frame up to the
 //!   last seq applied, then the end is put again): frames dropped at a deposed owner during a
@@ -26,17 +18,15 @@
 //!   is `close_all` of one publisher.
 
 use std::collections::hash_map::RandomState;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::hash::{BuildHasher, Hasher};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, RecvTimeoutError};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
-use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
@@ -45,18 +35,14 @@ use crate::closing::{
 };
 // Their old home: `robot::EndProgress` and `robot::end_progress` still resolve.
 pub use crate::closing::{end_progress, EndProgress};
-use crate::codec::{decode, encode, encoding, WireLimits};
+use crate::codec::{encode, encoding, WireLimits};
 use crate::error::{ClientError, ErrorCode, WireError};
+// Its old home: `robot::ErrorCallback` still resolves.
+pub use crate::follower::ErrorCallback;
+use crate::follower::{follow_errors, follow_instances, Shared};
 use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
 use crate::query::{current_area_graphs, current_states, get_all};
-
-/// Error reports waiting for the follower thread; more are dropped and counted.
-const INBOX_MAX: usize = 1000;
-/// After this long without an owner since the publisher started, it warns once.
-const UNSERVED_GRACE: Duration = Duration::from_secs(2);
-/// How long the follower asks who holds the robot after a `SESSION_CLOSED`.
-const HOLDER_QUERY: Duration = Duration::from_secs(1);
 
 /// How long closing waits by default for the service to confirm the end: room for a take-over
 /// of the robot's partition, whose catch-up from the cache the service bounds by
@@ -83,9 +69,6 @@ fn now_s() -> f64 {
         .duration_since(UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
 }
-
-/// A callback for the service's reports about a robot's sessions.
-pub type ErrorCallback = Box<dyn Fn(&Error) + Send + 'static>;
 
 /// How a robot publisher behaves.
 pub struct RobotOptions {
@@ -158,63 +141,6 @@ impl RobotStatus {
     }
 }
 
-struct State {
-    session_id: String,
-    next_seq: u64,
-    frames_sent: u64,
-    sessions: Vec<String>,
-    errors: BTreeMap<String, u64>,
-    last_error: Option<Error>,
-    closed_report: bool,
-    /// Another open session of this robot name the service holds (seen after a
-    /// `SESSION_CLOSED`): `publish` does not start a new session over it.
-    holder: Option<String>,
-    highest_epoch: u64,
-    stale: u64,
-    live: BTreeSet<String>,
-}
-
-impl State {
-    fn start_session(&mut self, session_id: String) {
-        self.session_id = session_id.clone();
-        self.sessions.push(session_id);
-        self.next_seq = 0;
-        self.closed_report = false;
-        self.holder = None;
-    }
-}
-
-struct Shared {
-    state: Mutex<State>,
-    live_changed: Condvar,
-    /// Reports handed to the follower and reports it handled (`flush_errors`).
-    inbox: Mutex<Inbox>,
-    inbox_changed: Condvar,
-    dropped: AtomicU64,
-    stop: AtomicBool,
-}
-
-#[derive(Default)]
-struct Inbox {
-    received: u64,
-    handled: u64,
-}
-
-impl Shared {
-    fn lock(&self) -> MutexGuard<'_, State> {
-        // A panic in on_error never holds this lock, so poisoning is not expected; recover.
-        self.state
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-
-    fn inbox(&self) -> MutexGuard<'_, Inbox> {
-        self.inbox
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-}
-
 /// Publishes the frames of one robot session, numbered from 0, and follows its errors.
 ///
 /// Declare one with `Connection::robot`. `close` (or dropping it) ends the session with a
@@ -249,26 +175,7 @@ impl RobotPublisher {
         let session_id = options.session_id.unwrap_or_else(new_session_id);
         validate_name(&session_id, "session")?;
         let key = keys::frames(fleet, robot)?;
-        let shared = Arc::new(Shared {
-            state: Mutex::new(State {
-                session_id: session_id.clone(),
-                next_seq: 0,
-                frames_sent: 0,
-                sessions: vec![session_id],
-                errors: BTreeMap::new(),
-                last_error: None,
-                closed_report: false,
-                holder: None,
-                highest_epoch: 0,
-                stale: 0,
-                live: BTreeSet::new(),
-            }),
-            live_changed: Condvar::new(),
-            inbox: Mutex::new(Inbox::default()),
-            inbox_changed: Condvar::new(),
-            dropped: AtomicU64::new(0),
-            stop: AtomicBool::new(false),
-        });
+        let shared = Arc::new(Shared::new(session_id));
         let publisher = session
             .declare_publisher(key.clone())
             .encoding(encoding::<Frame>())
@@ -291,80 +198,17 @@ impl RobotPublisher {
             live_sub: None,
             follower: None,
         };
-        // Reports: Zenoh's thread hands them over; the follower handles them.
-        let (tx, rx) = sync_channel::<Vec<u8>>(INBOX_MAX);
-        let counter = Arc::clone(&shared);
-        robot_pub.errors_sub = Some(
-            session
-                .declare_subscriber(keys::errors(fleet, robot)?)
-                .callback(move |sample: Sample| {
-                    // Counted under the inbox lock, so `handled` never runs ahead of it.
-                    let mut inbox = counter.inbox();
-                    match tx.try_send(sample.payload().to_bytes().into_owned()) {
-                        Ok(()) => inbox.received += 1,
-                        Err(_) => {
-                            counter.dropped.fetch_add(1, Ordering::Relaxed);
-                        }
-                    }
-                })
-                .wait()?,
-        );
-        let follower_shared = Arc::clone(&shared);
-        let on_error = options.on_error;
-        let label = format!("{fleet}/{robot}");
-        let reports = Reports {
-            label: label.clone(),
-            partition: partition_of(fleet, robot),
-            session: session.clone(),
-            state_key: keys::state(fleet, robot)?,
-            auto_new_session: options.auto_new_session,
-            on_error,
-        };
-        robot_pub.follower = Some(
-            std::thread::Builder::new()
-                .name(format!("lessmap-robot-{label}"))
-                .spawn(move || {
-                    let mut served = Served::new(Instant::now() + UNSERVED_GRACE);
-                    loop {
-                        match rx.recv_timeout(Duration::from_millis(100)) {
-                            Ok(payload) => {
-                                handle_report(&follower_shared, &reports, &payload);
-                                follower_shared.inbox().handled += 1;
-                                follower_shared.inbox_changed.notify_all();
-                            }
-                            Err(RecvTimeoutError::Timeout) => {}
-                            Err(RecvTimeoutError::Disconnected) => return,
-                        }
-                        if follower_shared.stop.load(Ordering::Relaxed) {
-                            return;
-                        }
-                        served.check(&follower_shared, &reports);
-                    }
-                })
-                .map_err(|err| ClientError::Connect(format!("cannot start a thread: {err}")))?,
-        );
-        // Instances: a liveliness subscriber with history gives the live ones, then changes.
-        let prefix = keys::instances().trim_end_matches('*').to_owned();
-        let live_shared = Arc::clone(&shared);
-        robot_pub.live_sub = Some(
-            session
-                .liveliness()
-                .declare_subscriber(keys::instances())
-                .history(true)
-                .callback(move |sample: Sample| {
-                    let key = sample.key_expr().as_str();
-                    if let Some(name) = key.strip_prefix(prefix.as_str()) {
-                        let mut state = live_shared.lock();
-                        if sample.kind() == SampleKind::Put {
-                            state.live.insert(name.to_owned());
-                        } else {
-                            state.live.remove(name);
-                        }
-                        live_shared.live_changed.notify_all();
-                    }
-                })
-                .wait()?,
-        );
+        let (errors_sub, follower) = follow_errors(
+            &session,
+            fleet,
+            robot,
+            Arc::clone(&shared),
+            options.auto_new_session,
+            options.on_error,
+        )?;
+        robot_pub.errors_sub = Some(errors_sub);
+        robot_pub.follower = Some(follower);
+        robot_pub.live_sub = Some(follow_instances(&session, Arc::clone(&shared))?);
         Ok(robot_pub)
     }
 
@@ -923,139 +767,4 @@ fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
             names[..names.len().min(5)].join(", ")
         );
     }
-}
-
-/// What the follower thread needs to handle the reports of one robot.
-struct Reports {
-    label: String,
-    partition: u16,
-    session: Session,
-    state_key: String,
-    auto_new_session: bool,
-    on_error: Option<ErrorCallback>,
-}
-
-/// Whether the robot is served, as the follower last logged it: one warning when the robot
-/// becomes unserved (or still is [`UNSERVED_GRACE`] after the start), one info line when it is
-/// served again. The follower checks after every report and every 100 ms.
-struct Served {
-    owner: Option<String>,
-    warned: bool,
-    grace_until: Option<Instant>,
-}
-
-impl Served {
-    fn new(grace_until: Instant) -> Served {
-        Served {
-            owner: None,
-            warned: false,
-            grace_until: Some(grace_until),
-        }
-    }
-
-    fn check(&mut self, shared: &Shared, reports: &Reports) {
-        let owner = {
-            let state = shared.lock();
-            let live: Vec<&String> = state.live.iter().collect();
-            owner_and_standby(reports.partition, &live).0
-        };
-        let startup = self
-            .grace_until
-            .is_some_and(|until| Instant::now() >= until);
-        if startup {
-            self.grace_until = None;
-        }
-        let before = std::mem::replace(&mut self.owner, owner.clone());
-        let (label, partition) = (&reports.label, reports.partition);
-        match owner {
-            None if !self.warned && (before.is_some() || startup) => {
-                self.warned = true;
-                tracing::warn!(
-                    "{label}: no live lessmap instance owns partition {partition}: the robot is \
-                     not served (its recent frames wait in the publisher's cache for the next \
-                     owner)"
-                );
-            }
-            Some(owner) if self.warned => {
-                self.warned = false;
-                tracing::info!("{label}: partition {partition} is served again, by {owner}");
-            }
-            Some(owner) if before.as_deref() != Some(owner.as_str()) => {
-                tracing::debug!("{label}: partition {partition} owner {owner}");
-            }
-            _ => {}
-        }
-    }
-}
-
-/// Handle one report on the follower thread.
-fn handle_report(shared: &Shared, reports: &Reports, payload: &[u8]) {
-    let label = &reports.label;
-    let error = match decode::<Error>(payload) {
-        Ok(error) => error,
-        Err(err) => {
-            tracing::warn!("{label}: skipped an undecodable error report: {err}");
-            return;
-        }
-    };
-    let closes_current = {
-        let mut state = shared.lock();
-        if let Some(session) = &error.session {
-            if !state.sessions.contains(session) {
-                return; // about another publisher's session of this robot name
-            }
-        }
-        if let Some(epoch) = error.epoch {
-            if epoch < state.highest_epoch {
-                state.stale += 1; // a deposed owner's late report
-                return;
-            }
-            state.highest_epoch = epoch;
-        }
-        *state
-            .errors
-            .entry(error.code.as_str().to_owned())
-            .or_insert(0) += 1;
-        state.last_error = Some(error.clone());
-        let current = state.session_id.clone();
-        (error.code == ErrorCode::SessionClosed
-            && error.session.as_deref() == Some(current.as_str())
-            && !state.closed_report)
-            .then_some(current)
-    };
-    tracing::warn!(
-        "{label}: the service reported {} for session {:?} seq {:?}: {}",
-        error.code,
-        error.session,
-        error.seq,
-        error.detail
-    );
-    if let Some(current) = closes_current {
-        // Starting a new session would close any other open session of this robot name:
-        // never fight another publisher for it.
-        let holder = if reports.auto_new_session {
-            other_holder(shared, reports, &current)
-        } else {
-            None
-        };
-        let mut state = shared.lock();
-        if state.session_id == current && !state.closed_report {
-            state.closed_report = true;
-            state.holder = holder;
-        }
-    }
-    if let Some(callback) = &reports.on_error {
-        if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| callback(&error))).is_err() {
-            tracing::error!("{label}: on_error panicked");
-        }
-    }
-}
-
-/// Another open session the service holds for this robot name, if any (the current owner's
-/// answer only; a failed query or no answer: none).
-fn other_holder(shared: &Shared, reports: &Reports, current: &str) -> Option<String> {
-    let found = get_all::<SessionState>(&reports.session, &reports.state_key, HOLDER_QUERY).ok()?;
-    let state = current_states(found).into_iter().next()?;
-    let ours = shared.lock().sessions.contains(&state.session);
-    (state.open && state.session != current && !ours).then_some(state.session)
 }
