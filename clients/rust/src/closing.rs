@@ -8,6 +8,10 @@
 //! right after the end would lose them, so the ends are confirmed first, by the robots'
 //! `SessionState`.
 //!
+//! Closing runs in three steps over every publisher given (`close_each`; `close_all` and a
+//! single `close` both use it): every end is sent, then one wait confirms them all, then every
+//! publisher is released. This module reaches the publishers through `EndingPublisher`.
+//!
 //! Invariants of this file:
 //!
 //! * It never fails and never waits past the deadline by more than one bounded query (a query
@@ -180,6 +184,20 @@ pub(crate) trait EndingPublisher {
     fn closed_by_service(&self) -> bool;
     /// Put the end of `session_id` again (ignored by the service if it had it).
     fn resend_end(&self, session_id: &str, last_seq: u64);
+    /// Send the end of a publisher not released yet; `None` when it was released already.
+    /// The publication cache stays until `release`.
+    fn end_for_close(&mut self, confirm: bool) -> Option<Ending>;
+    /// Stop following errors and instances, then undeclare the publisher (its cache goes with
+    /// it). Every step runs; the first error is returned.
+    fn release(&mut self) -> Result<(), ClientError>;
+}
+
+/// What a publisher's end did: whether it went out, and the end to confirm (the session and its
+/// last seq) when confirmation was asked for and one is needed (no frame sent, or a session the
+/// service closed, needs none).
+pub(crate) struct Ending {
+    pub(crate) sent: Result<(), ClientError>,
+    pub(crate) to_confirm: Option<(String, u64)>,
 }
 
 /// A session end sent and not confirmed yet (one per robot publisher).
@@ -373,4 +391,81 @@ fn current_states_of(
         .into_iter()
         .map(|state| ((state.fleet.clone(), state.robot.clone()), state))
         .collect())
+}
+
+/// `close_all` over publishers borrowed (a single `close` and `Drop` use it too).
+pub(crate) fn close_each(
+    mut robots: Vec<&mut dyn EndingPublisher>,
+    timeout: Duration,
+) -> CloseReport {
+    let mut report = CloseReport::default();
+    let mut closing = Vec::with_capacity(robots.len());
+    let mut pending = Vec::new();
+    for (index, robot) in robots.iter_mut().enumerate() {
+        let Some(Ending { sent, to_confirm }) = robot.end_for_close(!timeout.is_zero()) else {
+            continue; // closed already
+        };
+        closing.push(index);
+        if let Err(error) = sent {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet().to_owned(),
+                robot: robot.robot().to_owned(),
+                error,
+            });
+        }
+        if let Some((session, last_seq)) = to_confirm {
+            pending.push((index, session, last_seq));
+        }
+    }
+    if !pending.is_empty() {
+        // The caches live with the publishers until their release below.
+        let ends = pending
+            .into_iter()
+            .map(|(index, session, last_seq)| {
+                PendingEnd::new(index, &*robots[index], session, last_seq)
+            })
+            .collect();
+        report.unconfirmed = confirm_ends(ends, timeout);
+        warn_unconfirmed(&report.unconfirmed);
+    }
+    for index in closing {
+        let robot = &mut robots[index];
+        if let Err(error) = robot.release() {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet().to_owned(),
+                robot: robot.robot().to_owned(),
+                error,
+            });
+        }
+        report.closed += 1;
+    }
+    report
+}
+
+/// One warning line per reason for the ends left unconfirmed.
+fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
+    let mut reasons: Vec<String> = Vec::new();
+    for end in ends {
+        let reason = end.reason.to_string();
+        if !reasons.contains(&reason) {
+            reasons.push(reason);
+        }
+    }
+    for reason in reasons {
+        let names: Vec<String> = ends
+            .iter()
+            .filter(|end| end.reason.to_string() == reason)
+            .map(|end| format!("{}/{} session {}", end.fleet, end.robot, end.session))
+            .collect();
+        let more = match names.len() {
+            n if n > 5 => format!(" and {} more", n - 5),
+            _ => String::new(),
+        };
+        tracing::warn!(
+            "end of {} session(s) not confirmed by the service ({reason}): {}{more}; closing \
+             their publication caches anyway, frames not applied yet are lost",
+            names.len(),
+            names[..names.len().min(5)].join(", ")
+        );
+    }
 }

@@ -30,9 +30,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
-use crate::closing::{
-    confirm_ends, CloseFailure, CloseReport, EndingPublisher, PendingEnd, UnconfirmedEnd,
-};
+use crate::closing::{close_each, CloseReport, Ending, EndingPublisher};
 // Their old home: `robot::EndProgress` and `robot::end_progress` still resolve.
 pub use crate::closing::{end_progress, EndProgress};
 use crate::codec::{encode, encoding, WireLimits};
@@ -537,62 +535,11 @@ impl RobotPublisher {
     }
 
     fn shut(&mut self, timeout: Duration) -> Result<(), ClientError> {
-        let report = close_each(vec![self], timeout);
+        let report = close_each(vec![self as &mut dyn EndingPublisher], timeout);
         match report.failures.into_iter().next() {
             Some(failure) => Err(failure.error),
             None => Ok(()),
         }
-    }
-
-    /// Send the end of a publisher not released yet; `None` when it was released already.
-    /// The publication cache stays until `release`.
-    fn end_for_close(&mut self, confirm: bool) -> Option<Ending> {
-        self.publisher.as_ref()?;
-        let (session_id, last, still_open) = {
-            let state = self.shared.lock();
-            (
-                state.session_id.clone(),
-                state.next_seq.checked_sub(1),
-                !state.closed_report,
-            )
-        };
-        let sent = if still_open {
-            self.send_end(&session_id, last)
-        } else {
-            Ok(())
-        };
-        let to_confirm = match (still_open && sent.is_ok() && confirm, last) {
-            (true, Some(last)) => Some((session_id, last)),
-            _ => None,
-        };
-        Some(Ending { sent, to_confirm })
-    }
-
-    /// Stop following errors and instances, then undeclare the publisher (its cache goes with
-    /// it). Every step runs; the first error is returned.
-    fn release(&mut self) -> Result<(), ClientError> {
-        self.shared.stop.store(true, Ordering::Relaxed);
-        let mut first: Result<(), ClientError> = Ok(());
-        let mut note = |result: zenoh::Result<()>| {
-            if let (Err(err), true) = (result, first.is_ok()) {
-                first = Err(err.into());
-            }
-        };
-        if let Some(sub) = self.errors_sub.take() {
-            note(sub.undeclare().wait());
-        }
-        if let Some(sub) = self.live_sub.take() {
-            note(sub.undeclare().wait());
-        }
-        if let Some(follower) = self.follower.take() {
-            if follower.thread().id() != std::thread::current().id() {
-                let _ = follower.join();
-            }
-        }
-        if let Some(publisher) = self.publisher.take() {
-            note(publisher.undeclare().wait());
-        }
-        first
     }
 }
 
@@ -626,14 +573,53 @@ impl EndingPublisher for RobotPublisher {
             );
         }
     }
-}
 
-/// What a publisher's end did: whether it went out, and the end to confirm (the session and its
-/// last seq) when confirmation was asked for and one is needed (no frame sent, or a session the
-/// service closed, needs none).
-struct Ending {
-    sent: Result<(), ClientError>,
-    to_confirm: Option<(String, u64)>,
+    fn end_for_close(&mut self, confirm: bool) -> Option<Ending> {
+        self.publisher.as_ref()?;
+        let (session_id, last, still_open) = {
+            let state = self.shared.lock();
+            (
+                state.session_id.clone(),
+                state.next_seq.checked_sub(1),
+                !state.closed_report,
+            )
+        };
+        let sent = if still_open {
+            self.send_end(&session_id, last)
+        } else {
+            Ok(())
+        };
+        let to_confirm = match (still_open && sent.is_ok() && confirm, last) {
+            (true, Some(last)) => Some((session_id, last)),
+            _ => None,
+        };
+        Some(Ending { sent, to_confirm })
+    }
+
+    fn release(&mut self) -> Result<(), ClientError> {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        let mut first: Result<(), ClientError> = Ok(());
+        let mut note = |result: zenoh::Result<()>| {
+            if let (Err(err), true) = (result, first.is_ok()) {
+                first = Err(err.into());
+            }
+        };
+        if let Some(sub) = self.errors_sub.take() {
+            note(sub.undeclare().wait());
+        }
+        if let Some(sub) = self.live_sub.take() {
+            note(sub.undeclare().wait());
+        }
+        if let Some(follower) = self.follower.take() {
+            if follower.thread().id() != std::thread::current().id() {
+                let _ = follower.join();
+            }
+        }
+        if let Some(publisher) = self.publisher.take() {
+            note(publisher.undeclare().wait());
+        }
+        first
+    }
 }
 
 impl Drop for RobotPublisher {
@@ -682,7 +668,11 @@ where
     I: IntoIterator<Item = RobotPublisher>,
 {
     let mut robots: Vec<RobotPublisher> = publishers.into_iter().collect();
-    let report = close_each(robots.iter_mut().collect(), timeout);
+    let borrowed = robots
+        .iter_mut()
+        .map(|robot| robot as &mut dyn EndingPublisher)
+        .collect();
+    let report = close_each(borrowed, timeout);
     for failure in &report.failures {
         tracing::warn!(
             "{}/{}: closing the robot publisher: {}",
@@ -693,78 +683,4 @@ where
     }
     drop(robots); // closed: dropping them does nothing more
     report
-}
-
-/// `close_all` over publishers borrowed (a single `close` and `Drop` use it too).
-fn close_each(mut robots: Vec<&mut RobotPublisher>, timeout: Duration) -> CloseReport {
-    let mut report = CloseReport::default();
-    let mut closing = Vec::with_capacity(robots.len());
-    let mut pending = Vec::new();
-    for (index, robot) in robots.iter_mut().enumerate() {
-        let Some(Ending { sent, to_confirm }) = robot.end_for_close(!timeout.is_zero()) else {
-            continue; // closed already
-        };
-        closing.push(index);
-        if let Err(error) = sent {
-            report.failures.push(CloseFailure {
-                fleet: robot.fleet.clone(),
-                robot: robot.robot.clone(),
-                error,
-            });
-        }
-        if let Some((session, last_seq)) = to_confirm {
-            pending.push((index, session, last_seq));
-        }
-    }
-    if !pending.is_empty() {
-        // The caches live with the publishers until their release below.
-        let ends = pending
-            .into_iter()
-            .map(|(index, session, last_seq)| {
-                PendingEnd::new(index, &*robots[index], session, last_seq)
-            })
-            .collect();
-        report.unconfirmed = confirm_ends(ends, timeout);
-        warn_unconfirmed(&report.unconfirmed);
-    }
-    for index in closing {
-        let robot = &mut robots[index];
-        if let Err(error) = robot.release() {
-            report.failures.push(CloseFailure {
-                fleet: robot.fleet.clone(),
-                robot: robot.robot.clone(),
-                error,
-            });
-        }
-        report.closed += 1;
-    }
-    report
-}
-
-/// One warning line per reason for the ends left unconfirmed.
-fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
-    let mut reasons: Vec<String> = Vec::new();
-    for end in ends {
-        let reason = end.reason.to_string();
-        if !reasons.contains(&reason) {
-            reasons.push(reason);
-        }
-    }
-    for reason in reasons {
-        let names: Vec<String> = ends
-            .iter()
-            .filter(|end| end.reason.to_string() == reason)
-            .map(|end| format!("{}/{} session {}", end.fleet, end.robot, end.session))
-            .collect();
-        let more = match names.len() {
-            n if n > 5 => format!(" and {} more", n - 5),
-            _ => String::new(),
-        };
-        tracing::warn!(
-            "end of {} session(s) not confirmed by the service ({reason}): {}{more}; closing \
-             their publication caches anyway, frames not applied yet are lost",
-            names.len(),
-            names[..names.len().min(5)].join(", ")
-        );
-    }
 }
