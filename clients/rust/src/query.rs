@@ -1,6 +1,6 @@
 //! Queries of the service's state: robots' session states, submaps and area graphs, the
 //! instances' health and liveliness. [`crate::Connection`]'s query methods, the robot
-//! publisher and the wait for session ends all ask through these functions.
+//! publisher's, its follower and the wait for session ends all ask through these functions.
 //!
 //! Invariants of this file:
 //!
@@ -141,6 +141,24 @@ pub(crate) fn fleet_area_graph(
 /// The `Health` of every live instance that answers.
 pub(crate) fn health(session: &Session, timeout: Duration) -> Result<Vec<Health>, ClientError> {
     get_all::<Health>(session, &keys::health("*")?, timeout)
+}
+
+/// Whether instance `owner` lists `partition` among those it owns in its `Health`. A new owner
+/// takes its partitions a moment after its token appears; an owner that does not answer is
+/// taken at its token (true).
+pub(crate) fn owner_serves(
+    session: &Session,
+    owner: &str,
+    partition: u16,
+    timeout: Duration,
+) -> Result<bool, ClientError> {
+    let replies = get_all::<Health>(session, &keys::health(owner)?, timeout)?;
+    if replies.is_empty() {
+        return Ok(true);
+    }
+    Ok(replies
+        .iter()
+        .any(|h| h.instance == owner && h.partitions.contains(&partition)))
 }
 
 /// `(owner, standby)` of every partition, ranked over the live instances.

@@ -38,9 +38,9 @@ use crate::error::{ClientError, ErrorCode, WireError};
 // Its old home: `robot::ErrorCallback` still resolves.
 pub use crate::follower::ErrorCallback;
 use crate::follower::{follow_errors, follow_instances, Shared};
-use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
+use crate::messages::{AreaGraph, Error, Frame, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
-use crate::query::{current_area_graphs, current_states, get_all};
+use crate::query;
 
 /// How long closing waits by default for the service to confirm the end: room for a take-over
 /// of the robot's partition, whose catch-up from the cache the service bounds by
@@ -436,7 +436,7 @@ impl RobotPublisher {
             let ask = deadline
                 .saturating_duration_since(Instant::now())
                 .clamp(Duration::from_millis(100), Duration::from_secs(1));
-            if self.owner_serves(&owner, ask)? {
+            if query::owner_serves(&self.session, &owner, self.partition, ask)? {
                 while !publisher.matching_status().wait()?.matching() {
                     if Instant::now() >= deadline {
                         return Ok(false);
@@ -452,26 +452,12 @@ impl RobotPublisher {
         }
     }
 
-    fn owner_serves(&self, owner: &str, timeout: Duration) -> Result<bool, ClientError> {
-        let replies = get_all::<Health>(&self.session, &keys::health(owner)?, timeout)?;
-        if replies.is_empty() {
-            return Ok(true);
-        }
-        Ok(replies
-            .iter()
-            .any(|h| h.instance == owner && h.partitions.contains(&self.partition)))
-    }
-
     /// The service's state of the current session, or `None` (no frame of it arrived yet, no
     /// service, or the service holds another session for this robot name).
     pub fn state(&self, timeout: Duration) -> Result<Option<SessionState>, ClientError> {
         let session_id = self.session_id();
-        let found = get_all::<SessionState>(
-            &self.session,
-            &keys::state(&self.fleet, &self.robot)?,
-            timeout,
-        )?;
-        Ok(current_states(found)
+        let states = query::states(&self.session, &self.fleet, &self.robot, timeout)?;
+        Ok(states
             .into_iter()
             .next()
             .filter(|state| state.session == session_id))
@@ -481,12 +467,8 @@ impl RobotPublisher {
     /// [`RobotPublisher::state`]).
     pub fn area_graph(&self, timeout: Duration) -> Result<Option<AreaGraph>, ClientError> {
         let session_id = self.session_id();
-        let found = get_all::<AreaGraph>(
-            &self.session,
-            &keys::areas(&self.fleet, &self.robot)?,
-            timeout,
-        )?;
-        Ok(current_area_graphs(found)
+        let graphs = query::area_graphs(&self.session, &self.fleet, &self.robot, timeout)?;
+        Ok(graphs
             .into_iter()
             .next()
             .filter(|graph| graph.session == session_id))
