@@ -7,7 +7,8 @@
 //! declared from one [`Connection`], as in the Python SDK, and the fleet merge of the robots'
 //! area graphs ([`fleet_areas`]).
 //!
-//! Modules and what each uses of the crate (no cycles; a module uses only those above it):
+//! Modules and what each uses of the crate (no cycles, checked by `tests/module_graph.rs`; a
+//! module uses only those above it):
 //!
 //! * [`error`]: nothing (every error type: [`ErrorCode`], [`WireError`], [`FleetMergeError`],
 //!   [`ClientError`]); `wire_serde` (serde glue of the wire maps): nothing;
