@@ -1,6 +1,6 @@
 """The shipped example floor plan: a small office to try the simulator on.
 
-A 20 m by 12 m floor at 0.05 m a pixel, drawn in the benchmark's encoding: a corridor, three
+A 20.5 m by 12.5 m floor at 0.05 m a pixel, drawn in the benchmark's encoding: a corridor, three
 offices above it (doors of 0.9, 1.0 and 1.2 m, and a door between the first two), a meeting
 room below (1.6 m door), an open-plan area joined to the corridor by a 3 m opening, and a
 store room off the open plan (0.8 m door); a table, a pillar and a shelf. The ground truth

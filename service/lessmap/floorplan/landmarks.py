@@ -40,6 +40,7 @@ class Faces:
 
     xy: NDArray[np.float64]  # (n, 2) metres, the middle of the cell side
     normal: NDArray[np.float64]  # (n, 2) unit, into the free space
+    side: NDArray[np.float64]  # (n, 2) unit, the cell side's own normal (along an axis)
     cell: NDArray[np.int64]  # (n,) flat index of the occupied cell
 
     def __len__(self) -> int:
@@ -47,7 +48,12 @@ class Faces:
 
     def take(self, index: NDArray[np.int64]) -> Faces:
         """The faces at ``index``, in that order."""
-        return Faces(xy=self.xy[index], normal=self.normal[index], cell=self.cell[index])
+        return Faces(
+            xy=self.xy[index],
+            normal=self.normal[index],
+            side=self.side[index],
+            cell=self.cell[index],
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -105,7 +111,7 @@ def wall_faces(grid: OccupancyGrid, walkable: NDArray[np.bool_]) -> Faces:
     usable = (length > 1e-9) & ((normal * side).sum(axis=1) > 0)
     normal[usable] /= length[usable, None]
     normal[~usable] = side[~usable]
-    return Faces(xy=xy, normal=normal, cell=r.astype(np.int64) * cols + c)
+    return Faces(xy=xy, normal=normal, side=side, cell=r.astype(np.int64) * cols + c)
 
 
 def thin_faces(faces: Faces, spacing_m: float) -> NDArray[np.int64]:

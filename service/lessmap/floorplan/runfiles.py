@@ -27,6 +27,8 @@ from lessmap.floorplan.truth import RoomChange
 from lessmap.sim.simulator import TruthRow
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from lessmap.floorplan.grid import OccupancyGrid
     from lessmap.floorplan.simulation import FloorplanRun
 
@@ -91,7 +93,7 @@ def write_floorplan_run(
     grid: OccupancyGrid,
     out_dir: Path,
     name: str,
-    sources: dict[str, str | None],
+    sources: Mapping[str, str | None],
 ) -> FloorplanPaths:
     """Write a run's three files; ``sources`` names the ``map`` and ``labels`` files."""
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,10 +1,11 @@
 """Simulated sensors on an occupancy grid: which landmarks a robot sees from a pose.
 
 A landmark site is seen when it is in range and in the field of view, faces the robot
-(incidence under ``max_incidence_deg``) and the ray to it, sampled every half cell, crosses
-no occupied cell other than the site's own wall cell. Each of its landmarks is then
-detected with ``detection_prob``, and a detection is a false association (another
-landmark's id, drawn at random) with ``false_association_prob``: what a SLAM front end emits.
+(incidence under ``max_incidence_deg``, and the robot in front of its cell side) and the
+ray to it, sampled every half cell, crosses no occupied cell other than the site's own wall
+cell. Each of its landmarks is then detected with ``detection_prob``, and a detection is a
+false association (another landmark's id, drawn at random) with ``false_association_prob``:
+what a SLAM front end emits.
 
 Invariants:
     1. A frame is a sorted list of distinct landmark ids.
@@ -102,6 +103,8 @@ def _visible_chunk(
     length = np.hypot(ray[:, 0], ray[:, 1])
     facing = -(ray * faces.normal[site]).sum(axis=1)
     keep = (length > 1e-9) & (facing > math.cos(math.radians(profile.max_incidence_deg)) * length)
+    # In front of the cell side too: a ray from behind would cross the site's own cell.
+    keep &= (ray * faces.side[site]).sum(axis=1) < 0
     if profile.fov_deg < 360.0:
         bearing = np.arctan2(ray[:, 1], ray[:, 0]) - poses[pose_of, 2]
         bearing = (bearing + np.pi) % (2.0 * np.pi) - np.pi

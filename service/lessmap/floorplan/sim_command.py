@@ -131,10 +131,6 @@ def _simulate(args: argparse.Namespace) -> list[dict[str, Any]]:
         raise FloorplanError(msg)
     grid = load_grid(args.floorplan, args.resolution)
     labels = None if args.labels is None else room_labels(args.labels, grid.resolution_m)
-    say(
-        f"{args.floorplan.name}: {grid.shape[1]}x{grid.shape[0]} cells of {grid.resolution_m} m, "
-        f"{args.sensor}, {options.robots} robot(s)"
-    )
     run = simulate_floorplan(grid, labels, options, progress=say)
     frames = len(run.frames)
     mean = sum(len(f["features"]) for f in run.frames) / max(1, frames)

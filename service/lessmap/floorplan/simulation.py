@@ -103,8 +103,10 @@ def simulate_floorplan(
         raise FloorplanError(msg)
     sites = _sites(grid, walkable, options.sensor)
     say(
-        f"{len(targets.centres)} rooms to visit ({len(targets.skipped)} unreachable), "
-        f"{sites.count} landmarks"
+        f"{grid.shape[1]}x{grid.shape[0]} cells of {grid.resolution_m} m, "
+        f"{len(targets.centres)} {'rooms' if labels is not None else 'squares'} to visit "
+        f"({len(targets.skipped)} unreachable), {sites.count} landmarks ({options.sensor.name}), "
+        f"{options.robots} robot(s)"
     )
     rows: list[tuple[int, int, dict[str, Any], TruthRow]] = []
     changes: list[RoomChange] = []
