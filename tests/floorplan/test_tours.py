@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from lessmap.floorplan.example import EXAMPLE_LABELS, EXAMPLE_MAP
 from lessmap.floorplan.grid import OccupancyGrid, load_grid, room_labels
@@ -24,12 +25,15 @@ from tests.floorplan.helpers import two_rooms
 OPTIONS = TourOptions()
 
 
+def targets_of(planner: Planner, labels: np.ndarray) -> RoomTargets:
+    return room_targets(planner.coarse(labels), planner.walkable, int(labels.max()))
+
+
 @functools.cache
 def example() -> tuple[OccupancyGrid, Planner, RoomTargets]:
     grid = load_grid(EXAMPLE_MAP)
-    walkable = walkable_cells(grid.free)
-    planner = build_planner(grid, walkable, 0.2)
-    return grid, planner, room_targets(room_labels(EXAMPLE_LABELS), walkable)
+    planner = build_planner(grid, walkable_cells(grid.free), 0.2)
+    return grid, planner, targets_of(planner, room_labels(EXAMPLE_LABELS))
 
 
 @functools.cache
@@ -52,12 +56,13 @@ def test_every_room_is_visited(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_every_pose_is_walkable_with_room_to_spare(seed: int) -> None:
-    grid, planner, _ = example()
+    grid, _, _ = example()
     poses = example_tour(seed).poses
     cells = grid.xy_to_cell(poses[:, :2])
-    assert planner.node_of_cell[cells[:, 0] * grid.shape[1] + cells[:, 1]].min() >= 0
+    assert walkable_cells(grid.free)[cells[:, 0], cells[:, 1]].all()
     # Every door of the example is wider than the robot: it never needs to brush a wall.
-    assert planner.clearance_m[cells[:, 0], cells[:, 1]].min() >= 0.2 - 0.05
+    clearance_m = ndimage.distance_transform_edt(grid.free) * grid.resolution_m
+    assert clearance_m[cells[:, 0], cells[:, 1]].min() >= 0.2 - 0.05
     # Nor does the straight line between two frames cross an occupied cell.
     t = np.linspace(0.0, 1.0, 9)[:, None, None]
     between = poses[None, :-1, :2] + t * (poses[None, 1:, :2] - poses[None, :-1, :2])
@@ -93,17 +98,15 @@ def test_the_frame_limit_stops_the_robot() -> None:
 
 def test_a_door_narrower_than_the_robot_is_still_used() -> None:
     grid, labels = two_rooms(door_m=0.3)
-    walkable = walkable_cells(grid.free)
-    planner = build_planner(grid, walkable, robot_radius_m=0.2)
-    targets = room_targets(labels, walkable)
+    planner = build_planner(grid, walkable_cells(grid.free), robot_radius_m=0.2)
+    targets = targets_of(planner, labels)
     walk = tour(planner, grid, targets, np.random.default_rng(0), OPTIONS)
     assert sorted(walk.reached) == [1, 2]
 
 
 def test_a_room_no_path_reaches_is_skipped() -> None:
     grid, labels = two_rooms(door_m=0.0)  # walkable: the larger room, here the first found
-    walkable = walkable_cells(grid.free)
-    targets = room_targets(labels, walkable)
+    targets = targets_of(build_planner(grid, walkable_cells(grid.free), 0.2), labels)
     assert sorted(targets.centres) == [1]
     assert targets.skipped == (2,)
 
@@ -115,5 +118,5 @@ def test_a_map_without_rooms_is_toured_by_squares() -> None:
     assert regions.max() >= 8  # 8 m x 3 m in 2 m squares
     assert not (regions[~walkable] > 0).any()
     planner = build_planner(grid, walkable, 0.2)
-    walk = tour(planner, grid, room_targets(regions, walkable), np.random.default_rng(0), OPTIONS)
+    walk = tour(planner, grid, targets_of(planner, regions), np.random.default_rng(0), OPTIONS)
     assert len(walk.reached) == regions.max()

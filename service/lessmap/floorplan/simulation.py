@@ -93,10 +93,10 @@ def simulate_floorplan(
     if labels is None:
         block = max(1, round(options.block_m / grid.resolution_m))
         regions = block_regions(walkable, block, max(1, round(1.0 / grid.resolution_m**2)))
-        targets = room_targets(regions, walkable)
+        targets = room_targets(planner.coarse(regions), planner.walkable, int(regions.max()))
         truth_rooms = np.zeros(grid.shape, dtype=np.int32)
     else:
-        targets = room_targets(labels, walkable)
+        targets = room_targets(planner.coarse(labels), planner.walkable, int(labels.max()))
         truth_rooms = nearest_rooms(labels)
     if not targets.centres:
         msg = "no room is reachable: no walkable cell lies in a ground-truth room"

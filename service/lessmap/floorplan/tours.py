@@ -53,7 +53,7 @@ class TourOptions:
 class RoomTargets:
     """Where tours go: per room its walkable cells and its most central one."""
 
-    regions: NDArray[np.int32]  # (rows, cols): room of each walkable cell, 0 elsewhere
+    regions: NDArray[np.int32]  # (rows, cols) planning cells: room of each, 0 off the graph
     centres: dict[int, tuple[int, int]]  # room -> (row, col)
     skipped: tuple[int, ...]  # rooms with no walkable cell
 
@@ -67,12 +67,14 @@ class Tour:
     path_m: float = 0.0
 
 
-def room_targets(labels: NDArray[np.int32], walkable: NDArray[np.bool_]) -> RoomTargets:
-    """The centre of every room of ``labels`` (1..k) that has a walkable cell."""
+def room_targets(
+    labels: NDArray[np.int32], walkable: NDArray[np.bool_], rooms: int | None = None
+) -> RoomTargets:
+    """The centre of every room of ``labels`` (1..``rooms``) that has a walkable cell."""
     regions = np.where(walkable, labels, 0).astype(np.int32)
     centres: dict[int, tuple[int, int]] = {}
     skipped: list[int] = []
-    rooms = int(labels.max(initial=0))
+    rooms = int(labels.max(initial=0)) if rooms is None else rooms
     # None for a label with no cell (the stubs leave that out).
     slices: list[Any] = list(ndimage.find_objects(regions, max_label=rooms))
     for room in range(1, rooms + 1):
@@ -136,7 +138,7 @@ def tour(
         corners.append(planner.pulled(path)[1:])
         arrivals.append((room, sum(len(c) for c in corners) - 1))
         here = _walk_room(planner, targets, room, int(path[-1]), rng, options, corners)
-    cells = np.concatenate(corners)
+    cells = planner.map_cells(np.concatenate(corners))
     polyline = grid.cell_to_xy(cells[:, 0], cells[:, 1])
     return _follow(polyline, arrivals, options)
 
