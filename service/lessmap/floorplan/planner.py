@@ -173,7 +173,7 @@ def build_planner(
     rows, cols = (-(-n // factor) for n in grid.shape)
     pad = ((0, rows * factor - grid.shape[0]), (0, cols * factor - grid.shape[1]))
     blocks = (rows, factor, cols, factor)
-    inside = np.pad(walkable, pad).reshape(blocks).all(axis=(1, 3))
+    inside = np.asarray(np.pad(walkable, pad).reshape(blocks).all(axis=(1, 3)))
     if not inside.any():
         msg = "no walkable space wider than a planning cell"
         raise FloorplanError(msg)
