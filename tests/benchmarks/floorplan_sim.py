@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from lessmap.floorplan.grid import load_grid, room_labels
-from lessmap.floorplan.sensors import PROFILES
-from lessmap.floorplan.simulation import FloorplanOptions, simulate_floorplan
+from lessmap.floorplan.options import PROFILES, FloorplanOptions
+from lessmap.floorplan.simulation import simulate_floorplan
 
 FOLDER = Path(__file__).resolve().parents[2] / ".." / "shared" / "floorplans"
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from lessmap.floorplan.grid import load_grid, room_labels
-from lessmap.floorplan.simulation import FloorplanOptions, simulate_floorplan
+from lessmap.floorplan.options import FloorplanOptions
+from lessmap.floorplan.simulation import simulate_floorplan
 from tests.floorplan.helpers import floorplans
 
 

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from lessmap.floorplan.landmarks import Sites, thin_faces, wall_faces
+from lessmap.floorplan.options import PROFILES
 from lessmap.floorplan.planner import walkable_cells
-from lessmap.floorplan.sensors import PROFILES, detect, visible_sites
+from lessmap.floorplan.sensors import detect, visible_sites
 from tests.floorplan.helpers import two_rooms
 
 LASER360 = PROFILES["laser360"]

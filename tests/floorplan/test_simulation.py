@@ -11,10 +11,9 @@ import pytest
 
 from lessmap.floorplan.example import EXAMPLE_LABELS, EXAMPLE_MAP
 from lessmap.floorplan.grid import FloorplanError, OccupancyGrid, load_grid, room_labels
+from lessmap.floorplan.options import PROFILES, FloorplanOptions, TourOptions
 from lessmap.floorplan.runfiles import read_floorplan_truth, write_floorplan_run
-from lessmap.floorplan.sensors import PROFILES
-from lessmap.floorplan.simulation import FloorplanOptions, FloorplanRun, simulate_floorplan
-from lessmap.floorplan.tours import TourOptions
+from lessmap.floorplan.simulation import FloorplanRun, simulate_floorplan
 from lessmap.frames_file import read_frames
 
 if TYPE_CHECKING:

@@ -11,11 +11,11 @@ from scipy import ndimage
 
 from lessmap.floorplan.example import EXAMPLE_LABELS, EXAMPLE_MAP
 from lessmap.floorplan.grid import OccupancyGrid, load_grid, room_labels
+from lessmap.floorplan.options import TourOptions
 from lessmap.floorplan.planner import Planner, build_planner, walkable_cells
 from lessmap.floorplan.tours import (
     RoomTargets,
     Tour,
-    TourOptions,
     block_regions,
     room_targets,
     tour,

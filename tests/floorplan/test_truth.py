@@ -9,7 +9,8 @@ import numpy as np
 
 from lessmap.floorplan.example import DOORS_M, EXAMPLE_LABELS, EXAMPLE_MAP
 from lessmap.floorplan.grid import load_grid, room_labels
-from lessmap.floorplan.simulation import FloorplanOptions, FloorplanRun, simulate_floorplan
+from lessmap.floorplan.options import FloorplanOptions
+from lessmap.floorplan.simulation import FloorplanRun, simulate_floorplan
 from lessmap.floorplan.truth import nearest_rooms, room_changes, rooms_along
 from tests.floorplan.helpers import RES, two_rooms
 

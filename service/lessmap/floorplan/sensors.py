@@ -15,7 +15,6 @@ Invariants:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -25,39 +24,11 @@ from scipy.spatial import cKDTree
 if TYPE_CHECKING:
     from lessmap.floorplan.grid import OccupancyGrid
     from lessmap.floorplan.landmarks import Sites
+    from lessmap.floorplan.options import SensorProfile
 
-__all__ = ["PROFILES", "SensorProfile", "detect", "visible_sites"]
+__all__ = ["detect", "visible_sites"]
 
 _CHUNK_SAMPLES = 2_000_000  # ray samples held at once (about 50 MB of temporaries)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SensorProfile:
-    """What a sensor sees: field of view, range, and the landmarks it picks on walls."""
-
-    name: str
-    fov_deg: float  # centred on the heading; 360 sees all around
-    range_m: float
-    wall_spacing_m: float  # landmarks along the walls, at least this far apart
-    corners: bool = False  # add the corners of the walls
-    layers: int = 1  # landmarks per wall site (a camera sees features up a wall's height)
-    detection_prob: float = 0.9  # per visible landmark and frame
-    false_association_prob: float = 0.005  # per detection: reported under a random other id
-    max_incidence_deg: float = 80.0  # walls seen more obliquely than this give nothing
-
-
-PROFILES: dict[str, SensorProfile] = {
-    profile.name: profile
-    for profile in (
-        # A SICK LMS1xx / Hokuyo UTM-30LX class scanner with a line or point extractor.
-        SensorProfile(name="laser270", fov_deg=270.0, range_m=8.0, wall_spacing_m=0.5),
-        SensorProfile(name="laser360", fov_deg=360.0, range_m=8.0, wall_spacing_m=0.5),
-        # Corners and a few wall points: a handful of features a frame.
-        SensorProfile(name="sparse", fov_deg=360.0, range_m=8.0, wall_spacing_m=2.5, corners=True),
-        # Texture every 0.1 m along the walls and at 12 heights up them: hundreds a frame.
-        SensorProfile(name="camera", fov_deg=90.0, range_m=7.0, wall_spacing_m=0.1, layers=12),
-    )
-}
 
 
 def visible_sites(

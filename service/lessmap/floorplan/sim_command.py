@@ -1,7 +1,8 @@
 """``lessmap sim --floorplan MAP``: robots touring a real floor plan (options and run).
 
 ``lessmap.sim.command`` owns the command; this module adds the floor-plan options and runs
-the simulation when ``--floorplan`` is given. Every bad input is one line on stderr.
+the simulation when ``--floorplan`` is given. Every bad input is one line on stderr. The
+options need the standard library only: ``lessmap sim --help`` loads no numpy or scipy.
 """
 
 from __future__ import annotations
@@ -12,12 +13,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lessmap.errors import ConfigError
-from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
-from lessmap.floorplan.runfiles import write_floorplan_run
-from lessmap.floorplan.sensors import PROFILES
-from lessmap.floorplan.simulation import FloorplanOptions, simulate_floorplan
-from lessmap.floorplan.tours import TourOptions
+from lessmap.floorplan.options import PROFILES, FloorplanOptions, TourOptions
 
 if TYPE_CHECKING:
     import argparse
@@ -104,6 +100,9 @@ def simulate_floorplan_files(args: argparse.Namespace) -> list[dict[str, Any]]:
         ConfigError: a bad option or file (missing, not an image, no free cell, no room
             reachable, ...); the message names it.
     """
+    from lessmap.errors import ConfigError
+    from lessmap.floorplan.grid import FloorplanError
+
     try:
         return _simulate(args)
     except FloorplanError as exc:
@@ -111,6 +110,10 @@ def simulate_floorplan_files(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def _simulate(args: argparse.Namespace) -> list[dict[str, Any]]:
+    from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
+    from lessmap.floorplan.runfiles import write_floorplan_run
+    from lessmap.floorplan.simulation import simulate_floorplan
+
     started = time.monotonic()
 
     def say(text: str) -> None:

@@ -15,7 +15,7 @@ Invariants:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,8 +23,8 @@ import numpy as np
 from lessmap.floorplan.grid import FloorplanError
 from lessmap.floorplan.landmarks import Sites, corner_faces, thin_faces, wall_faces
 from lessmap.floorplan.planner import build_planner, walkable_cells
-from lessmap.floorplan.sensors import PROFILES, SensorProfile, detect, visible_sites
-from lessmap.floorplan.tours import TourOptions, block_regions, room_targets, tour
+from lessmap.floorplan.sensors import detect, visible_sites
+from lessmap.floorplan.tours import block_regions, room_targets, tour
 from lessmap.floorplan.truth import RoomChange, nearest_rooms, room_changes, rooms_along
 from lessmap.sim.simulator import TruthRow
 
@@ -34,23 +34,12 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from lessmap.floorplan.grid import OccupancyGrid
+    from lessmap.floorplan.options import FloorplanOptions, SensorProfile
 
-__all__ = ["FloorplanOptions", "FloorplanRun", "simulate_floorplan"]
+__all__ = ["FloorplanRun", "simulate_floorplan"]
 
 _ROUTE, _SENSOR = 0, 1  # random streams, per robot
 _PROGRESS_FRAMES = 2000  # frames between two progress reports
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class FloorplanOptions:
-    """Fleet, sensor and walking settings of a floor-plan run."""
-
-    sensor: SensorProfile = PROFILES["laser270"]
-    robots: int = 2
-    seed: int = 0
-    robot_radius_m: float = 0.2
-    tour: TourOptions = field(default_factory=TourOptions)
-    block_m: float = 4.0  # waypoint squares on a map without rooms
 
 
 @dataclass(slots=True, kw_only=True)

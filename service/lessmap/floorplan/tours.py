@@ -29,24 +29,12 @@ from lessmap.floorplan.planner import COMFORT_M
 
 if TYPE_CHECKING:
     from lessmap.floorplan.grid import OccupancyGrid
+    from lessmap.floorplan.options import TourOptions
     from lessmap.floorplan.planner import Planner
 
-__all__ = ["RoomTargets", "Tour", "TourOptions", "block_regions", "room_targets", "tour"]
+__all__ = ["RoomTargets", "Tour", "block_regions", "room_targets", "tour"]
 
 TURN_ON_SPOT_DEG = 60.0  # a larger heading error stops the robot until it has turned
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class TourOptions:
-    """How robots walk."""
-
-    speed_m_per_frame: float = 0.1
-    rate_hz: float = 10.0  # frames a second: converts the turn rate to a turn per frame
-    turn_rate_deg_s: float = 90.0
-    lookahead_m: float = 0.4  # the heading points at the path this far ahead
-    points_per_room: tuple[int, int] = (1, 3)  # points walked to in each room, drawn
-    nearest_rooms: int = 3  # the next room is one of this many nearest unvisited
-    max_frames: int | None = None  # per robot
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -22,9 +22,10 @@ def configure(sim: argparse.ArgumentParser) -> None:
     sim.description = (
         "A seeded simulated building (rooms, doors, wall landmarks, a 270° "
         "range- and wall-limited laser) walked by robots. --out writes <name>.frames.jsonl, "
-        "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live."
+        "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live. "
+        "With --floorplan MAP, robots tour a real floor plan instead (options below)."
     )
-    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--seed", type=int, default=0, help="seeds everything (default: 0)")
     sim.add_argument("--rooms", type=int, default=8)
     sim.add_argument("--robots", type=int, help="robots (default: 3; 2 with --floorplan)")
     sim.add_argument("--frames", type=int, default=600, help="frames per robot (2 Hz)")
