@@ -65,11 +65,12 @@ def _visible_chunk(
     profile: SensorProfile,
 ) -> list[NDArray[np.int64]]:
     faces = sites.faces
-    # One list of site indices per pose (an object array; the stubs say otherwise).
-    near: Any = tree.query_ball_point(poses[:, :2], r=profile.range_m, return_sorted=True)
-    counts = np.fromiter((len(n) for n in near), dtype=np.int64, count=len(near))
-    pose_of = np.repeat(np.arange(len(poses)), counts)
-    site = np.fromiter((i for n in near for i in n), dtype=np.int64, count=int(counts.sum()))
+    pairs: Any = cKDTree(poses[:, :2]).sparse_distance_matrix(
+        tree, profile.range_m, output_type="ndarray"
+    )
+    order = np.lexsort((pairs["j"], pairs["i"]))  # by pose, then site
+    pose_of = pairs["i"][order].astype(np.int64)
+    site = pairs["j"][order].astype(np.int64)
     ray = faces.xy[site] - poses[pose_of, :2]
     length = np.hypot(ray[:, 0], ray[:, 1])
     facing = -(ray * faces.normal[site]).sum(axis=1)
@@ -128,4 +129,5 @@ def detect(
         ids = ids.copy()
         other = rng.integers(0, max(1, sites.count - 1), size=int(wrong.sum()))
         ids[wrong] = other + (other >= ids[wrong])  # any id but the true one
-    return [int(i) for i in np.unique(ids)]
+    found: list[int] = np.unique(ids).tolist()
+    return found
