@@ -9,7 +9,8 @@
     room (1..k, numbered as ``grid.room_labels`` numbers them); 0 in a run without labels.
 ``<name>.floorplan.json``
     What was simulated: map, resolution, origin, labels, sensor profile, seed, speed, rate,
-    robots, landmarks, rooms visited and skipped, metres walked, and ``room_changes:
+    robots, landmarks, rooms visited and skipped (``toured``: "squares" without labels, then
+    they count the 4 m squares toured instead), metres walked, and ``room_changes:
     [{"robot", "seq", "from_room", "to_room", "x", "y"}]`` (``seq``: first frame in the new
     room; x, y: where the robot crossed).
 """
@@ -129,6 +130,7 @@ def write_floorplan_run(
         "frames": len(run.frames),
         "landmarks": run.landmarks,
         "rooms": run.rooms,
+        "toured": "rooms" if run.rooms else "squares",  # what rooms_visited/skipped count
         "rooms_visited": list(run.rooms_visited),
         "rooms_skipped": list(run.rooms_skipped),
         "path_m": run.path_m,

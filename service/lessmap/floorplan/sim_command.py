@@ -141,7 +141,8 @@ def _simulate(args: argparse.Namespace) -> list[dict[str, Any]]:
     per_100 = 100.0 * len(run.room_changes) / walked if walked else 0.0
     say(
         f"{frames} frames, {mean:.1f} features a frame, {walked:.0f} m walked, "
-        f"{len(run.rooms_visited)} rooms visited, {len(run.rooms_skipped)} unreachable, "
+        f"{len(run.rooms_visited)} {'rooms' if run.rooms else 'squares'} visited, "
+        f"{len(run.rooms_skipped)} unreachable, "
         f"{len(run.room_changes)} room changes ({per_100:.1f} per 100 m)"
     )
     if args.out:
