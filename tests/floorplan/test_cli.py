@@ -104,6 +104,7 @@ def pocket_map(tmp_path: Path) -> tuple[str, str]:
         ("speed", "speed must be above 0"),
         ("labels", "gt.png: no such file"),
         ("pocket", "no room is reachable"),
+        ("out", "--out must be a folder"),
     ],
 )
 def test_bad_input_is_one_line(
@@ -122,6 +123,8 @@ def test_bad_input_is_one_line(
         "speed": [*base, str(EXAMPLE_MAP), "--speed-m", "0"],
         "labels": [*base, str(EXAMPLE_MAP), "--labels", str(tmp_path / "gt.png")],
     }
+    if case == "out":
+        args[case] = ["sim", "--out", str(text), "--floorplan", str(EXAMPLE_MAP)]
     if case == "pocket":
         args[case] = [*base, *pocket_map(tmp_path)[:1], "--labels", pocket_map(tmp_path)[1]]
     assert main(args[case]) == 1

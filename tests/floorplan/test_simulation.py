@@ -91,6 +91,14 @@ def test_a_broken_truth_file_is_named(tmp_path: Path) -> None:
         read_floorplan_truth(tmp_path / "other.frames.jsonl")
 
 
+def test_an_unwritable_folder_is_named(tmp_path: Path) -> None:
+    grid, _ = grid_and_labels()
+    blocker = tmp_path / "taken"
+    blocker.write_text("a file, not a folder", encoding="utf-8")
+    with pytest.raises(FloorplanError, match=r"taken.runs: cannot write \(Not a directory\)"):
+        write_floorplan_run(run(tour=SHORT), grid, blocker / "runs", "office", {"map": "m"})
+
+
 def test_without_labels_every_room_is_unknown() -> None:
     grid, _ = grid_and_labels()
     result = simulate_floorplan(grid, None, FloorplanOptions(robots=1, tour=SHORT))

@@ -96,7 +96,25 @@ def write_floorplan_run(
     name: str,
     sources: Mapping[str, str | None],
 ) -> FloorplanPaths:
-    """Write a run's three files; ``sources`` names the ``map`` and ``labels`` files."""
+    """Write a run's three files; ``sources`` names the ``map`` and ``labels`` files.
+
+    Raises:
+        FloorplanError: the folder or a file cannot be written; the message names it.
+    """
+    try:
+        return _write(run, grid, out_dir, name, sources)
+    except OSError as exc:
+        msg = f"{exc.filename or out_dir}: cannot write ({exc.strerror or exc})"
+        raise FloorplanError(msg) from None
+
+
+def _write(
+    run: FloorplanRun,
+    grid: OccupancyGrid,
+    out_dir: Path,
+    name: str,
+    sources: Mapping[str, str | None],
+) -> FloorplanPaths:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = floorplan_paths(out_dir / f"{name}{FRAMES_SUFFIX}")
     with paths.frames.open("w", encoding="utf-8") as stream:

@@ -129,6 +129,9 @@ def _simulate(args: argparse.Namespace) -> list[dict[str, Any]]:
         ),
         block_m=DEFAULTS.block_m,
     )
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        msg = f"{args.out}: --out must be a folder, this is a file"
+        raise FloorplanError(msg)
     if args.resolution is not None and not args.resolution > 0:
         msg = f"--resolution must be above 0 m a pixel, got {args.resolution}"
         raise FloorplanError(msg)
