@@ -16,7 +16,10 @@ from lessmap.floorplan.example import EXAMPLE_LABELS, EXAMPLE_MAP, EXAMPLE_YAML
 from lessmap.floorplan.runfiles import read_floorplan_truth
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
+
+    from tests.conftest import ServeProcess
 
 
 def lessmap(*args: str) -> subprocess.CompletedProcess[str]:
@@ -146,3 +149,26 @@ def test_an_unknown_sensor_is_a_usage_error(capsys: pytest.CaptureFixture[str]) 
         main(["sim", "--floorplan", str(EXAMPLE_MAP), "--sensor", "sonar", "--out", "x"])
     assert exited.value.code == 2
     assert "invalid choice: 'sonar'" in capsys.readouterr().err
+
+
+def test_publish_streams_the_tour_to_a_running_service(
+    serve: Callable[..., ServeProcess], fleet_name: str
+) -> None:
+    service = serve()
+    done = lessmap(
+        "sim",
+        "--floorplan",
+        str(EXAMPLE_MAP),
+        "--max-frames",
+        "40",
+        "--publish",
+        "--speed",
+        "20",
+        "--fleet",
+        fleet_name,
+        "-e",
+        service.endpoint,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1]) == {"published": 80, "robots": 2}
+    assert "not confirmed" not in done.stderr  # the service took both robots' sessions
