@@ -29,7 +29,7 @@ from lessmap.floorplan.truth import RoomChange, nearest_rooms, room_changes, roo
 from lessmap.sim.simulator import TruthRow
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterator
 
     from numpy.typing import NDArray
 
@@ -98,59 +98,55 @@ def simulate_floorplan(
         f"{options.robots} robot(s)"
     )
     rows: list[tuple[int, int, dict[str, Any], TruthRow]] = []
-    changes: list[RoomChange] = []
+    changes: list[tuple[int, int, RoomChange]] = []
     visited: set[int] = set()
     path_m: dict[str, float] = {}
-    period = 1.0 / options.tour.rate_hz
     for index in range(options.robots):
         robot = f"robot{index}"
         walk = tour(planner, grid, targets, _rng(options.seed, _ROUTE, index), options.tour)
         visited |= set(walk.reached)
         path_m[robot] = round(walk.path_m, 3)
-        poses = walk.poses
-        say(f"{robot}: {len(poses)} frames, {walk.path_m:.0f} m")
-        sensor_rng = _rng(options.seed, _SENSOR, index)
-        along = rooms_along(grid, truth_rooms, poses)
+        say(f"{robot}: {len(walk.poses)} frames, {walk.path_m:.0f} m")
+        along = rooms_along(grid, truth_rooms, walk.poses)
         if labels is not None:
-            changes += room_changes(robot, along, poses)
-        for start in range(0, len(poses), _PROGRESS_FRAMES):
-            seen = visible_sites(
-                grid, sites, poses[start : start + _PROGRESS_FRAMES], options.sensor
-            )
-            for offset, sites_seen in enumerate(seen):
-                seq = start + offset
-                x, y, theta = (round(float(v), 4) for v in poses[seq])
-                stamp = round(seq * period, 6)
-                features = detect(sensor_rng, sites, sites_seen, options.sensor)
-                frame = {
-                    "robot": robot,
-                    "seq": seq,
-                    "stamp": stamp,
-                    "features": features,
-                    "pose": [x, y, theta],
-                }
-                rows.append(
-                    (
-                        seq,
-                        index,
-                        frame,
-                        TruthRow(robot, seq, stamp, int(along[seq]), x, y, None, float("inf")),
-                    )
-                )
-            say(f"{robot}: {min(start + _PROGRESS_FRAMES, len(poses))}/{len(poses)} frames sensed")
+            changes += [(c.seq, index, c) for c in room_changes(robot, along, walk.poses)]
+        sensed = _sensed(grid, sites, walk.poses, _rng(options.seed, _SENSOR, index), options)
+        for seq, features in enumerate(sensed):
+            x, y, theta = (round(float(v), 4) for v in walk.poses[seq])
+            stamp = round(seq / options.tour.rate_hz, 6)
+            frame = {"robot": robot, "seq": seq, "stamp": stamp, "features": features}
+            frame["pose"] = [x, y, theta]
+            truth = TruthRow(robot, seq, stamp, int(along[seq]), x, y, None, float("inf"))
+            rows.append((seq, index, frame, truth))
+            if (seq + 1) % _PROGRESS_FRAMES == 0 or seq + 1 == len(walk.poses):
+                say(f"{robot}: {seq + 1}/{len(walk.poses)} frames sensed")
     rows.sort(key=lambda row: (row[0], row[1]))
-    changes.sort(key=lambda change: (change.seq, int(change.robot[5:])))
+    changes.sort(key=lambda change: (change[0], change[1]))
     return FloorplanRun(
         options=options,
         frames=[row[2] for row in rows],
         truth=[row[3] for row in rows],
-        room_changes=changes,
+        room_changes=[change[2] for change in changes],
         landmarks=sites.count,
         rooms=0 if labels is None else int(labels.max(initial=0)),
         rooms_visited=tuple(sorted(visited)),
         rooms_skipped=targets.skipped,
         path_m=path_m,
     )
+
+
+def _sensed(
+    grid: OccupancyGrid,
+    sites: Sites,
+    poses: NDArray[np.float64],
+    rng: np.random.Generator,
+    options: FloorplanOptions,
+) -> Iterator[list[int]]:
+    """Yield each pose's frame (sorted landmark ids), computing sight lines in blocks."""
+    for start in range(0, len(poses), _PROGRESS_FRAMES):
+        block = poses[start : start + _PROGRESS_FRAMES]
+        for seen in visible_sites(grid, sites, block, options.sensor):
+            yield detect(rng, sites, seen, options.sensor)
 
 
 def _check(options: FloorplanOptions) -> None:

@@ -207,9 +207,9 @@ def _follow(
     xs, ys = points[:, 0].tolist(), points[:, 1].tolist()
 
     def at(s: float) -> tuple[float, float]:
-        i = min(max(bisect.bisect_right(arcs, s) - 1, 0), len(arcs) - 2) if len(arcs) > 1 else 0
         if len(arcs) == 1:
             return xs[0], ys[0]
+        i = min(max(bisect.bisect_right(arcs, s) - 1, 0), len(arcs) - 2)
         share = (s - arcs[i]) / (arcs[i + 1] - arcs[i])
         share = min(max(share, 0.0), 1.0)
         return xs[i] + share * (xs[i + 1] - xs[i]), ys[i] + share * (ys[i + 1] - ys[i])
