@@ -79,6 +79,10 @@ def test_files_round_trip(tmp_path: Path) -> None:
     assert truth.labels_path == str(EXAMPLE_LABELS)
     assert truth.document["landmarks"] == result.landmarks
     assert truth.document["seed"] == 0
+    first = result.truth[0]
+    assert truth.positions()[(first.robot, first.seq)] == (first.x, first.y)
+    assert truth.room_of()[(first.robot, first.seq)] == first.room >= 1
+    assert truth.changes_of("robot1") == [c for c in result.room_changes if c.robot == "robot1"]
 
 
 def test_a_broken_truth_file_is_named(tmp_path: Path) -> None:

@@ -72,6 +72,14 @@ class FloorplanTruth:
         """The true room changes of one robot, in order."""
         return [change for change in self.changes if change.robot == robot]
 
+    def positions(self) -> dict[tuple[str, int], tuple[float, float]]:
+        """Map (robot, seq) to the true position (x, y), as ``SimTruth.positions`` does."""
+        return {(row.robot, row.seq): (row.x, row.y) for row in self.rows}
+
+    def room_of(self) -> dict[tuple[str, int], int]:
+        """Map (robot, seq) to the true room (0: unknown, in a run without labels)."""
+        return {(row.robot, row.seq): row.room for row in self.rows}
+
 
 def floorplan_paths(frames_path: str | Path) -> FloorplanPaths:
     """Name the truth and floorplan files next to ``<name>.frames.jsonl``.
