@@ -1,35 +1,16 @@
-"""One interface over both segmentation methods, so that a service can run either per session.
+"""One interface over the segmentation methods, so that a service can run either per session.
 
-``Segmenter`` is what a robot session drives: frames in (``apply``), changes out
-(``decide``), its segments, its area graph and its bytes. ``PaperSegmenter`` wraps the
-paper's ``Partitioner``; ``AreasSegmenter`` wraps an ``AreaTracker`` and the
-``AreaGraphBuilder`` fed its changes. No I/O.
+``Segmenter``: frames in (``apply``), changes out (``decide``), its segments, area graph and
+bytes. ``PaperSegmenter`` wraps a ``Partitioner``, ``AreasSegmenter`` an ``AreaTracker`` and
+its ``AreaGraphBuilder``. No I/O. Rules (in full: ``docs/design/segmenter.md``):
 
-Rules of this file:
-
-1. **The wrapped method decides.** An adapter adds no rule of its own. ``PaperSegmenter``
-   makes the partitioner's calls in the caller's order, so a burst of ``apply`` and one
-   ``decide`` coalesce exactly as on a bare partitioner; ``AreasSegmenter``'s changes are
-   the tracker's, which observes every frame on its own.
-2. **Errors at apply, before any change.** ``apply`` accepts and refuses what
-   ``Partitioner.apply`` does, with the same errors. The tracker's frames go through the
-   partitioner's check first: on its own the tracker takes an ID beyond int64 and fails
-   only when the pool holding it reaches its proposer, half-way through a later frame.
-3. **Changes wait for decide.** The tracker finds a change while it observes a frame; the
-   segmenter holds it until ``decide`` (oldest first), so the caller meets the changes of
-   both methods at one point. Segments, counters and the area graph already include a
-   held change: they describe the frames applied.
-4. **Segments and areas.** A change closes a segment (ids 0, 1, 2, ..., one more per change)
-   and enters an area. Under the paper every segment is its own area (area = segment id,
-   never a revisit); under areas, segments of one area recur (``revisit_of``).
-5. **Bounded.** What an adapter keeps beside its method grows with changes, never frames,
-   and is cut to the method's ``keep_closed_submaps`` closed segments; the paper's boundary
-   features also to ``MAX_BOUNDARY_FEATURES`` per passage, as an area graph keeps them.
-6. **Whole state in bytes.** ``to_bytes`` holds everything a later change or graph depends
-   on, pending frames and held changes included; ``segmenter_from_bytes`` rebuilds a
-   segmenter that goes on exactly as the original (format: ``segmenter_snapshot``). A bare
-   partitioner snapshot, as checkpoints held before segmenters, reads as a paper segmenter
-   whose past passages have no boundary features.
+1. The wrapped method decides: an adapter adds no rule of its own.
+2. Errors at apply, before any change: the partitioner's checks, for every method.
+3. Changes wait for ``decide`` (oldest first); segments and graph already include them.
+4. A change closes a segment (ids 0, 1, 2, ...) and enters an area; under the paper every
+   segment is its own area, under areas segments of one area recur (``revisit_of``).
+5. Bounded: what an adapter keeps grows with changes, never frames, and is cut.
+6. Whole state in bytes: ``segmenter_from_bytes`` goes on exactly as the original.
 """
 
 from __future__ import annotations
@@ -82,8 +63,8 @@ __all__ = [
 ]
 
 
-#: The method of a new session and of the offline commands unless one is chosen (issue 18:
-#: ``areas`` met its targets). ``paper`` stays one flag away (``--method paper``).
+#: The method of a new session and of the offline commands unless one is chosen: ``areas``
+#: met its targets (``docs/decisions/0002-areas-by-default.md``); ``--method paper`` remains.
 DEFAULT_METHOD: Final = Method.AREAS
 
 
