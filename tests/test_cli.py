@@ -127,7 +127,9 @@ def test_every_help_shows_the_defaults(name: str) -> None:
     parser, _ = command_parser(name)
     text = " ".join(parser.format_help().split())
     for action in parser._actions:
-        unset = action.default in (None, False, [], (), argparse.SUPPRESS)
+        default = action.default
+        empty = isinstance(default, list | tuple) and not default
+        unset = default is None or default is False or default is argparse.SUPPRESS or empty
         if unset or not action.option_strings or action.help == argparse.SUPPRESS:
             continue
         help_text = " ".join((action.help or "").split())

@@ -168,10 +168,15 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
-        unset = action.default in (None, False, [], (), argparse.SUPPRESS)
-        if unset or not action.option_strings or "default" in text:
+        if _unset(action.default) or not action.option_strings or "default" in text:
             return text
         return f"{text} (default: %(default)s)" if text else "default: %(default)s"
+
+
+def _unset(default: object) -> bool:
+    """Whether an option's default means "not given" (None, off, empty), not a value like 0."""
+    empty = isinstance(default, list | tuple) and not default
+    return default is None or default is False or default is argparse.SUPPRESS or empty
 
 
 def build_parser() -> argparse.ArgumentParser:

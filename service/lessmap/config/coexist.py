@@ -77,12 +77,16 @@ def join_existing_router(
 def check_endpoints(settings: ServiceSettings) -> None:
     """Check the Zenoh endpoints the flags name, before the service opens anything.
 
-    A TCP listen port that something already accepts on is taken. In client mode the
-    service needs a router: wait for one up to ``connect_timeout`` seconds.
+    The Zenoh config file must exist. A TCP listen port that something already accepts on
+    is taken. In client mode the service needs a router: wait for one up to
+    ``connect_timeout`` seconds.
 
     Raises:
-        ConfigError: a listen port is taken, or no router answered (one line).
+        ConfigError: the file is missing, a listen port is taken, or no router answered.
     """
+    if settings.zenoh_config is not None and not settings.zenoh_config.is_file():
+        msg = f"-c/--zenoh-config {settings.zenoh_config}: no such file"
+        raise ConfigError(msg)
     for endpoint in settings.listen:
         if endpoint.startswith("tcp/") and listening(endpoint):
             msg = (

@@ -317,14 +317,6 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         path = flags.get("config") or _environ().get(ENV_PREFIX + "CONFIG") or None
         return (init_settings, env_settings, ConfigFileSource(settings_cls, path))
 
-    @field_validator("zenoh_config")
-    @classmethod
-    def _zenoh_config_exists(cls, value: Path | None) -> Path | None:
-        if value is not None and not value.is_file():
-            msg = "no such file"
-            raise ValueError(msg)
-        return value
-
     @field_validator("empty_frames_omitted")
     @classmethod
     def _fleets_are_names(cls, value: tuple[str, ...]) -> tuple[str, ...]:
