@@ -45,7 +45,13 @@ from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.receiver import Receiver
-from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.sessions import (
+    DurabilityPolicy,
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+)
 from lessmap.runtime.shard import Inbound, Shard
 from lessmap.runtime.store import CheckpointStore
 from lessmap.settings import ServiceSettings
@@ -116,19 +122,19 @@ def time_worker(
             store=store,
         )
         table = SessionTable(
-            PartitionParams.from_profile("laser"),
-            method=Method.PAPER,  # the method of the core it is compared with
-            max_sessions=robots,
-            max_nodes=100_000,
-            max_batch_frames=256,
-            idle_timeout_s=3600.0,
-            instance="bench",
-            clock=time.perf_counter,
+            # The paper: the method of the core it is compared with.
+            Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+            SessionLimits(
+                max_sessions=robots,
+                max_nodes=100_000,
+                max_batch_frames=256,
+                idle_timeout_s=3600.0,
+                max_pairs_per_frame=max_pairs,
+                max_edges_per_session=max_edges,
+            ),
+            identity=Identity(instance="bench"),
             store=None if memory_only else store,
-            checkpoint_every_frames=every,
-            checkpoint_interval_s=interval,
-            max_pairs_per_frame=max_pairs,
-            max_edges=max_edges,
+            durability=DurabilityPolicy(every_frames=every, interval_s=interval),
         )
         shard = Shard(
             0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30
@@ -152,14 +158,9 @@ def time_receive(session: zenoh.Session, items: Sequence[Inbound], per_sweep: in
     """Thread CPU seconds of the receiver's sweeps over real channels, per sample batch."""
     metrics = ServiceMetrics()
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        method=Method.PAPER,
-        max_sessions=1,
-        max_nodes=10,
-        max_batch_frames=1,
-        idle_timeout_s=60.0,
-        instance="bench",
-        clock=time.perf_counter,
+        Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+        SessionLimits(max_sessions=1, max_nodes=10, max_batch_frames=1, idle_timeout_s=60.0),
+        identity=Identity(instance="bench"),
     )
     outbox = Outbox(
         session,

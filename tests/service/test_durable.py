@@ -16,7 +16,16 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.runtime.sessions import Outcome, SessionTable, commit_checkpoints
+from lessmap.runtime.sessions import (
+    CatchupPolicy,
+    DurabilityPolicy,
+    Identity,
+    Outcome,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+    commit_checkpoints,
+)
 from lessmap.runtime.store import STORE_FILE, CheckpointStore, SessionRecord
 from lessmap.sim.simulator import simulate
 from lessmap_schemas.errors import ErrorCode
@@ -46,8 +55,14 @@ FRAMES = walk()
 class CommittingTable(SessionTable):
     """A session table whose outcomes' checkpoints are saved as soon as they are returned."""
 
-    def __init__(self, store: CheckpointStore | None, **settings: Any) -> None:
-        super().__init__(store=store, **settings)
+    def __init__(
+        self,
+        store: CheckpointStore | None,
+        segmenting: Segmenting,
+        limits: SessionLimits,
+        **policies: Any,
+    ) -> None:
+        super().__init__(segmenting, limits, store=store, **policies)
         self.committed_to = store
 
     def _committed(self, out: Outcome) -> Outcome:
@@ -85,18 +100,11 @@ def make_table(
     # phase=False: checkpoints at exact multiples of ``every``, which the tests below pin.
     return CommittingTable(
         store,
-        params=LASER,
-        max_sessions=8,
-        max_nodes=20_000,
-        max_batch_frames=1,
-        idle_timeout_s=10.0,
-        instance="test",
-        clock=time.perf_counter,
-        checkpoint_every_frames=every,
-        checkpoint_interval_s=3600.0,
-        checkpoint_phase=phase,
-        catchup_max_frames=catchup_max_frames,
-        catchup_wait_s=catchup_wait_s,
+        Segmenting(params=LASER),
+        SessionLimits(max_sessions=8, max_nodes=20_000, max_batch_frames=1, idle_timeout_s=10.0),
+        identity=Identity(instance="test"),
+        durability=DurabilityPolicy(every_frames=every, interval_s=3600.0, phased=phase),
+        catchup=CatchupPolicy(max_frames=catchup_max_frames, wait_s=catchup_wait_s),
     )
 
 

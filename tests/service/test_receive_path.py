@@ -6,7 +6,6 @@ to it, real shards (their workers not started, so the test reads what was queued
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING, Any
 
 import pytest
@@ -16,7 +15,7 @@ from lessmap.core import PartitionParams
 from lessmap.runtime.metrics import BatchHistogram, ServiceMetrics
 from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.receiver import EVERY_PARTITION, Receiver
-from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.sessions import Identity, Segmenting, SessionLimits, SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, PROBE, Inbound, Shard
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
@@ -68,13 +67,9 @@ def make_shard(session: zenoh.Session, metrics: ServiceMetrics, queue_depth: int
         error_burst=10,
     )
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        max_sessions=8,
-        max_nodes=1000,
-        max_batch_frames=8,
-        idle_timeout_s=60.0,
-        instance="inst",
-        clock=time.perf_counter,
+        Segmenting(params=PartitionParams.from_profile("laser")),
+        SessionLimits(max_sessions=8, max_nodes=1000, max_batch_frames=8, idle_timeout_s=60.0),
+        identity=Identity(instance="inst"),
     )
     return Shard(
         0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=queue_depth, queue_bytes=1 << 20

@@ -16,7 +16,7 @@ from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import Outbox
-from lessmap.runtime.sessions import Outcome, SessionTable
+from lessmap.runtime.sessions import Identity, Outcome, Segmenting, SessionLimits, SessionTable
 from lessmap.runtime.shard import PROBE, Inbound, Shard
 from lessmap.sim.simulator import simulate
 from lessmap_schemas import keys
@@ -64,16 +64,18 @@ def make_shard(
         error_burst=10,
     )
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        method=Method.PAPER,  # the tests count the paper's decisions
-        max_sessions=8,
-        max_nodes=10_000,
-        max_batch_frames=256,
-        idle_timeout_s=60.0,
-        instance="inst",
-        clock=time.perf_counter,
-        max_pairs_per_frame=200_000,  # the service's default budgets: edges are counted
-        max_edges=1_000_000,
+        # The paper: the tests count its decisions.
+        Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+        SessionLimits(
+            max_sessions=8,
+            max_nodes=10_000,
+            max_batch_frames=256,
+            idle_timeout_s=60.0,
+            # The service's default budgets: edges are counted.
+            max_pairs_per_frame=200_000,
+            max_edges_per_session=1_000_000,
+        ),
+        identity=Identity(instance="inst"),
     )
     return Shard(
         0,

@@ -28,19 +28,19 @@ from zenoh import ext
 
 from lessmap.runtime.memory import release_free_memory
 from lessmap.runtime.ratelimit import RateLimiter
-from lessmap.runtime.sessions import commit_checkpoints, summary_of
+from lessmap.runtime.sessions.durability import commit_checkpoints
+from lessmap.runtime.sessions.wire import wire_transition
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Error, SessionState, Transition
-from lessmap_schemas.partition import partition_of
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from lessmap.core.segmenter import SegmentChange
     from lessmap.runtime.metrics import ServiceMetrics
-    from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
+    from lessmap.runtime.sessions.model import Outcome, Rejection, RobotSession
     from lessmap.runtime.store import CheckpointStore
     from lessmap_schemas.errors import WireError
 
@@ -51,34 +51,6 @@ _DUPLICATES = {ErrorCode.DUPLICATE_SEQ}  # OUT_OF_ORDER counts as rejected, by r
 _TRANSITION_ENCODING = zenoh.Encoding(encoding(Transition))
 _ERROR_ENCODING = zenoh.Encoding(encoding(Error))
 _STATE_ENCODING = zenoh.Encoding(encoding(SessionState))
-
-
-def wire_transition(
-    session: RobotSession, change: SegmentChange, instance: str, epoch: int = 1
-) -> Transition:
-    """Convert a change of a session's segmenter to the wire message."""
-    transition = change.transition
-    return Transition(
-        fleet=session.fleet,
-        robot=session.robot,
-        session=session.session,
-        seq=transition.seq,
-        boundary_seq=transition.boundary_seq,
-        stamp_s=transition.stamp_s,
-        reason=change.reason,
-        ncut=transition.ncut,
-        lambda2=transition.lambda2,
-        closed=summary_of(transition.closed),
-        opened=summary_of(transition.opened),
-        boundary_features=list(transition.boundary_features),
-        area=change.area,
-        left_area=change.left_area,
-        revisit=change.revisit_of is not None,
-        batch_frames=transition.batch_frames,
-        instance=instance,
-        partition=partition_of(session.fleet, session.robot),
-        epoch=epoch,
-    )
 
 
 class Outbox:

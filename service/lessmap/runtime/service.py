@@ -47,7 +47,15 @@ from lessmap.runtime.outbox import Outbox
 from lessmap.runtime.ownership import Change, Ownership
 from lessmap.runtime.receiver import EVERY_PARTITION, Receiver, shard_index
 from lessmap.runtime.replies import fit_area_graph, fit_state
-from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.sessions.policy import (
+    CatchupPolicy,
+    DurabilityPolicy,
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SharedBudgets,
+)
+from lessmap.runtime.sessions.table import SessionTable
 from lessmap.runtime.shard import CATCHUP_DONE, PROBE, RECOVERED, Inbound, Shard
 from lessmap.runtime.store import CheckpointStore, SessionRecord, StoreError
 from lessmap.runtime.zenoh_config import service_config
@@ -62,7 +70,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
     from wsgiref.simple_server import WSGIServer
 
-    from lessmap.runtime.sessions import CatchupRequest
+    from lessmap.runtime.sessions.model import CatchupRequest
     from lessmap.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
@@ -160,33 +168,40 @@ class Service:
             release_memory=self.store.release_memory_soon,
             store=self.store,
         )
-        params = s.partition_params()
+        segmenting = Segmenting(
+            params=s.partition_params(),
+            method=Method(s.method),
+            area_params=area_params(s),
+            omits_empty_frames=s.omits_empty_frames,
+        )
+        limits = SessionLimits(
+            max_sessions=per_shard_sessions,
+            max_nodes=s.max_nodes_per_session,
+            max_batch_frames=s.max_batch_frames,
+            idle_timeout_s=s.session_idle_timeout_s,
+            max_pairs_per_frame=s.max_pairs_per_frame,
+            max_edges_per_session=s.max_edges_per_session,
+        )
+        durability = DurabilityPolicy(
+            every_frames=s.checkpoint_every_frames, interval_s=s.checkpoint_interval_s
+        )
+        # Catch-up with a store only: memory-only keeps today's immediate SEQ_GAP.
+        catchup = CatchupPolicy(
+            max_frames=0 if self.store.path is None else s.catchup_max_frames,
+            wait_s=s.catchup_wait_s,
+        )
+        identity = Identity(instance=s.instance, epoch_of=self.ownership.last_epoch)
         ledger = EdgeLedger(s.workers, s.max_edges_total)
         admission = SessionAdmission(s.new_sessions_per_s_per_fleet, s.new_sessions_burst)
         for index in range(s.workers):
             table = SessionTable(
-                params,
-                method=Method(s.method),
-                area_params=area_params(s),
-                omits_empty_frames=s.omits_empty_frames,
-                max_sessions=per_shard_sessions,
-                max_nodes=s.max_nodes_per_session,
-                max_batch_frames=s.max_batch_frames,
-                idle_timeout_s=s.session_idle_timeout_s,
-                instance=s.instance,
-                clock=time.perf_counter,
+                segmenting,
+                limits,
+                identity=identity,
+                durability=durability,
+                catchup=catchup,
+                budgets=SharedBudgets(ledger=ledger, slot=index, admission=admission),
                 store=self.store,
-                checkpoint_every_frames=s.checkpoint_every_frames,
-                checkpoint_interval_s=s.checkpoint_interval_s,
-                # Catch-up with a store only: memory-only keeps today's immediate SEQ_GAP.
-                catchup_max_frames=0 if self.store.path is None else s.catchup_max_frames,
-                catchup_wait_s=s.catchup_wait_s,
-                max_pairs_per_frame=s.max_pairs_per_frame,
-                max_edges=s.max_edges_per_session,
-                ledger=ledger,
-                ledger_slot=index,
-                admission=admission,
-                epoch_of=self.ownership.last_epoch,
             )
             self._shards.append(
                 Shard(

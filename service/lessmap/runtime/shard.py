@@ -53,7 +53,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from lessmap.runtime.budget import pairs_of
-from lessmap.runtime.sessions import FRAME_COST, Outcome, Rejection, SessionTable
+from lessmap.runtime.sessions.model import FRAME_COST, Outcome, Rejection
 from lessmap_schemas.codec import decode_inbound
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.keys import parse_robot_key
@@ -63,7 +63,8 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from lessmap.runtime.outbox import Outbox
-    from lessmap.runtime.sessions import CatchupRequest
+    from lessmap.runtime.sessions.model import CatchupRequest
+    from lessmap.runtime.sessions.table import SessionTable
     from lessmap_schemas.limits import WireLimits
 
 log = logging.getLogger(__name__)
