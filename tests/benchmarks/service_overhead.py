@@ -43,7 +43,7 @@ from threadpoolctl import threadpool_limits
 from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
-from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.receiver import Receiver
 from lessmap.runtime.sessions import (
     DurabilityPolicy,
@@ -52,7 +52,7 @@ from lessmap.runtime.sessions import (
     SessionLimits,
     SessionTable,
 )
-from lessmap.runtime.shard import Inbound, Shard
+from lessmap.runtime.shard import Inbound, Shard, ShardPolicy
 from lessmap.runtime.store import CheckpointStore
 from lessmap.settings import ServiceSettings
 from lessmap_schemas import keys
@@ -115,10 +115,12 @@ def time_worker(
             session,
             metrics,
             instance="bench",
-            transition_cache=16,
-            max_publishers=robots,
-            error_rate_per_s=10.0,
-            error_burst=10,
+            policy=EgressPolicy(
+                transition_cache=16,
+                max_publishers=robots,
+                error_rate_per_s=10.0,
+                error_burst=10,
+            ),
             store=store,
         )
         table = SessionTable(
@@ -137,7 +139,11 @@ def time_worker(
             durability=DurabilityPolicy(every_frames=every, interval_s=interval),
         )
         shard = Shard(
-            0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30
+            0,
+            table,
+            outbox,
+            limits=DEFAULT_LIMITS,
+            policy=ShardPolicy(queue_depth=1 << 20, queue_bytes=1 << 30),
         )
         started = time.process_time()
         for at in range(0, len(items), per_sweep):
@@ -166,12 +172,20 @@ def time_receive(session: zenoh.Session, items: Sequence[Inbound], per_sweep: in
         session,
         metrics,
         instance="bench",
-        transition_cache=1,
-        max_publishers=1,
-        error_rate_per_s=1.0,
-        error_burst=1,
+        policy=EgressPolicy(
+            transition_cache=1,
+            max_publishers=1,
+            error_rate_per_s=1.0,
+            error_burst=1,
+        ),
     )
-    shard = Shard(0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30)
+    shard = Shard(
+        0,
+        table,
+        outbox,
+        limits=DEFAULT_LIMITS,
+        policy=ShardPolicy(queue_depth=1 << 20, queue_bytes=1 << 30),
+    )
     receiver = Receiver(
         [shard], metrics, max_payload_bytes=1 << 20, queue_depth=1 << 20, owned=lambda _p: True
     )

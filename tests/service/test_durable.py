@@ -311,8 +311,8 @@ def test_a_record_being_written_is_what_load_returns(tmp_path: Path) -> None:
     store.close()
 
 
-def test_robots_where_reads_only_the_named_fleet_and_robot(tmp_path: Path) -> None:
-    from lessmap.runtime.service import _named_fleet_and_robot
+def test_robots_where_reads_only_thenamed_fleet_and_robot(tmp_path: Path) -> None:
+    from lessmap.runtime.queries import named_fleet_and_robot
 
     store = open_store(tmp_path)
     for fleet, robot in [("f1", "a"), ("f1", "b"), ("f2", "a")]:
@@ -336,10 +336,10 @@ def test_robots_where_reads_only_the_named_fleet_and_robot(tmp_path: Path) -> No
     assert store.robots_where(lambda _f, r: r == "a", fleet="f1") == [("f1", "a")]
     store.close()
     # A query's selector names a fleet and a robot only where it holds no wildcard.
-    assert _named_fleet_and_robot("lessmap/v3/f1/b/state") == ("f1", "b")
-    assert _named_fleet_and_robot("lessmap/v3/f1/*/areas") == ("f1", None)
-    assert _named_fleet_and_robot("lessmap/v3/*/b/state") == (None, None)
-    assert _named_fleet_and_robot("lessmap/v3/**") == (None, None)
+    assert named_fleet_and_robot("lessmap/v3/f1/b/state") == ("f1", "b")
+    assert named_fleet_and_robot("lessmap/v3/f1/*/areas") == ("f1", None)
+    assert named_fleet_and_robot("lessmap/v3/*/b/state") == (None, None)
+    assert named_fleet_and_robot("lessmap/v3/**") == (None, None)
 
 
 def test_a_corrupt_store_file_is_moved_aside(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
 from lessmap.runtime.metrics import ServiceMetrics
-from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.sessions import (
     DurabilityPolicy,
     Identity,
@@ -55,10 +55,12 @@ def test_checkpoints_follow_their_transitions_and_stop_at_a_fenced_one(
         client_session(router),
         metrics,
         instance="inst",
-        transition_cache=16,
-        max_publishers=8,
-        error_rate_per_s=10.0,
-        error_burst=10,
+        policy=EgressPolicy(
+            transition_cache=16,
+            max_publishers=8,
+            error_rate_per_s=10.0,
+            error_burst=10,
+        ),
         epoch_for=lambda _fleet, _robot: 3 if fence_open[0] else None,
         store=store,
     )

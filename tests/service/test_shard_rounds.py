@@ -15,9 +15,9 @@ from prometheus_client import generate_latest
 from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
-from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.sessions import Identity, Outcome, Segmenting, SessionLimits, SessionTable
-from lessmap.runtime.shard import PROBE, Inbound, Shard
+from lessmap.runtime.shard import PROBE, Inbound, Shard, ShardPolicy
 from lessmap.sim.simulator import simulate
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
@@ -58,10 +58,12 @@ def make_shard(
         session,
         metrics,
         instance="inst",
-        transition_cache=4,
-        max_publishers=8,
-        error_rate_per_s=10.0,
-        error_burst=10,
+        policy=EgressPolicy(
+            transition_cache=4,
+            max_publishers=8,
+            error_rate_per_s=10.0,
+            error_burst=10,
+        ),
     )
     table = SessionTable(
         # The paper: the tests count its decisions.
@@ -82,9 +84,9 @@ def make_shard(
         table,
         outbox,
         limits=DEFAULT_LIMITS,
-        queue_depth=1 << 16,
-        queue_bytes=1 << 26,
-        coalesce_after_s=coalesce_after_s,
+        policy=ShardPolicy(
+            queue_depth=1 << 16, queue_bytes=1 << 26, coalesce_after_s=coalesce_after_s
+        ),
         owns=owns,
     )
 
@@ -220,7 +222,7 @@ def test_a_robot_handed_over_between_its_turn_and_the_chunk_is_not_applied(
 
     shard = make_shard(client_session(router), coalesce_after_s=10.0, owns=owns)
     run_rounds(shard, streams(), per_round=FRAMES, age_s=0.0)
-    assert (FLEET, "r1") not in shard.table._open
+    assert (FLEET, "r1") not in shard._table._open
     assert counted(shard, "lessmap_frames_foreign_total") == FRAMES
     assert counted(shard, "lessmap_frames_applied_total") == FRAMES * (len(ROBOTS) - 1)
     assert shard.depth() == 0  # every bound was given back
@@ -245,7 +247,7 @@ def test_held_frames_and_the_end_of_a_session_new_here_close_it(
     shard._collect()
     while shard._lanes:
         shard._round()
-    state = shard.table.state(FLEET, "r0")
+    state = shard._table.state(FLEET, "r0")
     assert state is not None
     assert (state.session, state.open, state.frames_applied) == ("new", False, 3)
 
@@ -272,7 +274,7 @@ def test_a_probe_behind_the_live_end_of_its_session_is_no_news(
     shard._collect()
     while shard._lanes:
         shard._round()
-    state = shard.table.state(FLEET, "r0")
+    state = shard._table.state(FLEET, "r0")
     assert state is not None
     assert (state.open, state.frames_applied) == (False, 3)
     assert (state.frames_rejected, state.frames_duplicate, state.frames_missing) == (0, 0, 0)

@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from lessmap.runtime.shard import PROBE, Inbound
+from lessmap.runtime.inbound import PROBE, Inbound
 from lessmap_schemas.errors import ErrorCode
 
 if TYPE_CHECKING:

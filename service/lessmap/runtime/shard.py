@@ -1,45 +1,17 @@
-"""A shard: one inbound queue, one worker thread, the sessions of the robots hashed to it.
+"""A shard: one inbound queue, one worker thread, and the sessions of the robots hashed to it.
 
-The receive path never blocks Zenoh: the receiver's sweep (``receiver.py``) hands what the
-frames channels held to ``offer_many``, which appends it to the shard's queue (bounded in
-messages and in bytes, and per robot to a quarter of both, so one robot cannot fill it for
-the others) under one lock and with one wake-up of the worker per sweep. A robot always
-hashes to the same shard, so its frames are handled in order by one thread; shards share
-nothing but the Zenoh session, the metrics and the work budgets (``budget.py``).
+Invariants (the why: ``docs/decisions/0001-shard-actor.md``, ``0002-fair-scheduling.md``):
 
-Fair scheduling: the worker moves what arrived into one lane per robot (still raw bytes,
-still counted against the bounds) and serves the lanes by deficit round robin. Every round,
-each robot with pending messages gets ``fair_quantum`` cost units (roughly pair updates; a
-frame costs its k(k-1)/2 pairs plus a fixed overhead, a decision an estimate from its
-CovGraph's edges, ``SessionTable.decision_cost``) and is served what its deficit affords:
-
-- all of its pending frames with a decision after each, when that fits (a robot that keeps
-  up on its own is never coalesced because another robot was expensive);
-- else as many frames as fit with one decision per ``max_batch_frames`` (the robot's own
-  load coalesces its own frames); the same when the shard is behind (a frame waited longer
-  than ``coalesce_after_s``) for the robots asking more than a max-min fair share of one
-  round's budget (``_coalescing_level``): deciding at every frame under a backlog would only
-  deepen it (a decision costs 1.5-3 x a frame's counting), but a robot asking little is
-  never coalesced because another one asks a lot;
-- else nothing this round (the deficit carries over, so a frame larger than the quantum
-  waits a few rounds while the other robots are served).
-
-Turns of plain frames are planned robot by robot but handed to the table together, up to
-``_FLUSH_FRAMES`` frames at a time (``SessionTable.handle_turns``: one call, one lock, one
-outcome and one publish for a chunk of robots: at fleet rates most robots have one frame a
-round, and a call, an outcome and a publish per frame cost a third of the core's own work).
-Each robot keeps its own ``decide_every``; its frames stay in order (a robot has one turn a
-round, and anything else of its turn, a catch-up reply or a probe, flushes the chunk first).
-State queries are answered between chunks. ``max_batch_frames = 1`` still decides at every
-frame. What a chunk produced is published before the lock is let go (``_step``): a
-partition handed over in between would otherwise checkpoint a session whose transition the
-fence then held back; ownership is checked again under that lock.
-
-Catch-up: when the table holds frames beyond a gap it returns ``CatchupRequest``s; the worker
-hands them to ``request_catchup`` (the service sends a Zenoh query with callbacks and
-returns at once). The query's replies come back through ``offer`` as ``RECOVERED`` items and
-its end as one ``CATCHUP_DONE`` item (admitted past the depth bound, so a full queue cannot
-leave a hold waiting): the same FIFO, so the end is always taken after the replies.
+1. A robot always hashes to the same shard, so its frames are handled in order by one thread.
+2. Only the worker touches the session table (an actor): queries, hand-overs and the stop
+   are commands on its inbox (``read``, ``drain``, ``hand_over``, ``stop``), answered
+   through ``concurrent.futures.Future``s and run between chunks, never inside one.
+3. What a chunk produced is published before the worker takes a command, so a hand-over
+   never checkpoints a session whose transition the fence then held back.
+4. The lanes are served by deficit round robin: a robot that keeps up is decided every
+   frame; one over its share is coalesced by its own load, never because of another's.
+5. Catch-up queries go out through ``request_catchup`` (callbacks that only enqueue); their
+   replies and end come back through the same FIFO, so the end follows its replies.
 """
 
 from __future__ import annotations
@@ -49,10 +21,12 @@ import math
 import threading
 import time
 from collections import deque
+from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from lessmap.runtime.budget import pairs_of
+from lessmap.runtime.inbound import CATCHUP_DONE, LIVE, PROBE, RECOVERED, Inbound, InboundQueue
 from lessmap.runtime.sessions.model import FRAME_COST, Outcome, Rejection
 from lessmap_schemas.codec import decode_inbound
 from lessmap_schemas.errors import ErrorCode, WireError
@@ -70,28 +44,29 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _BATCH_MAX = 4096  # messages moved from the queue to the lanes per round
-_ROBOT_SHARE = 4  # one robot may hold at most 1/_ROBOT_SHARE of the queue (messages, bytes)
 _LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
 _FLUSH_FRAMES = 64  # plain frames of several robots' turns handed to the table at once
-# What one cost unit takes on the worker (sessions.py: ~25 ns per pair update), to turn
+# What one cost unit takes on the worker (docs/tuning/scheduler.md), to turn
 # ``coalesce_after_s`` into a round's budget of cost units.
 _SECONDS_PER_COST_UNIT = 25e-9
 _KEYS_REMEMBERED = 65_536  # parsed robot keys kept (``_parse_key``)
 
-LIVE = 0  # a sample of the frames subscriber
-RECOVERED = 1  # a reply of a robot's publication cache to a catch-up query
-CATCHUP_DONE = 2  # the end of a catch-up query; the payload is the session id (UTF-8)
-PROBE = 3  # a robot cache's newest frame, asked when a partition is taken: applied if news
+T = TypeVar("T")
+Turn = tuple[tuple[str, str], list[Frame | SessionEnd], int | None]
+
+__all__ = ["CATCHUP_DONE", "LIVE", "PROBE", "RECOVERED", "Inbound", "Shard", "ShardPolicy"]
 
 
-class Inbound(NamedTuple):
-    """One raw sample as it was received (a tuple: built once per sample, cheaply)."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ShardPolicy:
+    """A shard's queue bounds and how its worker schedules the robots."""
 
-    received_s: float  # time.monotonic() at receipt
-    key: str
-    payload: bytes
-    kind: int = LIVE
+    queue_depth: int
+    queue_bytes: int
+    linger_s: float = 0.0  # a round woken by one frame waits this long for more
+    quantum: int = 5_000_000  # cost units per robot and round (deficit round robin)
+    coalesce_after_s: float = 0.05  # a frame older than this: the shard is behind
 
 
 @dataclass(slots=True)
@@ -114,34 +89,23 @@ class Shard:
         outbox: Outbox,
         *,
         limits: WireLimits,
-        queue_depth: int,
-        queue_bytes: int,
-        linger_s: float = 0.0,
+        policy: ShardPolicy,
         request_catchup: Callable[[Shard, CatchupRequest], None] | None = None,
-        quantum: int = 5_000_000,
-        coalesce_after_s: float = 0.05,
         owns: Callable[[str, str], bool] | None = None,
     ) -> None:
         self.index = index
         # False for a robot whose partition this instance handed over: its queued frames are
         # left to the new owner (which fetches them from the robot's cache).
         self._owns = owns
-        self.table = table
-        self.lock = threading.Lock()  # guards ``table`` between the worker and queries
+        self._table = table  # the worker's alone (invariant 2)
         self._outbox = outbox
         self._limits = limits
-        self._queue: deque[Inbound] = deque()
-        self._queue_depth = queue_depth
-        self._queue_bytes = queue_bytes
-        # Messages and bytes taken and not yet handled (in the queue or in a lane), in all
-        # and per key: ``offer`` bounds both, the worker gives them back after each turn.
-        self._held = 0
-        self._queued_bytes = 0
-        self._per_key: dict[str, list[int]] = {}
-        self._linger_s = linger_s
+        self._inbound = InboundQueue(policy.queue_depth, policy.queue_bytes)
+        self._ready = self._inbound.cond
+        self._linger_s = policy.linger_s
         self._request_catchup = request_catchup
-        self._quantum = quantum
-        self._coalesce_after_s = coalesce_after_s
+        self._quantum = policy.quantum
+        self._coalesce_after_s = policy.coalesce_after_s
         self._level = math.inf  # this round's ``_coalescing_level``
         self._lanes: dict[tuple[str, str], _Lane] = {}  # insertion order = round order
         self._robot_of: dict[str, tuple[str, str]] = {}  # valid keys seen: (fleet, robot)
@@ -149,88 +113,44 @@ class Shard:
         self._queue_waits: list[float] = []
         self._frame_waits: list[float] = []
         # Planned turns of plain frames not yet handed to the table (``_flush``).
-        self._deferred: list[tuple[tuple[str, str], list[Frame | SessionEnd], int | None]] = []
+        self._deferred: list[Turn] = []
         self._deferred_items: list[Inbound] = []
-        self._ready = threading.Condition()
-        self._stopping = False
+        # Commands for the worker (invariant 2), under ``_ready``; once the worker has
+        # finished, the caller runs them itself, one at a time (``_after_lock``).
+        self._commands: deque[tuple[Callable[[], Any], Future[Any]]] = deque()
+        self._finished = False
+        self._after_lock = threading.Lock()
         self._abandon = False  # stop overran its time: leave the rest to the robots' caches
+        self._close_cause = "shutdown"  # why the sessions close when the worker ends
         self._thread = threading.Thread(
             target=self._run, name=f"lessmap-shard-{index}", daemon=True
         )
         self._last_sweep_s = time.monotonic()
-        # Rejections decided on Zenoh's thread (queue full, payload too large), published by
-        # the worker; deque appends are atomic, and maxlen bounds a flood.
-        self._notes: deque[tuple[str, ErrorCode, str]] = deque(maxlen=10_000)
+        self.open_sessions = 0  # sessions in memory, as the worker last saw them (health)
 
-    # -- receive path (Zenoh's thread) -------------------------------------------------------
+    # -- receive path ----------------------------------------------------------------------
 
     def offer(self, item: Inbound) -> bool:
-        """Enqueue a sample without blocking; False when the shard is full (caller reports).
-
-        The end of a catch-up query is always taken (one per query under way, each a few
-        bytes), so a hold never outlives its query because the queue was full. One robot
-        (key) may hold at most a quarter of the messages and bytes.
-        """
-        with self._ready:
-            taken = self._admit(item)
-            if taken:
-                self._ready.notify()
-        return taken
+        """Enqueue a sample without blocking; False when the shard is full (caller reports)."""
+        return self._inbound.offer(item)
 
     def offer_many(self, items: list[Inbound]) -> list[Inbound]:
-        """Enqueue samples in order without blocking, as ``offer`` each; return those refused.
-
-        One lock and one wake-up of the worker for the lot (the receive path's sweep).
-        """
-        with self._ready:
-            admit = self._admit
-            refused = [item for item in items if not admit(item)]
-            if len(refused) < len(items):
-                self._ready.notify()
-        return refused
-
-    def _admit(self, item: Inbound) -> bool:
-        """Append one item if the bounds allow it (caller holds ``_ready``)."""
-        size = len(item.payload)
-        key = item.key
-        load = self._per_key.get(key)
-        if item.kind != CATCHUP_DONE and (
-            self._stopping
-            or self._held >= self._queue_depth
-            or self._queued_bytes + size > self._queue_bytes
-            or (
-                load is not None
-                and (
-                    load[0] * _ROBOT_SHARE >= self._queue_depth
-                    or (load[1] + size) * _ROBOT_SHARE > self._queue_bytes
-                )
-            )
-        ):
-            return False
-        if load is None:
-            self._per_key[key] = [1, size]
-        else:
-            load[0] += 1
-            load[1] += size
-        self._queue.append(item)
-        self._held += 1
-        self._queued_bytes += size
-        return True
+        """Enqueue samples in order without blocking; return those refused (one wake-up)."""
+        return self._inbound.offer_many(items)
 
     def note_rejection(self, key: str, code: ErrorCode, detail: str) -> None:
         """Record a sample refused on the receive path; the worker reports it."""
-        self._notes.append((key, code, detail))
-        with self._ready:
-            self._ready.notify()
+        self._inbound.note_rejection(key, code, detail)
 
     def depth(self) -> int:
         """Messages waiting (in the queue and in the robots' lanes)."""
-        return self._held
+        return self._inbound.depth()
 
     def lag_s(self, now: float) -> float:
         """Age of the oldest message waiting, seconds (0 when none waits)."""
+        queue = self._inbound.queue
         with self._ready:
-            oldest = [self._queue[0].received_s] if self._queue else []
+            oldest = [queue[0].received_s] if queue else []
             # The lanes are the worker's; a racy read of their heads is good enough here.
             oldest += [
                 lane.items[0].received_s for lane in list(self._lanes.values()) if lane.items
@@ -238,28 +158,88 @@ class Shard:
         live = [t for t in oldest if t > 0.0]
         return max(0.0, now - min(live)) if live else 0.0
 
+    @property
+    def stopping(self) -> bool:
+        """True once ``stop`` was called: new samples are refused."""
+        return self._inbound.stopping
+
+    # -- commands (invariant 2) --------------------------------------------------------------
+
+    def read(self, reader: Callable[[SessionTable], T]) -> Future[T]:
+        """Run ``reader`` on the table in the worker, between chunks; its answer comes back."""
+        return self._submit(lambda: reader(self._table))
+
+    def drain(self, wanted: Callable[[str, str], bool]) -> Future[None]:
+        """Apply now what is queued for the robots ``wanted`` names (before a hand-over)."""
+        return self._submit(lambda: self._serve_now(wanted))
+
+    def hand_over(self, leaving: Callable[[str, str], bool], now_s: float) -> Future[int]:
+        """Checkpoint and drop the sessions of robots ``leaving`` names; how many."""
+
+        def hand_over() -> int:
+            outcome = self._table.hand_over(leaving, now_s)
+            # Counters and checkpoints only (the fence is closed): not those of a session
+            # with a fenced transition (the next owner decides it anew).
+            self._outbox.publish(outcome, now_s)
+            self.open_sessions = len(self._table)
+            return outcome.evicted
+
+        return self._submit(hand_over)
+
+    def _submit(self, command: Callable[[], T]) -> Future[T]:
+        future: Future[T] = Future()
+        with self._ready:
+            if not self._finished:
+                self._commands.append((command, future))
+                self._ready.notify()
+                return future
+        with self._after_lock:  # the worker is gone: the table is the caller's now
+            _run_command(command, future)
+        return future
+
+    def _serve_now(self, wanted: Callable[[str, str], bool]) -> None:
+        """Serve in full, whatever their deficit, the lanes of the robots ``wanted`` names."""
+        inbound = self._inbound
+        while inbound.queue:
+            self._move_arrivals()
+        for key in [k for k in self._lanes if wanted(*k)]:
+            lane = self._lanes[key]
+            while lane.items:
+                lane.deficit = math.inf
+                self._turn(key, lane)
+            self._flush()
+            del self._lanes[key]
+
+    def _run_commands(self) -> None:
+        """Run the commands waiting (worker thread, between chunks)."""
+        while self._commands:
+            with self._ready:
+                if not self._commands:
+                    return
+                command, future = self._commands.popleft()
+            _run_command(command, future)
+
     # -- worker ------------------------------------------------------------------------------
 
     def start(self) -> None:
         """Start the worker thread."""
         self._thread.start()
 
-    def stop(self, timeout_s: float) -> None:
-        """Let the worker finish what is queued, then end it.
+    def stop(self, timeout_s: float, cause: str = "shutdown") -> None:
+        """Let the worker finish what is queued, close the sessions (``cause``), end it.
 
         A worker that has not drained within ``timeout_s`` is told to stop after its current
-        turn, and waited for: the table is closed only once no worker touches it. What it
-        leaves unapplied is still in the robots' publication caches, and the checkpoint
-        written at the stop says exactly where each session stands, so a restart catches up.
+        turn, and waited for. What it leaves unapplied is still in the robots' publication
+        caches, and the checkpoint written at the stop says exactly where each session
+        stands, so a restart catches up.
         """
-        with self._ready:
-            self._stopping = True
-            self._ready.notify()
+        self._close_cause = cause
+        self._inbound.stop()
         self._thread.join(timeout_s)
         if self._thread.is_alive():
             with self._ready:
                 self._abandon = True
-                left = self._held
+                left = self._inbound.depth()
             log.warning(
                 "shard %d did not drain within %.1f s; %d message(s) left unapplied "
                 "(a restart catches up from the robots' caches)",
@@ -269,28 +249,36 @@ class Shard:
             )
             self._thread.join()
 
-    @property
-    def stopping(self) -> bool:
-        """True once ``stop`` was called: new samples are refused."""
-        return self._stopping
-
     def _collect(self) -> None:
         """Move what arrived into the robots' lanes; wait for it when no lane has work."""
+        inbound = self._inbound
+        queue = inbound.queue
         with self._ready:
-            while not self._queue and not self._lanes and not self._stopping and not self._notes:
+            while (
+                not queue
+                and not self._lanes
+                and not inbound.stopping
+                and not inbound.notes
+                and not self._commands
+            ):
                 self._ready.wait(timeout=_IDLE_SWEEP_S / 2)
-                if not self._queue:
+                if not queue:
                     break
-            linger = not self._lanes and 0 < len(self._queue) < _LINGER_BELOW and not self._stopping
+            linger = not self._lanes and 0 < len(queue) < _LINGER_BELOW and not inbound.stopping
         if linger and self._linger_s > 0:
             # Woken by one frame: let the next few milliseconds of frames join this round.
             # A wake-up per frame costs as much CPU as the frame's own work at fleet rates.
             time.sleep(self._linger_s)
+        self._move_arrivals()
+
+    def _move_arrivals(self) -> None:
+        """Move what the queue holds into the robots' lanes (at most ``_BATCH_MAX``)."""
         unattributed: list[tuple[str, WireError]] = []
         robot_of = self._robot_of
         lanes = self._lanes
+        inbound = self._inbound
         with self._ready:
-            queue = self._queue
+            queue = inbound.queue
             for _ in range(min(len(queue), _BATCH_MAX)):
                 item = queue.popleft()
                 robot_key = robot_of.get(item.key)
@@ -298,7 +286,7 @@ class Shard:
                     try:
                         robot_key = self._parse_key(item.key)
                     except WireError as exc:
-                        self._give_back([item])
+                        inbound.release([item])
                         unattributed.append((item.key, exc))
                         continue
                 lane = lanes.get(robot_key)
@@ -316,28 +304,22 @@ class Shard:
         robot_key = self._robot_of[key] = (fleet, robot)
         return robot_key
 
-    def holds_any(self, wanted: Callable[[str], bool]) -> bool:
-        """True while a message of a robot key ``wanted`` names is queued or in a turn."""
-        with self._ready:
-            return any(wanted(key) for key in self._per_key)
-
-    def _give_back(self, items: list[Inbound]) -> None:
-        """Release the bounds held by handled items (caller may hold ``_ready``: RLock-free)."""
-        for item in items:
-            size = len(item.payload)
-            self._held -= 1
-            self._queued_bytes -= size
-            load = self._per_key.get(item.key)
-            if load is not None:
-                load[0] -= 1
-                load[1] -= size
-                if load[0] <= 0:
-                    del self._per_key[item.key]
-
     def _run(self) -> None:
+        try:
+            self._work()
+        finally:
+            # Invariant 2 still: the sessions are closed here, by their owner.
+            self._close_sessions()
+            with self._ready:
+                self._finished = True
+            self._run_commands()  # those that came before ``_finished``
+
+    def _work(self) -> None:
+        inbound = self._inbound
         while True:
             self._collect()
-            if self._notes:
+            self._run_commands()
+            if inbound.notes:
                 self._report_notes()
             if self._lanes:
                 try:
@@ -346,19 +328,28 @@ class Shard:
                     # A bug must not kill the shard: log it, keep serving the other sessions.
                     log.exception("shard %d failed in a round", self.index)
             now = time.monotonic()
-            if self.table.holds:
-                self._step(now, self.table.release_overdue, now)
+            if self._table.holds:
+                self._step(now, self._table.release_overdue, now)
             if now - self._last_sweep_s >= _IDLE_SWEEP_S:
                 self._last_sweep_s = now
-                self._step(now, self.table.expire_idle, now)
+                self._step(now, self._table.expire_idle, now)
             with self._ready:
-                if self._abandon or (self._stopping and not self._queue and not self._lanes):
+                if self._abandon or (inbound.stopping and not inbound.queue and not self._lanes):
                     return
+
+    def _close_sessions(self) -> None:
+        """Checkpoint (with a store) or close every session at the stop, and publish that."""
+        if not self._inbound.stopping:
+            return  # the worker died of a bug: the sessions are left to a restart
+        outcome = self._table.close_all(self._close_cause)
+        self._outbox.publish(outcome, time.monotonic())
+        self.open_sessions = len(self._table)
 
     def _report_notes(self) -> None:
         outcome = Outcome()
-        while self._notes:
-            key, code, detail = self._notes.popleft()
+        notes = self._inbound.notes
+        while notes:
+            key, code, detail = notes.popleft()
             try:
                 fleet, robot, _stream = parse_robot_key(key)
             except WireError as exc:
@@ -373,10 +364,10 @@ class Shard:
         self._ask_caches(outcome)
 
     def _step(self, now: float, step: Callable[..., Outcome], *args: Any) -> None:
-        """Run one table method and publish its outcome under the table's lock (module doc)."""
-        with self.lock:
-            outcome = step(*args)
-            self._outbox.publish(outcome, now)
+        """Run one table method and publish its outcome (invariant 3)."""
+        outcome = step(*args)
+        self._outbox.publish(outcome, now)
+        self.open_sessions = len(self._table)
         if outcome.evicted:
             # Sessions left memory: so do their parsed keys. Small objects kept alive past a
             # flood pin the allocator's arenas (measured: +23 MiB of 97 after 10,000 evictions).
@@ -398,13 +389,16 @@ class Shard:
             for key in list(self._lanes):
                 if self._abandon:
                     return
-                lane = self._lanes[key]
+                lane = self._lanes.get(key)
+                if lane is None:
+                    continue  # served by a command (``drain``)
                 lane.deficit += self._quantum
                 self._turn(key, lane)
                 if not lane.items:
                     del self._lanes[key]  # an empty lane keeps no credit (DRR)
                 if len(self._deferred_items) >= _FLUSH_FRAMES:
                     self._flush()
+                    self._run_commands()  # between chunks (invariant 2)
         finally:
             # Planned turns are applied even when a turn failed: their bounds are held.
             self._flush()
@@ -415,7 +409,7 @@ class Shard:
             if self._frame_waits:
                 metrics.frame_latency_seconds.observe_many(self._frame_waits)
                 self._frame_waits = []
-            metrics.queue_depth.set(self._held)
+            metrics.queue_depth.set(self._inbound.depth())
 
     def _coalescing_level(self, now: float) -> float:
         """The per-frame demand above which a robot's turn shares its decisions this round.
@@ -435,9 +429,8 @@ class Shard:
         oldest = min((t for t in live if t > 0.0), default=None)
         if oldest is None or now - oldest <= self._coalesce_after_s:
             return math.inf
-        with self.lock:
-            cost = self.table.decision_cost
-            pending = [(len(lane.items), cost(key)) for key, lane in lanes.items()]
+        cost = self._table.decision_cost
+        pending = [(len(lane.items), cost(key)) for key, lane in lanes.items()]
         demands = sorted(n * (FRAME_COST + d) for n, d in pending)
         floor = max(n * FRAME_COST + d for n, d in pending)
         remaining = self._coalesce_after_s / _SECONDS_PER_COST_UNIT
@@ -461,8 +454,7 @@ class Shard:
         except WireError as exc:
             out.append(Rejection(key[0], key[1], None, exc.code, str(exc), None))
             lane.items.popleft()
-            with self._ready:
-                self._give_back([item])
+            self._inbound.give_back([item])
             return False
         return True
 
@@ -472,14 +464,12 @@ class Shard:
             dropped = list(lane.items)
             lane.items.clear()
             lane.head = None
-            with self._ready:
-                self._give_back(dropped)
+            self._inbound.give_back(dropped)
             self._outbox.metrics.frames_foreign.inc(len(dropped))
             return
         now = time.monotonic()
         rejected: list[Rejection] = []
-        with self.lock:
-            decision = self.table.decision_cost(key)
+        decision = self._table.decision_cost(key)
         # Plan: (item, decoded message or None, its cost without a decision).
         plan: list[tuple[Inbound, Frame | SessionEnd | None, int]] = []
         total = 0  # cost of the planned messages, decisions left out
@@ -610,8 +600,7 @@ class Shard:
             if recovered:
                 self._recover(recovered, now)
         finally:
-            with self._ready:
-                self._give_back(items)
+            self._inbound.give_back(items)
         done = time.monotonic()
         self._frame_waits += [done - item.received_s for item in items if item.kind == LIVE]
 
@@ -625,17 +614,16 @@ class Shard:
         try:
             self._step(now, self._handle_owned_turns, turns, now)
         finally:
-            with self._ready:
-                self._give_back(items)
+            self._inbound.give_back(items)
         done = time.monotonic()
         self._frame_waits += [done - item.received_s for item in items]
 
     def _handle_owned_turns(
         self,
-        turns: list[tuple[tuple[str, str], list[Frame | SessionEnd], int | None]],
+        turns: list[Turn],
         now: float,
     ) -> Outcome:
-        """``handle_turns`` for the robots still owned (called under the lock, ``_step``)."""
+        """``handle_turns`` for the robots still owned (ownership checked again here)."""
         owns = self._owns
         if owns is not None:
             kept = [turn for turn in turns if owns(*turn[0])]
@@ -643,7 +631,7 @@ class Shard:
                 foreign = sum(len(turn[1]) for turn in turns) - sum(len(t[1]) for t in kept)
                 self._outbox.metrics.frames_foreign.inc(foreign)
                 turns = kept
-        return self.table.handle_turns(turns, now)
+        return self._table.handle_turns(turns, now)
 
     def _decoded_probe(self, item: Inbound) -> Frame | SessionEnd | None:
         """A probed message decoded, or None (refused when it first arrived, if it did)."""
@@ -656,17 +644,16 @@ class Shard:
         self, fleet: str, robot: str, message: Frame | SessionEnd
     ) -> Frame | SessionEnd | None:
         """A probed message, if the table does not know it yet."""
-        with self.lock:
-            if not self.table.is_news(fleet, robot, message):
-                return None
-            if isinstance(message, Frame):
-                self.table.note_from_cache((fleet, robot), message.session, message.seq)
-            return message
+        if not self._table.is_news(fleet, robot, message):
+            return None
+        if isinstance(message, Frame):
+            self._table.note_from_cache((fleet, robot), message.session, message.seq)
+        return message
 
     def _apply(
         self, live: list[tuple[str, str, Frame | SessionEnd]], now: float, decide_every: int | None
     ) -> None:
-        self._step(now, self.table.handle_batch, live, now, decide_every)
+        self._step(now, self._table.handle_batch, live, now, decide_every)
 
     def _recover(self, items: list[Inbound], now: float) -> None:
         """Hand catch-up replies and ends to the table, in queue order.
@@ -683,8 +670,8 @@ class Shard:
             if item.kind == CATCHUP_DONE:
                 key, session_id = (fleet, robot), item.payload.decode()
                 got = frames.pop(key, [])
-                self._step(now, self.table.recover, key, session_id, got, now)
-                self._step(now, self.table.catchup_done, key, session_id, now)
+                self._step(now, self._table.recover, key, session_id, got, now)
+                self._step(now, self._table.catchup_done, key, session_id, now)
                 continue
             try:
                 message = decode_inbound(item.payload, self._limits)
@@ -698,4 +685,17 @@ class Shard:
             sessions = {f.session for f in robot_frames}
             for session_id in sessions:
                 mine = [f for f in robot_frames if f.session == session_id]
-                self._step(now, self.table.recover, (fleet, robot), session_id, mine, now)
+                self._step(now, self._table.recover, (fleet, robot), session_id, mine, now)
+
+
+def _run_command(command: Callable[[], T], future: Future[T]) -> None:
+    """Run a command and settle its future (its error goes to the caller, and the log)."""
+    if not future.set_running_or_notify_cancel():
+        return
+    try:
+        result = command()
+    except BaseException as exc:
+        log.exception("shard command failed")
+        future.set_exception(exc)
+    else:
+        future.set_result(result)

@@ -167,9 +167,6 @@ class CheckpointStore:
         self._stopping = False
         self._last_prune_s = 0.0
         self.problems: list[str] = []  # what went wrong on open, for the service to report
-        # Called by the writer thread with the records it just committed (shipping to the
-        # standby); it must not block for long.
-        self.on_written: Callable[[list[SessionRecord]], None] | None = None
         self.writes = 0  # records committed (metric)
         self.write_seconds = 0.0
 
@@ -448,11 +445,6 @@ class CheckpointStore:
                 stopping = self._stopping
             if batch:
                 self._write(batch)
-                if self.on_written is not None:
-                    try:
-                        self.on_written([r for r in batch.values() if r is not None])
-                    except Exception:  # shipping must never stop the writer
-                        log.exception("state store: shipping checkpoints failed")
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
             self._evicted_since_trim += sum(
