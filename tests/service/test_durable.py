@@ -461,7 +461,7 @@ def test_checkpoint_frequency_never_changes_decisions(
     store.close()
 
 
-# -- catch-up from the robot's publication cache (rule 6 of sessions.py) ---------------------
+# -- catch-up from the robot's publication cache (sessions/catchup.py) ----------------------
 
 
 def catchup_table(store: CheckpointStore | None, *, every: int = 25) -> SessionTable:

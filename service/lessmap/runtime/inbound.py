@@ -9,6 +9,7 @@ Invariants:
 2. An item holds its share of the bounds from ``offer`` until the worker gives it back
    after handling it (in the queue or in a robot's lane: ``depth`` counts both).
 3. Once ``stop`` was called, new samples are refused.
+4. A catch-up's end is taken after its replies (one FIFO): ``cache_replies`` keeps that order.
 """
 
 from __future__ import annotations
@@ -17,10 +18,16 @@ import threading
 from collections import deque
 from typing import TYPE_CHECKING, NamedTuple
 
+from lessmap_schemas.codec import decode_inbound
+from lessmap_schemas.errors import WireError
+from lessmap_schemas.keys import parse_robot_key
+from lessmap_schemas.messages import Frame
+
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable
+    from collections.abc import Iterable
 
     from lessmap_schemas.errors import ErrorCode
+    from lessmap_schemas.limits import WireLimits
 
 _ROBOT_SHARE = 4  # one robot may hold at most 1/_ROBOT_SHARE of the queue (messages, bytes)
 _NOTES_KEPT = 10_000  # refusals waiting for the worker to report them
@@ -139,7 +146,37 @@ class InboundQueue:
                 if load[0] <= 0:
                     del self._per_key[item.key]
 
-    def holds_any(self, wanted: Callable[[str], bool]) -> bool:
-        """True while an item of a key ``wanted`` names is queued or in a turn."""
-        with self.cond:
-            return any(wanted(key) for key in self._per_key)
+
+def cache_replies(
+    items: Iterable[Inbound], limits: WireLimits
+) -> list[tuple[tuple[str, str], str, list[Frame], bool]]:
+    """Catch-up replies and ends, in queue order, as (robot, session, frames, query ended).
+
+    At a query's end its robot's replies so far come with it; replies whose query has not
+    ended yet follow, per robot and session (they fill the hold now, the end releases it).
+    A reply is a frame the robot published before, checked (or refused) when it first
+    arrived: one that does not decode is dropped without an error event, and an end (a
+    plain put, never in a cache) is ignored.
+    """
+    out: list[tuple[tuple[str, str], str, list[Frame], bool]] = []
+    frames: dict[tuple[str, str], list[Frame]] = {}
+    for item in items:
+        try:
+            fleet, robot, _stream = parse_robot_key(item.key)
+        except WireError:
+            continue
+        if item.kind == CATCHUP_DONE:
+            key = (fleet, robot)
+            out.append((key, item.payload.decode(), frames.pop(key, []), True))
+            continue
+        try:
+            message = decode_inbound(item.payload, limits)
+        except WireError:
+            continue
+        if isinstance(message, Frame):
+            frames.setdefault((fleet, robot), []).append(message)
+    for key, robot_frames in frames.items():
+        for session_id in {f.session for f in robot_frames}:
+            mine = [f for f in robot_frames if f.session == session_id]
+            out.append((key, session_id, mine, False))
+    return out

@@ -2,18 +2,15 @@
 
 Invariants (schemas/README.md section 2a; ``docs/decisions/0001-shard-actor.md``):
 
-1. One thread, ``lessmap-ownership``, carries out every change of ownership (liveliness
-   changes, freezes, shipped checkpoints); Zenoh's callbacks only enqueue for it.
-2. Taking a partition: fetch its newest checkpoints from every instance, take an epoch,
-   subscribe to its frames, probe the robots' caches. A robot's next frame resumes its
-   session from the store (the same path as after a restart).
-3. Handing one over: the shards apply what already arrived for it (each a command behind
-   those samples), then the fence closes, the frames are unsubscribed, the shards
-   checkpoint and drop its sessions (a command each), and the release is announced.
-4. Joining while others run: the partitions won are theirs until they see this token. The
-   joiner holds their frames, declares its token, waits for each release
-   (``handover_release_s`` at most), then fetches the checkpoints and takes them, the held
-   frames first (as probes). A leave is confirmed before anything is taken over.
+1. One thread, ``lessmap-ownership``, carries out every change of ownership; Zenoh's
+   callbacks only enqueue for it.
+2. Taking a partition: fetch its newest checkpoints, take an epoch, subscribe to its
+   frames, probe the robots' caches; a robot's next frame resumes its session.
+3. Handing one over: the shards apply what already arrived for it (a command behind those
+   samples), the fence closes, the frames are unsubscribed, the shards checkpoint and drop
+   its sessions (a command each), the release is announced.
+4. Joining while others run: hold the won partitions' frames, declare the token, wait for
+   each release (bounded), then fetch and take, the held frames first (as probes).
 5. A process frozen past the fence drops every partition and rejoins as a joiner does.
 """
 
@@ -311,7 +308,9 @@ class Membership:
         now = time.monotonic()
         # Each shard checkpoints and drops the sessions, and publishes the counters and
         # checkpoints (the fence is closed), after any turn decided before the fence closed.
-        dropped = sum(f.result() for f in [s.hand_over(of_leaving, now) for s in self._shards])
+        dropped = sum(
+            f.result() for f in [s.hand_over_sessions(of_leaving, now) for s in self._shards]
+        )
         # The sessions' final records are in the store now (pending ones included, which the
         # checkpoint queries read): a new owner waiting for this fetches them next.
         if len(self._ownership.live) >= 2:  # alone: nobody takes them (a freeze dropped them)

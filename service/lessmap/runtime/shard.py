@@ -4,7 +4,7 @@ Invariants (the why: ``docs/decisions/0001-shard-actor.md``, ``0002-fair-schedul
 
 1. A robot always hashes to the same shard, so its frames are handled in order by one thread.
 2. Only the worker touches the session table (an actor): queries, hand-overs and the stop
-   are commands on its inbox (``read``, ``drain``, ``hand_over``, ``stop``), answered
+   are commands on its inbox (``read``, ``drain``, ``hand_over_sessions``, ``stop``), answered
    through ``concurrent.futures.Future``s and run between chunks, never inside one.
 3. What a chunk produced is published before the worker takes a command, so a hand-over
    never checkpoints a session whose transition the fence then held back.
@@ -22,12 +22,19 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import Future
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from lessmap.runtime.budget import pairs_of
-from lessmap.runtime.inbound import CATCHUP_DONE, LIVE, PROBE, RECOVERED, Inbound, InboundQueue
-from lessmap.runtime.sessions.model import FRAME_COST, Outcome, Rejection
+from lessmap.runtime.fairness import Lane, Planned, ShardPolicy, coalescing_level, plan_turn
+from lessmap.runtime.inbound import (
+    CATCHUP_DONE,
+    LIVE,
+    PROBE,
+    RECOVERED,
+    Inbound,
+    InboundQueue,
+    cache_replies,
+)
+from lessmap.runtime.sessions.model import Outcome, Rejection
 from lessmap_schemas.codec import decode_inbound
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.keys import parse_robot_key
@@ -47,36 +54,12 @@ _BATCH_MAX = 4096  # messages moved from the queue to the lanes per round
 _LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
 _FLUSH_FRAMES = 64  # plain frames of several robots' turns handed to the table at once
-# What one cost unit takes on the worker (docs/tuning/scheduler.md), to turn
-# ``coalesce_after_s`` into a round's budget of cost units.
-_SECONDS_PER_COST_UNIT = 25e-9
 _KEYS_REMEMBERED = 65_536  # parsed robot keys kept (``_parse_key``)
 
 T = TypeVar("T")
 Turn = tuple[tuple[str, str], list[Frame | SessionEnd], int | None]
 
 __all__ = ["CATCHUP_DONE", "LIVE", "PROBE", "RECOVERED", "Inbound", "Shard", "ShardPolicy"]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ShardPolicy:
-    """A shard's queue bounds and how its worker schedules the robots."""
-
-    queue_depth: int
-    queue_bytes: int
-    linger_s: float = 0.0  # a round woken by one frame waits this long for more
-    quantum: int = 5_000_000  # cost units per robot and round (deficit round robin)
-    coalesce_after_s: float = 0.05  # a frame older than this: the shard is behind
-
-
-@dataclass(slots=True)
-class _Lane:
-    """One robot's pending messages in the shard, and its deficit (cost units)."""
-
-    items: deque[Inbound]
-    deficit: float = 0.0
-    # The head item decoded (kept when the robot could not afford it this round).
-    head: Frame | SessionEnd | None = None
 
 
 class Shard:
@@ -106,8 +89,8 @@ class Shard:
         self._request_catchup = request_catchup
         self._quantum = policy.quantum
         self._coalesce_after_s = policy.coalesce_after_s
-        self._level = math.inf  # this round's ``_coalescing_level``
-        self._lanes: dict[tuple[str, str], _Lane] = {}  # insertion order = round order
+        self._level = math.inf  # this round's ``coalescing_level``
+        self._lanes: dict[tuple[str, str], Lane] = {}  # insertion order = round order
         self._robot_of: dict[str, tuple[str, str]] = {}  # valid keys seen: (fleet, robot)
         # Seconds waited by the round's frames, for the latency histograms (``_round``).
         self._queue_waits: list[float] = []
@@ -173,10 +156,10 @@ class Shard:
         """Apply now what is queued for the robots ``wanted`` names (before a hand-over)."""
         return self._submit(lambda: self._serve_now(wanted))
 
-    def hand_over(self, leaving: Callable[[str, str], bool], now_s: float) -> Future[int]:
+    def hand_over_sessions(self, leaving: Callable[[str, str], bool], now_s: float) -> Future[int]:
         """Checkpoint and drop the sessions of robots ``leaving`` names; how many."""
 
-        def hand_over() -> int:
+        def command() -> int:
             outcome = self._table.hand_over(leaving, now_s)
             # Counters and checkpoints only (the fence is closed): not those of a session
             # with a fenced transition (the next owner decides it anew).
@@ -184,7 +167,7 @@ class Shard:
             self.open_sessions = len(self._table)
             return outcome.evicted
 
-        return self._submit(hand_over)
+        return self._submit(command)
 
     def _submit(self, command: Callable[[], T]) -> Future[T]:
         future: Future[T] = Future()
@@ -291,7 +274,7 @@ class Shard:
                         continue
                 lane = lanes.get(robot_key)
                 if lane is None:
-                    lane = lanes[robot_key] = _Lane(deque())
+                    lane = lanes[robot_key] = Lane(deque())
                 lane.items.append(item)
         for key, error in unattributed:  # outside the lock: the callback never waits on a put
             self._outbox.reject_unattributed(key, error)
@@ -369,8 +352,8 @@ class Shard:
         self._outbox.publish(outcome, now)
         self.open_sessions = len(self._table)
         if outcome.evicted:
-            # Sessions left memory: so do their parsed keys. Small objects kept alive past a
-            # flood pin the allocator's arenas (measured: +23 MiB of 97 after 10,000 evictions).
+            # Sessions left memory: so do their parsed keys, which would otherwise pin the
+            # allocator's arenas past a flood (docs/tuning/memory.md).
             self._robot_of.clear()
         self._ask_caches(outcome)
 
@@ -385,7 +368,9 @@ class Shard:
         """Give every robot with pending messages one turn (deficit round robin)."""
         metrics = self._outbox.metrics
         try:
-            self._level = self._coalescing_level(time.monotonic())
+            self._level = coalescing_level(
+                self._lanes, self._table.decision_cost, time.monotonic(), self._coalesce_after_s
+            )
             for key in list(self._lanes):
                 if self._abandon:
                     return
@@ -411,37 +396,7 @@ class Shard:
                 self._frame_waits = []
             metrics.queue_depth.set(self._inbound.depth())
 
-    def _coalescing_level(self, now: float) -> float:
-        """The per-frame demand above which a robot's turn shares its decisions this round.
-
-        Infinite (the paper's loop for everyone) unless the shard is behind: the oldest
-        pending frame waited longer than ``coalesce_after_s``. Then the round should take no
-        more than that again, ``budget`` cost units, shared max-min fairly: the level L with
-        sum(min(demand, L)) = budget, where a robot's demand is what deciding at each of its
-        pending frames costs. A robot asking no more than L keeps a decision per frame.
-        L is never below the largest indivisible demand of the round (a robot's pending
-        frames with one decision): a robot whose single decision outweighs the budget
-        (a huge CovGraph) then makes the others wait, but never changes their decisions.
-        """
-        lanes = self._lanes
-        # Replies and probes carry no receipt time (0.0): only live frames say how late we are.
-        live = [lane.items[0].received_s for lane in lanes.values() if lane.items]
-        oldest = min((t for t in live if t > 0.0), default=None)
-        if oldest is None or now - oldest <= self._coalesce_after_s:
-            return math.inf
-        cost = self._table.decision_cost
-        pending = [(len(lane.items), cost(key)) for key, lane in lanes.items()]
-        demands = sorted(n * (FRAME_COST + d) for n, d in pending)
-        floor = max(n * FRAME_COST + d for n, d in pending)
-        remaining = self._coalesce_after_s / _SECONDS_PER_COST_UNIT
-        for index, demand in enumerate(demands):
-            share = remaining / (len(demands) - index)
-            if demand > share:
-                return max(share, floor)
-            remaining -= demand
-        return math.inf
-
-    def _decoded_head(self, key: tuple[str, str], lane: _Lane, out: list[Rejection]) -> bool:
+    def _decoded_head(self, key: tuple[str, str], lane: Lane, out: list[Rejection]) -> bool:
         """Decode the lane's head (a live sample) into ``lane.head``; drop it if it is bad.
 
         Returns False when the head was dropped (a decoding failure, reported in ``out``).
@@ -458,7 +413,7 @@ class Shard:
             return False
         return True
 
-    def _turn(self, key: tuple[str, str], lane: _Lane) -> None:
+    def _turn(self, key: tuple[str, str], lane: Lane) -> None:
         """Serve one robot what its deficit affords, deciding per frame when that fits."""
         if self._owns is not None and not self._owns(*key):
             dropped = list(lane.items)
@@ -470,40 +425,19 @@ class Shard:
         now = time.monotonic()
         rejected: list[Rejection] = []
         decision = self._table.decision_cost(key)
-        # Plan: (item, decoded message or None, its cost without a decision).
-        plan: list[tuple[Inbound, Frame | SessionEnd | None, int]] = []
-        total = 0  # cost of the planned messages, decisions left out
-        # The plan affords a decision after every message, unless the shard is behind and
-        # this robot asks more than its fair share of the round (``_coalescing_level``).
-        fits_per_frame = len(lane.items) * (FRAME_COST + decision) <= self._level
-        while lane.items and len(plan) < len(lane.items):
-            index = len(plan)
-            if index == 0 and not self._decoded_head(key, lane, rejected):
-                continue
-            item = lane.items[index]
-            message: Frame | SessionEnd | None = None
-            if item.kind == LIVE:
-                if index == 0:
-                    message = lane.head
-                else:
-                    try:
-                        message = decode_inbound(item.payload, self._limits)
-                    except WireError:
-                        break  # reported when it reaches the head of the lane
-            cost = FRAME_COST
-            if isinstance(message, Frame):
-                cost += pairs_of(len(message.features))
-            if fits_per_frame and total + cost + (index + 1) * decision > lane.deficit:
-                fits_per_frame = False
-            if not fits_per_frame and total + cost + decision > lane.deficit:
-                break  # the rest waits for the next round (or more credit)
-            total += cost
-            plan.append((item, message, cost))
+        pending = len(lane.items)
+        while lane.items and not self._decoded_head(key, lane, rejected):
+            pass  # a head that does not decode is dropped (and reported)
+        plan: list[Planned] = []
+        fits_per_frame = True
+        if lane.items:
+            plan, fits_per_frame, spent = plan_turn(
+                lane, decision, self._level, pending, self._decoded_or_none
+            )
         if rejected:
             self._publish(Outcome(rejections=rejected), now)
         if not plan:
             return
-        spent = total + (len(plan) if fits_per_frame else 1) * decision
         lane.deficit = max(0.0, lane.deficit - spent) if len(plan) < len(lane.items) else 0.0
         for _ in plan:
             lane.items.popleft()
@@ -528,12 +462,7 @@ class Shard:
                 queue_waits.append(now - item.received_s)
                 messages.append(message)  # type: ignore[arg-type]  # checked just above
                 if debug:
-                    log.debug(
-                        "<<- %s %s seq=%s",
-                        item.key,
-                        type(message).__name__,
-                        getattr(message, "seq", None),
-                    )
+                    _log_received(item, message)
             self._deferred.append((key, messages, decide_every))
             self._deferred_items += [item for item, _message, _cost in plan]
             return
@@ -546,18 +475,12 @@ class Shard:
         try:
             for item, message, _cost in plan:
                 if item.kind == PROBE:
-                    probe = self._decoded_probe(item)
+                    probe = self._decoded_or_none(item)
                     if probe is None:
                         continue
-                    # A probe is judged on what the messages before it did to the table,
-                    # so they are applied first: a live end closes the session that a copy
-                    # of its last frame would otherwise reach as a straggler (counted as a
-                    # rejected SESSION_CLOSED), a live frame makes the copy a redelivery,
-                    # and the end of a session whose frames are among them is news only
-                    # once they applied. Probed frames of one session (those held at a
-                    # take-over) are judged together: one only raises the last seq the
-                    # next is judged against, and a copy judged news is marked, so its
-                    # second offer is dropped uncounted.
+                    # Judged on what the messages before it did to the table, so those
+                    # are applied first; probed frames of one session are judged together
+                    # (docs/decisions/0002-fair-scheduling.md, "Probes in a turn").
                     if recovered:
                         self._recover(recovered, now)
                         recovered = []
@@ -588,12 +511,7 @@ class Shard:
                         self._publish(Outcome(rejections=[rejection]), now)
                         continue
                 if debug:
-                    log.debug(
-                        "<<- %s %s seq=%s",
-                        item.key,
-                        type(message).__name__,
-                        getattr(message, "seq", None),
-                    )
+                    _log_received(item, message)
                 live.append((fleet, robot, message))
             if live:
                 self._apply(live, now, decide_every)
@@ -633,7 +551,7 @@ class Shard:
                 turns = kept
         return self._table.handle_turns(turns, now)
 
-    def _decoded_probe(self, item: Inbound) -> Frame | SessionEnd | None:
+    def _decoded_or_none(self, item: Inbound) -> Frame | SessionEnd | None:
         """A probed message decoded, or None (refused when it first arrived, if it did)."""
         try:
             return decode_inbound(item.payload, self._limits)
@@ -656,36 +574,12 @@ class Shard:
         self._step(now, self._table.handle_batch, live, now, decide_every)
 
     def _recover(self, items: list[Inbound], now: float) -> None:
-        """Hand catch-up replies and ends to the table, in queue order.
-
-        A reply is a frame the robot published before, already checked (or refused) when it
-        first arrived if it did: one that does not decode is dropped without an error event.
-        """
-        frames: dict[tuple[str, str], list[Frame]] = {}
-        for item in items:
-            try:
-                fleet, robot, _stream = parse_robot_key(item.key)
-            except WireError:
-                continue
-            if item.kind == CATCHUP_DONE:
-                key, session_id = (fleet, robot), item.payload.decode()
-                got = frames.pop(key, [])
-                self._step(now, self._table.recover, key, session_id, got, now)
-                self._step(now, self._table.catchup_done, key, session_id, now)
-                continue
-            try:
-                message = decode_inbound(item.payload, self._limits)
-            except WireError:
-                continue
-            if isinstance(message, SessionEnd):
-                continue  # ends are plain puts, never in a cache; a forged one changes nothing
-            frames.setdefault((fleet, robot), []).append(message)
-        for (fleet, robot), robot_frames in frames.items():
-            # Replies whose query has not ended yet: fill the hold now, release at the end.
-            sessions = {f.session for f in robot_frames}
-            for session_id in sessions:
-                mine = [f for f in robot_frames if f.session == session_id]
-                self._step(now, self._table.recover, (fleet, robot), session_id, mine, now)
+        """Hand catch-up replies and ends to the table, in queue order."""
+        table = self._table
+        for key, session_id, frames, done in cache_replies(items, self._limits):
+            self._step(now, table.recover, key, session_id, frames, now)
+            if done:
+                self._step(now, table.catchup_done, key, session_id, now)
 
 
 def _run_command(command: Callable[[], T], future: Future[T]) -> None:
@@ -699,3 +593,7 @@ def _run_command(command: Callable[[], T], future: Future[T]) -> None:
         future.set_exception(exc)
     else:
         future.set_result(result)
+
+
+def _log_received(item: Inbound, message: Frame | SessionEnd | None) -> None:
+    log.debug("<<- %s %s seq=%s", item.key, type(message).__name__, getattr(message, "seq", None))

@@ -3,15 +3,13 @@
 Rules of this file:
 
 1. One row per robot (fleet, robot): the checkpoint of its current session (``open``), of a
-   session evicted from memory while idle (``evicted``), or the final record of a closed one
+   session evicted while idle (``evicted``), or the final record of a closed one
    (``closed``, no partitioner state). A newer session of the robot replaces the row.
-2. ``save`` never blocks on the disk: it replaces the robot's pending record in a dict (the
-   latest checkpoint wins, so the pending set is bounded by the number of robots) and wakes
-   the writer thread, which commits everything pending in one transaction.
+2. ``save`` never blocks on the disk: it replaces the robot's pending record (the latest
+   wins) and wakes the writer thread, which commits everything pending in one transaction.
 3. ``load`` sees what ``save`` gave, written or not (the pending dict first, then the file).
-4. A store that cannot be opened or read is moved aside once (``<name>.corrupt-<stamp>``)
-   and a fresh one is created; a write that fails is logged and the store goes memory-only.
-   The service never dies because of its state directory.
+4. A store that cannot be opened or read is moved aside once and a fresh one is created; a
+   write that fails is logged and the store goes memory-only. The service never dies of it.
 5. Retention: rows not updated for ``retention_s`` are deleted, and while the file holds more
    than ``max_bytes`` the oldest rows of sessions no longer in memory go first.
 """
@@ -92,8 +90,7 @@ class SessionRecord:
                     "status": self.status,
                     "last_seq": self.last_seq,
                     "meta": json.dumps(self.meta),
-                    # zlib level 1: ~0.15 x the snapshot bytes for ~0.5 ms per 40 KiB (the
-                    # network carries a checkpoint per ~40 frames of each robot).
+                    # zlib level 1: most bytes gone for little CPU (docs/tuning/checkpoints.md).
                     "snapshot": None if self.snapshot is None else zlib.compress(self.snapshot, 1),
                     "updated_s": self.updated_s,
                 },

@@ -2,19 +2,16 @@
 
 Invariants (``CatchupPolicy.max_frames > 0``; the service turns it on with a store):
 
-1. A frame beyond a gap is not applied at once: it is held, with every later frame of the
-   session, and the outcome carries a ``CatchupRequest`` for the robot's newest
-   ``max_frames`` frames. Recovered frames and late live ones fill the hold; whatever is
-   contiguous is applied in seq order at once.
-2. When the cache has answered, after ``wait_s``, or when more than ``max_frames`` frames
-   are held, the hold is released: the held frames are applied in seq order and only the
-   seqs no cache returned are reported as SEQ_GAP.
-3. A ``SessionEnd`` whose ``last_seq`` lies beyond the last seen frame starts a catch-up too
-   (once): the end waits until the hold is over, so a tail dropped at a former owner
-   during a hand-over is recovered, not counted missing.
-4. One catch-up per session at a time, at most one per ``wait_s``. Recovered frames that are
-   not needed are dropped silently. Held frames are not in a checkpoint: a restart asks
-   the cache for them again.
+1. A frame beyond a gap is held, with every later frame of the session, and the outcome
+   asks the robot's cache for its newest ``max_frames`` frames; recovered and late live
+   frames fill the hold, whatever is contiguous is applied in seq order at once.
+2. When the cache has answered, after ``wait_s``, or past ``max_frames`` held frames, the
+   hold is released: held frames are applied in seq order, only seqs nobody returned are
+   reported as SEQ_GAP.
+3. A ``SessionEnd`` beyond the last seen frame starts a catch-up too (once) and waits for
+   it, so a tail dropped at a former owner during a hand-over is recovered.
+4. One catch-up per session at a time, at most one per ``wait_s``; unneeded recovered
+   frames are dropped silently; held frames are not in a checkpoint.
 """
 
 from __future__ import annotations

@@ -1,19 +1,17 @@
 """The robot sessions of one shard: the orchestrator of the rules. No Zenoh, no threads.
 
-Rules (the service's ordering contract, schemas/README.md; the details live in the modules
-named):
+Rules (the service's ordering contract, schemas/README.md; details in the modules named):
 
 1. One open session per (fleet, robot). A frame with a new session id closes the open one
-   (its final state goes out) and starts a new CovGraph; a closed id is never reopened
-   (SESSION_CLOSED), but a cache's copy of a frame it received is dropped uncounted.
+   and starts a new CovGraph; a closed id is never reopened (SESSION_CLOSED), but a cache's
+   copy of a frame it received is dropped uncounted.
 2. Frames of a session are applied in seq order exactly once, a batch sorted by seq first;
-   repeats, gaps and late frames are counted exactly once each (``seq.py``).
-3. Coalescing: up to ``max_batch_frames`` frames of a session are applied, then decided
-   once; ``max_batch_frames = 1`` decides at every frame, as ``lessmap segment`` does.
-4. Limits and work budgets are checked before the core (``limits.py``); a full shard evicts
+   repeats, gaps and late frames are counted exactly once each (``seq.py``, ``apply.py``).
+3. Coalescing: up to ``max_batch_frames`` frames, then one decision (1: every frame).
+4. Limits and budgets are checked before the core (``limits.py``); a full shard evicts
    idle sessions before it refuses a new one (``durability.py``).
-5. Durable sessions: checkpoints travel in the outcome and are saved once it was published;
-   sessions resume from the store (``durability.py``). Catch-up holds (``catchup.py``).
+5. Checkpoints travel in the outcome, sessions resume from the store (``durability.py``),
+   frames beyond a gap wait for the robot's cache (``catchup.py``).
 6. A bug in one session resets that session only (INTERNAL); the others go on.
 """
 
