@@ -7,6 +7,7 @@ so the test knows exactly which frames one round saw.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import TYPE_CHECKING
 
@@ -216,7 +217,7 @@ def test_a_robot_handed_over_between_its_turn_and_the_chunk_is_not_applied(
 
     def owns(_fleet: str, robot: str) -> bool:
         # r1's partition leaves after its first turn was planned (asked at the turn, then
-        # again under the lock when the chunk is handed to the table).
+        # again when the chunk is handed to the table).
         asked[robot] = asked.get(robot, 0) + 1
         return robot != "r1" or asked[robot] < 2
 
@@ -281,3 +282,77 @@ def test_a_probe_behind_the_live_end_of_its_session_is_no_news(
     codes = [r.code for outcome in outbox_of(shard).published for r in outcome.rejections]
     assert codes == []
     assert shard.depth() == 0
+
+
+# -- the worker is the table's only owner: commands and their futures ------------------------
+
+
+def live_frames(robot: str, seqs: range) -> list[Inbound]:
+    return [
+        Inbound(
+            time.monotonic(),
+            keys.frames(FLEET, robot),
+            encode(Frame(session="s", seq=seq, stamp_s=float(seq), features=[1, 2, 3])),
+        )
+        for seq in seqs
+    ]
+
+
+def test_a_read_runs_on_the_worker_and_answers_through_its_future(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    shard.start()
+    try:
+        assert shard.offer_many(live_frames("r0", range(5))) == []
+        threads: list[str] = []
+
+        def read(table: SessionTable) -> int | None:
+            threads.append(threading.current_thread().name)
+            state = table.state(FLEET, "r0")
+            return None if state is None else state.last_seq
+
+        # Reads queue behind nothing: poll until the worker applied the five frames.
+        deadline = time.monotonic() + 5.0
+        while shard.read(read).result(timeout=5.0) != 4:
+            assert time.monotonic() < deadline, "frames never applied"
+            time.sleep(0.01)
+        assert set(threads) == {"lessmap-shard-0"}
+    finally:
+        shard.stop(5.0)
+
+
+def test_a_drain_applies_what_was_queued_before_it_and_nothing_else(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    assert shard.offer_many(live_frames("r0", range(40)) + live_frames("r1", range(40))) == []
+    drained = shard.drain(lambda _fleet, robot: robot == "r0")
+    assert not drained.done()
+    shard._run_commands()  # the worker's step between chunks, driven here
+    assert drained.result(timeout=0) is None
+    state = shard._table.state(FLEET, "r0")
+    assert state is not None
+    assert state.last_seq == 39  # every queued frame of r0, whatever its deficit
+    assert shard._table.state(FLEET, "r1") is None  # left to the rounds
+    assert len(shard._lanes[(FLEET, "r1")].items) == 40
+    assert shard.depth() == 40
+
+
+def test_hand_over_and_stop_are_commands_and_a_stopped_shard_still_answers(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    shard.start()
+    assert shard.offer_many(live_frames("r0", range(3)) + live_frames("r1", range(3))) == []
+    assert shard.drain(lambda _f, _r: True).result(timeout=5.0) is None
+    handed = shard.hand_over_sessions(lambda _fleet, robot: robot == "r0", time.monotonic())
+    assert handed.result(timeout=5.0) == 1
+    assert shard.open_sessions == 1
+    shard.stop(5.0)  # the worker closes the rest (no store: closed, final state published)
+    closed = [state for outcome in outbox_of(shard).published for state, _ in outcome.closed]
+    assert [(state.robot, state.last_seq) for state in closed] == [("r1", 2)]
+    # The worker is gone: a read runs on the caller's thread, the table its only user now.
+    state = shard.read(lambda table: table.state(FLEET, "r1")).result(timeout=1.0)
+    assert state is not None
+    assert not state.open
