@@ -329,7 +329,7 @@ def test_a_drain_applies_what_was_queued_before_it_and_nothing_else(
     assert shard.offer_many(live_frames("r0", range(40)) + live_frames("r1", range(40))) == []
     drained = shard.drain(lambda _fleet, robot: robot == "r0")
     assert not drained.done()
-    shard._run_commands()  # the worker's step between chunks, driven here
+    shard._commands.run_pending()  # the worker's step between chunks, driven here
     assert drained.result(timeout=0) is None
     state = shard._table.state(FLEET, "r0")
     assert state is not None

@@ -24,6 +24,7 @@ from collections import deque
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from lessmap.runtime.commands import CommandInbox
 from lessmap.runtime.fairness import Lane, Planned, ShardPolicy, coalescing_level, plan_turn
 from lessmap.runtime.inbound import (
     CATCHUP_DONE,
@@ -98,13 +99,10 @@ class Shard:
         # Planned turns of plain frames not yet handed to the table (``_flush``).
         self._deferred: list[Turn] = []
         self._deferred_items: list[Inbound] = []
-        # Commands for the worker (invariant 2), under ``_ready``; once the worker has
-        # finished, the caller runs them itself, one at a time (``_after_lock``).
-        self._commands: deque[tuple[Callable[[], Any], Future[Any]]] = deque()
-        self._finished = False
-        self._after_lock = threading.Lock()
+        self._commands = CommandInbox(self._ready)  # invariant 2
         self._abandon = False  # stop overran its time: leave the rest to the robots' caches
         self._close_cause = "shutdown"  # why the sessions close when the worker ends
+        self._sessions_closed = False
         self._thread = threading.Thread(
             target=self._run, name=f"lessmap-shard-{index}", daemon=True
         )
@@ -150,11 +148,11 @@ class Shard:
 
     def read(self, reader: Callable[[SessionTable], T]) -> Future[T]:
         """Run ``reader`` on the table in the worker, between chunks; its answer comes back."""
-        return self._submit(lambda: reader(self._table))
+        return self._commands.send(lambda: reader(self._table))
 
     def drain(self, wanted: Callable[[str, str], bool]) -> Future[None]:
         """Apply now what is queued for the robots ``wanted`` names (before a hand-over)."""
-        return self._submit(lambda: self._serve_now(wanted))
+        return self._commands.send(lambda: self._serve_now(wanted))
 
     def hand_over_sessions(self, leaving: Callable[[str, str], bool], now_s: float) -> Future[int]:
         """Checkpoint and drop the sessions of robots ``leaving`` names; how many."""
@@ -167,18 +165,7 @@ class Shard:
             self.open_sessions = len(self._table)
             return outcome.evicted
 
-        return self._submit(command)
-
-    def _submit(self, command: Callable[[], T]) -> Future[T]:
-        future: Future[T] = Future()
-        with self._ready:
-            if not self._finished:
-                self._commands.append((command, future))
-                self._ready.notify()
-                return future
-        with self._after_lock:  # the worker is gone: the table is the caller's now
-            _run_command(command, future)
-        return future
+        return self._commands.send(command)
 
     def _serve_now(self, wanted: Callable[[str, str], bool]) -> None:
         """Serve in full, whatever their deficit, the lanes of the robots ``wanted`` names."""
@@ -192,15 +179,6 @@ class Shard:
                 self._turn(key, lane)
             self._flush()
             del self._lanes[key]
-
-    def _run_commands(self) -> None:
-        """Run the commands waiting (worker thread, between chunks)."""
-        while self._commands:
-            with self._ready:
-                if not self._commands:
-                    return
-                command, future = self._commands.popleft()
-            _run_command(command, future)
 
     # -- worker ------------------------------------------------------------------------------
 
@@ -218,7 +196,10 @@ class Shard:
         """
         self._close_cause = cause
         self._inbound.stop()
-        self._thread.join(timeout_s)
+        if self._thread.ident is None:  # never started: the table is the caller's
+            self._commands.finish()
+        else:
+            self._thread.join(timeout_s)
         if self._thread.is_alive():
             with self._ready:
                 self._abandon = True
@@ -231,6 +212,8 @@ class Shard:
                 left,
             )
             self._thread.join()
+        # A worker that died of a bug (or never started) left them: closed on this thread.
+        self._commands.send(self._close_sessions).result()
 
     def _collect(self) -> None:
         """Move what arrived into the robots' lanes; wait for it when no lane has work."""
@@ -292,16 +275,15 @@ class Shard:
             self._work()
         finally:
             # Invariant 2 still: the sessions are closed here, by their owner.
-            self._close_sessions()
-            with self._ready:
-                self._finished = True
-            self._run_commands()  # those that came before ``_finished``
+            if self._inbound.stopping:
+                self._close_sessions()
+            self._commands.finish()
 
     def _work(self) -> None:
         inbound = self._inbound
         while True:
             self._collect()
-            self._run_commands()
+            self._commands.run_pending()
             if inbound.notes:
                 self._report_notes()
             if self._lanes:
@@ -322,8 +304,9 @@ class Shard:
 
     def _close_sessions(self) -> None:
         """Checkpoint (with a store) or close every session at the stop, and publish that."""
-        if not self._inbound.stopping:
-            return  # the worker died of a bug: the sessions are left to a restart
+        if self._sessions_closed:
+            return
+        self._sessions_closed = True
         outcome = self._table.close_all(self._close_cause)
         self._outbox.publish(outcome, time.monotonic())
         self.open_sessions = len(self._table)
@@ -383,7 +366,7 @@ class Shard:
                     del self._lanes[key]  # an empty lane keeps no credit (DRR)
                 if len(self._deferred_items) >= _FLUSH_FRAMES:
                     self._flush()
-                    self._run_commands()  # between chunks (invariant 2)
+                    self._commands.run_pending()  # between chunks (invariant 2)
         finally:
             # Planned turns are applied even when a turn failed: their bounds are held.
             self._flush()
@@ -580,19 +563,6 @@ class Shard:
             self._step(now, table.recover, key, session_id, frames, now)
             if done:
                 self._step(now, table.catchup_done, key, session_id, now)
-
-
-def _run_command(command: Callable[[], T], future: Future[T]) -> None:
-    """Run a command and settle its future (its error goes to the caller, and the log)."""
-    if not future.set_running_or_notify_cancel():
-        return
-    try:
-        result = command()
-    except BaseException as exc:
-        log.exception("shard command failed")
-        future.set_exception(exc)
-    else:
-        future.set_result(result)
 
 
 def _log_received(item: Inbound, message: Frame | SessionEnd | None) -> None:
