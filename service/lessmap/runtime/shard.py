@@ -169,9 +169,8 @@ class Shard:
 
     def _serve_now(self, wanted: Callable[[str, str], bool]) -> None:
         """Serve in full, whatever their deficit, the lanes of the robots ``wanted`` names."""
-        inbound = self._inbound
-        while inbound.queue:
-            self._move_arrivals()
+        for _ in range(-(-len(self._inbound.queue) // _BATCH_MAX)):
+            self._move_arrivals()  # what arrived before this command, not what follows it
         for key in [k for k in self._lanes if wanted(*k)]:
             lane = self._lanes[key]
             while lane.items:
