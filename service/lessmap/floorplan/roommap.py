@@ -1,0 +1,315 @@
+"""A room map: every free cell of an occupancy grid labelled by the area a robot gave it.
+
+Input: the grid and the robot's trajectory, each pose labelled with its area (the area of
+the segment its frame fell in). Output: an int32 array of the grid's shape, 0 = no label.
+
+Rules:
+
+1. **Nearest sample.** A free cell takes the area of the trajectory sample geodesically
+   nearest to it: the distance is walked over free cells (8-neighbours, diagonals √2), so a
+   wall is never crossed; several samples in one cell vote, ties to the smaller area.
+2. **Reach.** Cells farther than ``max_distance_m`` from every sample, or not connected to
+   the trajectory, stay 0. A sample on an occupied cell moves to the nearest free cell
+   within ``snap_m``, else it is dropped.
+3. **Doorways** (``door_width_m`` > 0). Free space is cut into regions at passages narrower
+   than a door: the cells with a clearance above half a door width fall apart into cores,
+   and every free cell joins its geodesically nearest core. A region one area holds at
+   least ``region_share`` of is given to that area whole: its boundary moves to the doorway,
+   and a short excursion into a neighbour does not paint part of the room in two. A region
+   no area dominates keeps the labels of rule 1 (two rooms joined by a wide opening).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from lessmap.floorplan.grid import OccupancyGrid
+
+__all__ = [
+    "RoomMapParams",
+    "SampleField",
+    "door_regions",
+    "fleet_room_map",
+    "label_cells",
+    "merge_overlapping",
+    "nearest_samples",
+    "room_map",
+]
+
+SQRT2 = float(np.sqrt(2.0))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RoomMapParams:
+    """How far labels spread and where they stop (rules in the module docstring)."""
+
+    max_distance_m: float = 8.0  # rule 2: about a room's depth seen from its middle
+    snap_m: float = 0.5  # rule 2: a pose this near a wall still counts
+    door_width_m: float = 1.2  # rule 3: passages narrower than this split regions; 0: off
+    region_share: float = 0.6  # rule 3: the share of a region one area must hold
+
+    def __post_init__(self) -> None:
+        if not (self.max_distance_m > 0 and self.snap_m >= 0 and self.door_width_m >= 0):
+            msg = "max_distance_m must be > 0, snap_m and door_width_m >= 0"
+            raise ValueError(msg)
+        if not 0.5 <= self.region_share <= 1.0:
+            msg = f"region_share must be in [0.5, 1], got {self.region_share}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True, slots=True)
+class SampleField:
+    """For every cell, which trajectory cell is geodesically nearest (rules 1 and 2).
+
+    Computed once per trajectory: any labelling of its samples (one per method) is then a
+    lookup, ``label_cells``.
+    """
+
+    source_of_cell: NDArray[np.int64]  # (rows, cols): index into source_cells, -1 = none
+    source_cells: NDArray[np.int64]  # (m,) flat indices of the cells holding samples
+    sample_source: NDArray[np.int64]  # (n,) each sample's index into source_cells, -1 dropped
+
+
+def _free_graph(free: NDArray[np.bool_]) -> tuple[sparse.csr_array, NDArray[np.int64]]:
+    """The 8-connected graph of the free cells, and each cell's node (-1 when occupied)."""
+    rows, cols = free.shape
+    node = np.full(free.shape, -1, dtype=np.int64)
+    count = int(free.sum())
+    node[free] = np.arange(count, dtype=np.int64)
+    heads, tails, weights = [], [], []
+    for dr, dc, weight in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, SQRT2), (1, -1, SQRT2)):
+        a = node[0 : rows - dr, max(0, -dc) : cols - max(0, dc)]
+        b = node[dr:rows, max(0, dc) : cols + min(0, dc)]
+        both = (a >= 0) & (b >= 0)
+        heads.append(a[both])
+        tails.append(b[both])
+        weights.append(np.full(int(both.sum()), weight))
+    graph = sparse.csr_array(
+        (np.concatenate(weights), (np.concatenate(heads), np.concatenate(tails))),
+        shape=(count, count),
+    )
+    return graph, node
+
+
+def _nearest(
+    graph: sparse.csr_array, node: NDArray[np.int64], seeds: NDArray[np.int64], limit: float
+) -> NDArray[np.int64]:
+    """Per cell, the index into ``seeds`` (graph nodes) of the nearest one, -1 beyond limit."""
+    out = np.full(node.shape, -1, dtype=np.int64)
+    if seeds.size == 0:
+        return out
+    _, _, nearest_node = csgraph.dijkstra(
+        graph, directed=False, indices=seeds, min_only=True, return_predecessors=True, limit=limit
+    )
+    position = np.full(graph.shape[0], -1, dtype=np.int64)
+    position[seeds] = np.arange(seeds.size, dtype=np.int64)
+    reached = nearest_node >= 0
+    free = node >= 0
+    cell_seed = np.full(graph.shape[0], -1, dtype=np.int64)
+    cell_seed[reached] = position[nearest_node[reached]]
+    out[free] = cell_seed[node[free]]
+    return out
+
+
+def nearest_samples(
+    grid: OccupancyGrid, xy: NDArray[np.float64], params: RoomMapParams | None = None
+) -> SampleField:
+    """Find each free cell's nearest trajectory cell, walking free space (rules 1-2).
+
+    Args:
+        grid: the occupancy grid.
+        xy: sample positions in metres, shape (n, 2), in the grid's frame.
+        params: reach and snapping; default ``RoomMapParams()``.
+    """
+    params = params or RoomMapParams()
+    free = grid.free
+    cells = grid.xy_to_cell(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    rows, cols = grid.shape
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < rows) & (cells[:, 1] >= 0) & (cells[:, 1] < cols)
+    flat = np.full(len(cells), -1, dtype=np.int64)
+    flat[inside] = cells[inside, 0] * cols + cells[inside, 1]
+    # rule 2: a sample in a wall moves to the nearest free cell, if that is near enough
+    clearance, (near_r, near_c) = ndimage.distance_transform_edt(~free, return_indices=True)
+    snap_cells = params.snap_m / grid.resolution_m
+    ok = inside.copy()
+    ok[inside] = clearance.ravel()[flat[inside]] <= snap_cells
+    flat[ok] = near_r.ravel()[flat[ok]] * cols + near_c.ravel()[flat[ok]]
+    flat[~ok] = -1
+    source_cells, sample_source = np.unique(flat[ok], return_inverse=True)
+    sample_index = np.full(len(flat), -1, dtype=np.int64)
+    sample_index[ok] = sample_source
+    graph, node = _free_graph(free)
+    seeds = node.ravel()[source_cells]
+    limit = params.max_distance_m / grid.resolution_m
+    return SampleField(
+        source_of_cell=_nearest(graph, node, seeds, limit),
+        source_cells=source_cells.astype(np.int64),
+        sample_source=sample_index,
+    )
+
+
+def label_cells(field: SampleField, labels: NDArray[np.int64]) -> NDArray[np.int32]:
+    """Rule 1: each cell takes the area of its nearest samples (majority, ties to the smaller).
+
+    Args:
+        field: from ``nearest_samples``.
+        labels: each sample's area, >= 1, shape (n,) as the samples given there.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    if labels.shape != field.sample_source.shape:
+        msg = f"{labels.size} labels for {field.sample_source.size} samples"
+        raise ValueError(msg)
+    if labels.size and labels.min() < 1:
+        msg = f"area labels must be >= 1, got {int(labels.min())}"
+        raise ValueError(msg)
+    kept = field.sample_source >= 0
+    source_label = np.zeros(field.source_cells.size, dtype=np.int64)
+    if kept.any():
+        # count (source, label) pairs; per source the label with most samples, smaller on ties
+        pairs = np.stack([field.sample_source[kept], labels[kept]], axis=1)
+        unique, counts = np.unique(pairs, axis=0, return_counts=True)
+        order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
+        first = np.unique(unique[order, 0], return_index=True)[1]
+        best = unique[order][first]
+        source_label[best[:, 0]] = best[:, 1]
+    out = np.zeros(field.source_of_cell.shape, dtype=np.int32)
+    reached = field.source_of_cell >= 0
+    out[reached] = source_label[field.source_of_cell[reached]]
+    return out
+
+
+def door_regions(grid: OccupancyGrid, door_width_m: float) -> NDArray[np.int32]:
+    """Rule 3's regions: free space cut at passages narrower than ``door_width_m``.
+
+    Returns an int32 array of the grid's shape: 0 on occupied cells and on free cells no
+    core reaches, regions 1..k otherwise.
+    """
+    free = grid.free
+    clearance = ndimage.distance_transform_edt(free) * grid.resolution_m
+    cores, count = ndimage.label(clearance > door_width_m / 2, structure=np.ones((3, 3)))
+    if count == 0:
+        return np.zeros(free.shape, dtype=np.int32)
+    graph, node = _free_graph(free)
+    core_cells = np.flatnonzero(cores.ravel() > 0)
+    nearest = _nearest(graph, node, node.ravel()[core_cells], np.inf)
+    out = np.zeros(free.shape, dtype=np.int32)
+    reached = nearest >= 0
+    out[reached] = cores.ravel()[core_cells[nearest[reached]]]
+    return out
+
+
+def room_map(
+    field: SampleField,
+    labels: NDArray[np.int64],
+    regions: NDArray[np.int32] | None = None,
+    region_share: float = RoomMapParams().region_share,
+) -> NDArray[np.int32]:
+    """Label the free cells the trajectory reaches with its areas (rules 1-3).
+
+    Args:
+        field: from ``nearest_samples``.
+        labels: each sample's area (>= 1).
+        regions: from ``door_regions`` (rule 3), or None for rule 1 alone.
+        region_share: the share of a region's labelled cells one area must hold.
+    """
+    cells = label_cells(field, labels)
+    if regions is None:
+        return cells
+    both = (cells > 0) & (regions > 0)
+    if not both.any():
+        return cells
+    pairs = np.stack([regions[both], cells[both]], axis=1).astype(np.int64)
+    unique, counts = np.unique(pairs, axis=0, return_counts=True)
+    totals = np.bincount(unique[:, 0], weights=counts)
+    order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
+    first = np.unique(unique[order, 0], return_index=True)[1]
+    best = unique[order][first]
+    best_counts = counts[order][first]
+    dominant = best_counts >= region_share * totals[best[:, 0]]
+    owner = np.zeros(int(regions.max()) + 1, dtype=np.int32)
+    owner[best[dominant, 0]] = best[dominant, 1]
+    snapped = owner[regions]
+    out = cells.copy()
+    # a dominated region takes its area where the trajectory reached (rule 2 still holds)
+    take = (snapped > 0) & (cells > 0)
+    out[take] = snapped[take]
+    return out
+
+
+def merge_overlapping(
+    maps: list[NDArray[np.int32]], min_share: float = 0.5, top_labels: list[int] | None = None
+) -> list[NDArray[np.int32]]:
+    """Name the areas of several room maps (a fleet's robots) with one set of labels.
+
+    Two labels of different maps are one room when their overlap is at least ``min_share``
+    of the smaller's cells; merged transitively. Returns per map a lookup array: its label
+    ``a`` is fleet label ``lookup[a]`` (1..k over all maps; ``lookup[0]`` = 0), for every
+    ``a`` up to the map's largest label or its ``top_labels`` entry (a label with no cell).
+    """
+    tops = top_labels or [0] * len(maps)
+    offsets = np.cumsum([0, *[max(int(m.max()), top) for m, top in zip(maps, tops, strict=True)]])
+    parent = list(range(int(offsets[-1]) + 1))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for a in range(len(maps)):
+        for b in range(a + 1, len(maps)):
+            both = (maps[a] > 0) & (maps[b] > 0)
+            if not both.any():
+                continue
+            size_a = np.bincount(maps[a].ravel(), minlength=int(offsets[a + 1] - offsets[a]) + 1)
+            size_b = np.bincount(maps[b].ravel(), minlength=int(offsets[b + 1] - offsets[b]) + 1)
+            pairs = np.stack([maps[a][both], maps[b][both]], axis=1).astype(np.int64)
+            unique, counts = np.unique(pairs, axis=0, return_counts=True)
+            for (la, lb), count in zip(unique, counts, strict=True):
+                if count >= min_share * min(size_a[la], size_b[lb]):
+                    parent[root(int(offsets[a] + la))] = root(int(offsets[b] + lb))
+    roots = sorted({root(i) for i in range(1, len(parent))})
+    number = {r: n for n, r in enumerate(roots, start=1)}
+    lookups = []
+    for index in range(len(maps)):
+        lookup = np.zeros(int(offsets[index + 1] - offsets[index]) + 1, dtype=np.int32)
+        for label in range(1, lookup.size):
+            lookup[label] = number[root(int(offsets[index] + label))]
+        lookups.append(lookup)
+    return lookups
+
+
+def fleet_room_map(
+    grid: OccupancyGrid,
+    robots: list[tuple[NDArray[np.float64], NDArray[np.int64]]],
+    params: RoomMapParams | None = None,
+    regions: NDArray[np.int32] | None = None,
+) -> NDArray[np.int32]:
+    """One room map from several robots' labelled trajectories (``(xy, areas)`` each).
+
+    One robot: ``room_map``. Several: each robot's own map names its areas; areas of
+    different robots whose maps mostly overlap become one label (``merge_overlapping``);
+    then every cell takes the merged label of the nearest sample of any robot (rules 1-3).
+    """
+    params = params or RoomMapParams()
+    fields = [nearest_samples(grid, xy, params) for xy, _ in robots]
+    if len(robots) == 1:
+        return room_map(fields[0], robots[0][1], regions, params.region_share)
+    own = [
+        room_map(field, areas, regions, params.region_share)
+        for field, (_, areas) in zip(fields, robots, strict=True)
+    ]
+    lookups = merge_overlapping(own, top_labels=[int(areas.max(initial=0)) for _, areas in robots])
+    xy = np.concatenate([xy for xy, _ in robots])
+    merged = np.concatenate(
+        [lookup[areas] for lookup, (_, areas) in zip(lookups, robots, strict=True)]
+    )
+    return room_map(nearest_samples(grid, xy, params), merged, regions, params.region_share)
