@@ -13,10 +13,14 @@ Rules:
    within ``snap_m``, else it is dropped.
 3. **Doorways** (``door_width_m`` > 0). Free space is cut into regions at passages narrower
    than a door: the cells with a clearance above half a door width fall apart into cores,
-   and every free cell joins its geodesically nearest core. A region one area holds at
+   and every free cell joins its geodesically nearest core. A region no pose lies in stays
+   unlabelled (a room seen through its door was not visited). A region one area holds at
    least ``region_share`` of is given to that area whole: its boundary moves to the doorway,
    and a short excursion into a neighbour does not paint part of the room in two. A region
    no area dominates keeps the labels of rule 1 (two rooms joined by a wide opening).
+4. **Fleet.** Several robots' areas are one room when, on the cells within ``merge_m`` of
+   both robots' poses, one holds at least half of the other's (transitively); then every
+   cell takes the merged label of the nearest pose of any robot (rules 1-3).
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ __all__ = [
     "fleet_room_map",
     "label_cells",
     "merge_overlapping",
+    "merged_room_map",
     "nearest_samples",
     "room_map",
 ]
@@ -55,10 +60,14 @@ class RoomMapParams:
     snap_m: float = 0.5  # rule 2: a pose this near a wall still counts
     door_width_m: float = 1.2  # rule 3: passages narrower than this split regions; 0: off
     region_share: float = 0.6  # rule 3: the share of a region one area must hold
+    merge_m: float = 1.5  # rule 4: cells this near a robot's poses show where its areas are
 
     def __post_init__(self) -> None:
-        if not (self.max_distance_m > 0 and self.snap_m >= 0 and self.door_width_m >= 0):
-            msg = "max_distance_m must be > 0, snap_m and door_width_m >= 0"
+        if not (self.max_distance_m > 0 and self.merge_m > 0):
+            msg = "max_distance_m and merge_m must be > 0"
+            raise ValueError(msg)
+        if not (self.snap_m >= 0 and self.door_width_m >= 0):
+            msg = "snap_m and door_width_m must be >= 0"
             raise ValueError(msg)
         if not 0.5 <= self.region_share <= 1.0:
             msg = f"region_share must be in [0.5, 1], got {self.region_share}"
@@ -74,6 +83,7 @@ class SampleField:
     """
 
     source_of_cell: NDArray[np.int64]  # (rows, cols): index into source_cells, -1 = none
+    distance_m: NDArray[np.float64]  # (rows, cols): walk to the nearest source, inf = none
     source_cells: NDArray[np.int64]  # (m,) flat indices of the cells holding samples
     sample_source: NDArray[np.int64]  # (n,) each sample's index into source_cells, -1 dropped
 
@@ -101,12 +111,16 @@ def _free_graph(free: NDArray[np.bool_]) -> tuple[sparse.csr_array, NDArray[np.i
 
 def _nearest(
     graph: sparse.csr_array, node: NDArray[np.int64], seeds: NDArray[np.int64], limit: float
-) -> NDArray[np.int64]:
-    """Per cell, the index into ``seeds`` (graph nodes) of the nearest one, -1 beyond limit."""
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Per cell, the nearest seed (index into ``seeds``) and its distance in cells.
+
+    Cells beyond ``limit`` or not connected get -1 and inf.
+    """
     out = np.full(node.shape, -1, dtype=np.int64)
+    distance = np.full(node.shape, np.inf)
     if seeds.size == 0:
-        return out
-    _, _, nearest_node = csgraph.dijkstra(
+        return out, distance
+    node_distance, _, nearest_node = csgraph.dijkstra(
         graph, directed=False, indices=seeds, min_only=True, return_predecessors=True, limit=limit
     )
     position = np.full(graph.shape[0], -1, dtype=np.int64)
@@ -116,7 +130,8 @@ def _nearest(
     cell_seed = np.full(graph.shape[0], -1, dtype=np.int64)
     cell_seed[reached] = position[nearest_node[reached]]
     out[free] = cell_seed[node[free]]
-    return out
+    distance[free] = node_distance[node[free]]
+    return out, distance
 
 
 def nearest_samples(
@@ -149,8 +164,10 @@ def nearest_samples(
     graph, node = _free_graph(free)
     seeds = node.ravel()[source_cells]
     limit = params.max_distance_m / grid.resolution_m
+    source_of_cell, distance = _nearest(graph, node, seeds, limit)
     return SampleField(
-        source_of_cell=_nearest(graph, node, seeds, limit),
+        source_of_cell=source_of_cell,
+        distance_m=distance * grid.resolution_m,
         source_cells=source_cells.astype(np.int64),
         sample_source=sample_index,
     )
@@ -199,7 +216,7 @@ def door_regions(grid: OccupancyGrid, door_width_m: float) -> NDArray[np.int32]:
         return np.zeros(free.shape, dtype=np.int32)
     graph, node = _free_graph(free)
     core_cells = np.flatnonzero(cores.ravel() > 0)
-    nearest = _nearest(graph, node, node.ravel()[core_cells], np.inf)
+    nearest, _ = _nearest(graph, node, node.ravel()[core_cells], np.inf)
     out = np.zeros(free.shape, dtype=np.int32)
     reached = nearest >= 0
     out[reached] = cores.ravel()[core_cells[nearest[reached]]]
@@ -223,6 +240,10 @@ def room_map(
     cells = label_cells(field, labels)
     if regions is None:
         return cells
+    visited = np.zeros(int(regions.max()) + 1, dtype=bool)
+    visited[regions.ravel()[field.source_cells]] = True
+    visited[0] = True  # cells outside every region keep rule 1's label
+    cells[~visited[regions]] = 0
     both = (cells > 0) & (regions > 0)
     if not both.any():
         return cells
@@ -295,21 +316,39 @@ def fleet_room_map(
 ) -> NDArray[np.int32]:
     """One room map from several robots' labelled trajectories (``(xy, areas)`` each).
 
-    One robot: ``room_map``. Several: each robot's own map names its areas; areas of
-    different robots whose maps mostly overlap become one label (``merge_overlapping``);
-    then every cell takes the merged label of the nearest sample of any robot (rules 1-3).
+    One robot: ``room_map``. Several: ``merged_room_map`` (rule 4).
     """
     params = params or RoomMapParams()
     fields = [nearest_samples(grid, xy, params) for xy, _ in robots]
+    labels = [areas for _, areas in robots]
     if len(robots) == 1:
-        return room_map(fields[0], robots[0][1], regions, params.region_share)
-    own = [
-        room_map(field, areas, regions, params.region_share)
-        for field, (_, areas) in zip(fields, robots, strict=True)
-    ]
-    lookups = merge_overlapping(own, top_labels=[int(areas.max(initial=0)) for _, areas in robots])
-    xy = np.concatenate([xy for xy, _ in robots])
-    merged = np.concatenate(
-        [lookup[areas] for lookup, (_, areas) in zip(lookups, robots, strict=True)]
-    )
-    return room_map(nearest_samples(grid, xy, params), merged, regions, params.region_share)
+        return room_map(fields[0], labels[0], regions, params.region_share)
+    everyone = nearest_samples(grid, np.concatenate([xy for xy, _ in robots]), params)
+    return merged_room_map(fields, everyone, labels, regions, params)
+
+
+def merged_room_map(
+    fields: list[SampleField],
+    everyone: SampleField,
+    labels: list[NDArray[np.int64]],
+    regions: NDArray[np.int32] | None = None,
+    params: RoomMapParams | None = None,
+) -> NDArray[np.int32]:
+    """Several robots' room map, their areas merged where they name the same place (rule 4).
+
+    Args:
+        fields: each robot's field (``nearest_samples`` of its poses).
+        everyone: the field of all poses, robots concatenated in the order of ``fields``.
+        labels: each robot's areas of its poses (>= 1).
+        regions: ``door_regions`` for rule 3, or None.
+        params: ``region_share`` and ``merge_m``.
+    """
+    params = params or RoomMapParams()
+    own = []
+    for field, areas in zip(fields, labels, strict=True):
+        near = room_map(field, areas, regions, params.region_share)
+        near[field.distance_m > params.merge_m] = 0
+        own.append(near)
+    lookups = merge_overlapping(own, top_labels=[int(a.max(initial=0)) for a in labels])
+    merged = np.concatenate([lookup[a] for lookup, a in zip(lookups, labels, strict=True)])
+    return room_map(everyone, merged, regions, params.region_share)

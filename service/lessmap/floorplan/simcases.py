@@ -123,15 +123,19 @@ def building_run(case: BenchCase, folder: Path) -> SimulatedRun:
     if case.sensor not in SENSORS:
         msg = f"unknown sensor {case.sensor!r}; known: {', '.join(SENSORS)}"
         raise FloorplanError(msg)
-    run = simulate(
-        case.seed,
-        rooms=ROOMS,
-        robots=ROBOTS,
-        frames_per_robot=round(DURATION_S * case.rate_hz),
-        layout=case.map,
-        rate_hz=case.rate_hz,
-        **SENSORS[case.sensor],
-    )
+    try:
+        run = simulate(
+            case.seed,
+            rooms=ROOMS,
+            robots=ROBOTS,
+            frames_per_robot=round(DURATION_S * case.rate_hz),
+            layout=case.map,
+            rate_hz=case.rate_hz,
+            **SENSORS[case.sensor],
+        )
+    except ValueError as exc:
+        msg = f"case {case.name}: {exc}"
+        raise FloorplanError(msg) from None
     paths = write_run(run, folder, case.name)
     occupancy, truth = draw_building(run.building)
     image = folder / f"{case.name}.map.png"
