@@ -10,9 +10,10 @@ The pixel-pooled variants divide summed overlaps by summed areas.
 Streams (``stream_score``), per robot, its frames in seq order with true position and room:
 
 - a true change is the first frame in another room, placed at that frame's position;
-- boundary recall / precision: true changes / transitions matched one-to-one to a
-  transition's boundary frame (resp. a change) within ``tolerance_m`` (Euclidean), the
-  transition lying between the change's neighbouring changes; fewest total metres;
+- boundary recall / precision: share of true changes / of transitions matched one-to-one,
+  a pair being a change and a transition's boundary frame within ``tolerance_m``
+  (Euclidean) with the transition between the change's neighbouring changes; the most
+  pairs, then the least path walked between paired frames;
 - decision recall / precision: the same with the transition's decision frame;
 - decision lag: path length walked from the true change to its matched decision (m);
 - purity: share of frames whose segment's most common true room is their own room;
@@ -170,9 +171,17 @@ class StreamScore:
 
 
 def _match(
-    changes: NDArray[np.int64], found: NDArray[np.int64], xy: NDArray[np.float64], tol_m: float
+    changes: NDArray[np.int64],
+    found: NDArray[np.int64],
+    xy: NDArray[np.float64],
+    walked: NDArray[np.float64],
+    tol_m: float,
 ) -> list[tuple[int, int]]:
-    """One-to-one pairs (change, found) within ``tol_m``, found between the neighbouring changes."""
+    """Pair true changes with transitions one-to-one (indices into ``changes``, ``found``).
+
+    A pair lies within ``tol_m``, the transition between the change's neighbouring
+    changes; the most pairs, then the least path walked between paired frames.
+    """
     if changes.size == 0 or found.size == 0:
         return []
     distance = np.linalg.norm(xy[changes][:, None, :] - xy[found][None, :, :], axis=2)
@@ -181,10 +190,10 @@ def _match(
     allowed = (
         (distance <= tol_m) & (found[None, :] > before[:, None]) & (found[None, :] < after[:, None])
     )
-    # a forbidden pair costs more than every allowed pair together: most pairs first
-    forbidden = 1.0 + tol_m * (min(changes.size, found.size) + 1)
-    cost = np.where(allowed, distance, forbidden)
-    rows, cols = linear_sum_assignment(cost)
+    apart_m = np.abs(walked[changes][:, None] - walked[found][None, :])
+    # a forbidden pair costs more than all allowed pairs together: the most pairs first
+    forbidden = 1.0 + apart_m[allowed].sum() if allowed.any() else 1.0
+    rows, cols = linear_sum_assignment(np.where(allowed, apart_m, forbidden))
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
 
 
@@ -226,8 +235,8 @@ def stream_score(
 
     decision = frame_of([c.seq for c in cuts])
     boundary = frame_of([c.boundary_seq for c in cuts])
-    boundary_pairs = _match(changes, boundary, xy, tolerance_m)
-    decision_pairs = _match(changes, decision, xy, tolerance_m)
+    boundary_pairs = _match(changes, boundary, xy, walked, tolerance_m)
+    decision_pairs = _match(changes, decision, xy, walked, tolerance_m)
     lags = tuple(float(walked[decision[d]] - walked[changes[c]]) for c, d in decision_pairs)
     # segments and areas per frame, from the boundaries in frame order
     order = np.argsort(boundary, kind="stable")
