@@ -204,16 +204,28 @@ class Row:
         self.fleet_maps.append(result.fleet_map)
 
 
-def summarise(results: Sequence[CaseResult]) -> dict[str, dict[str, Row]]:
-    """Pool the results per map and over all maps (key ``all``), per method in run order."""
+#: What the rows of the tables may group cases by: a field of ``BenchCase``.
+GROUPS = ("map", "sensor", "seed", "rate_hz")
+
+
+def summarise(results: Sequence[CaseResult], by: str = "map") -> dict[str, dict[str, Row]]:
+    """Pool the results per value of ``by`` and over all cases (key ``all``), per method."""
+    if by not in GROUPS:
+        msg = f"cannot group by {by!r}; choose one of {', '.join(GROUPS)}"
+        raise ValueError(msg)
     table: dict[str, dict[str, Row]] = {}
     for result in results:
-        for scope in (result.case.map, "all"):
+        for scope in (_group(result.case, by), "all"):
             for item in result.results:
                 table.setdefault(scope, {}).setdefault(item.method, Row()).add(item)
     if "all" in table:
         table["all"] = table.pop("all")  # last
     return table
+
+
+def _group(case: BenchCase, by: str) -> str:
+    value = getattr(case, by)
+    return f"{value:g} Hz" if by == "rate_hz" else str(value)
 
 
 def _mean(values: list[float]) -> float | None:
@@ -229,14 +241,14 @@ def _pair(a: float | None, b: float | None) -> str:
     return f"{_pct(a)} / {_pct(b)}"
 
 
-def markdown(results: Sequence[CaseResult], tolerance_m: float) -> str:
-    """The benchmark's tables as Markdown: one row per map and method, then all maps."""
+def markdown(results: Sequence[CaseResult], tolerance_m: float, by: str = "map") -> str:
+    """The benchmark's table as Markdown: one row per ``by`` value and method, then all."""
     lines = [
-        "| map | method | boundary R / P | decision R / P | lag m | purity | coverage "
+        f"| {by} | method | boundary R / P | decision R / P | lag m | purity | coverage "
         "| revisits right | cuts / 100 m (true) | robot map P / R | fleet map P / R |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for scope, rows in summarise(results).items():
+    for scope, rows in summarise(results, by).items():
         for method, row in rows.items():
             robot_p = _mean([m.precision for m in row.robot_maps])
             robot_r = _mean([m.recall for m in row.robot_maps])
@@ -301,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tolerance-m", type=float, default=1.0)
     parser.add_argument("--door-width-m", type=float, default=defaults.door_width_m)
     parser.add_argument("--max-distance-m", type=float, default=defaults.max_distance_m)
+    parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")
     parser.add_argument("--work", type=Path, help="keep the runs' files in this folder")
     parser.add_argument("--markdown", type=Path, help="also write the tables to this file")
     return parser
@@ -338,7 +351,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FloorplanError, DatasetError, OSError) as exc:
         sys.stderr.write(f"lessmap.floorplan.bench: {exc}\n")
         return 1
-    text = markdown(results, args.tolerance_m)
+    text = markdown(results, args.tolerance_m, args.by)
     sys.stdout.write(text)
     if args.markdown is not None:
         args.markdown.write_text(text, encoding="utf-8")
