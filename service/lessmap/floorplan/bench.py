@@ -1,20 +1,17 @@
 """The floor-plan benchmark: ``python -m lessmap.floorplan.bench`` (``--help`` for options).
 
 For every case (map x sensor x seed x frame rate) a simulator writes a run (frames with
-poses, the true room of every frame, the occupancy map and its ground-truth rooms); each
-method segments the frames, one robot at a time, and is scored on the stream (matching
-within ``--tolerance-m``, lag, purity, coverage, revisits, transitions per 100 m:
-``lessmap.floorplan.metric``) and on its room maps (the benchmark's per-room precision and
-recall, per robot and for the fleet's merged map: ``lessmap.floorplan.roommap``).
+poses, each frame's true room, the occupancy map and its ground-truth rooms); each method
+segments the frames, one robot at a time, and is scored on the stream and on its room maps
+(per robot, and the fleet's merged map): ``lessmap.floorplan.metric``, ``.roommap``.
 
-Methods: ``areas`` and ``paper`` (lessmap's, default parameters); ``fixed`` cuts every N
-frames, N = a robot's frames / (its true room changes + 1), so it is told the true count.
-Two references have no stream: ``truth`` labels the trajectory with the true rooms (the
-best a room map drawn from this walk can score), ``geometry`` is the doorway regions alone
-(what the map gives without any segmentation).
+Methods: ``areas``, ``paper`` (default parameters); ``fixed`` cuts every N frames, N = a
+robot's frames / (its true changes + 1): it is told the true count. References without a
+stream: ``truth`` labels the walk with the true rooms (the best room map this walk gives),
+``geometry`` is the doorway regions alone (the map without any segmentation).
 
-Cases run in ``--jobs`` worker processes; a simulator is ``MODULE:FUNCTION`` naming a
-``Simulator`` (``lessmap.floorplan.simcases``), ``building`` by default.
+Cases run in ``--jobs`` processes; ``--simulator MODULE:FUNCTION`` names a ``Simulator``
+(``lessmap.floorplan.simcases``), ``building`` by default.
 """
 
 from __future__ import annotations

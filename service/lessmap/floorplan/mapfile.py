@@ -2,18 +2,14 @@
 
 ``write_room_map(labels, grid, stem)`` writes:
 
-``<stem>.pgm``
-    8-bit grey, one pixel per cell, row 0 at the top: grey = room label 1..254 on a labelled
-    free cell, 0 on a free cell no room reaches, 255 on an occupied cell. Labels are
-    renumbered 1..k in raster order of their first cell (k <= 254).
-``<stem>.yaml``
-    map_server's fields: ``image``, ``resolution``, ``origin`` (the grid's), ``negate: 1``,
-    ``occupied_thresh: 0.999``, ``free_thresh: 0.998``, ``mode: trinary``. With negate the
-    occupancy is grey / 255, so every free cell (labelled or not) reads as free and every
-    wall as occupied: the file is a navigation map whose grey values are the rooms.
-    ``load_grid`` reads it back (free cells and geometry); ``read_room_labels`` the labels.
-``<stem>.png``
-    colour: walls black, unlabelled free cells light grey, one distinct colour per room.
+- ``<stem>.pgm``: 8-bit grey, row 0 at the top: room 1..254 on a labelled free cell, 0 on a
+  free cell without a room, 255 on an occupied one (rooms renumbered in raster order).
+- ``<stem>.yaml``: map_server's ``image``, ``resolution``, ``origin``, ``negate: 1``,
+  ``occupied_thresh: 0.999``, ``free_thresh: 0.998``, ``mode: trinary``. Negated, the
+  occupancy is grey / 255: every free cell reads free, every wall occupied, so the file is
+  a navigation map whose grey values are the rooms. ``load_grid`` reads it back, and
+  ``read_room_labels`` its rooms.
+- ``<stem>.png``: walls black, free cells without a room light grey, a colour per room.
 """
 
 from __future__ import annotations

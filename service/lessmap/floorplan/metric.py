@@ -1,27 +1,17 @@
-"""Scores of a room segmentation: the benchmark's per-room precision and recall, and stream scores.
+"""Scores of a room segmentation: the benchmark's room-map precision/recall and stream scores.
 
-Room maps (``precision_recall``) as ipa_room_segmentation's ``computePrecisionRecall``
-(Bormann et al., ICRA 2016) defines them: label 0 is no room and is ignored; rooms and
-segments of at most ``min_pixels`` cells (100) are dropped; a segment's cells outside every
-room count in its area. recall = mean over rooms of (largest overlap with one segment) /
-room cells; precision = mean over segments of (largest overlap with one room) / segment cells.
-The pixel-pooled variants divide summed overlaps by summed areas.
+``precision_recall``: ipa_room_segmentation's ``computePrecisionRecall`` (Bormann et al., ICRA
+2016). Label 0 is ignored; rooms and segments of <= 100 cells dropped; recall = mean over rooms
+of largest overlap with one segment / room cells; precision = mean over segments of largest
+overlap with one room / segment cells (a segment's cells outside every room count).
 
-Streams (``stream_score``), per robot, its frames in seq order with true position and room:
-
-- a true change is the first frame in another room, placed at that frame's position;
-- boundary recall / precision: share of true changes / of transitions matched one-to-one,
-  a pair being a change and a transition's boundary frame within ``tolerance_m``
-  (Euclidean) with the transition between the change's neighbouring changes; the most
-  pairs, then the least path walked between paired frames;
-- decision recall / precision: the same with the transition's decision frame;
-- decision lag: path length walked from the true change to its matched decision (m);
-- purity: share of frames whose segment's most common true room is their own room;
-- coverage: share of frames whose visit (a run of frames in one room) has them in its most
-  common segment;
-- revisit accuracy: of the transitions that name a known area, the share whose new
-  segment's most common room is that of the area's earlier frames;
-- transitions per 100 m: transitions (true changes) over the path walked, per 100 m.
+``stream_score``, per robot (a true change: the first frame in another room, at its position):
+boundary (decision) recall / precision: changes / transitions paired one-to-one with a
+boundary (decision) frame within ``tolerance_m``, between the change's neighbouring changes,
+most pairs then least path walked; lag: path walked from change to paired decision (median);
+purity: frames whose segment's most common room is theirs; coverage: frames in their visit's
+most common segment; revisit accuracy: named revisits whose segment's most common room is the
+named area's earlier one; transitions (true changes) per 100 m walked.
 """
 
 from __future__ import annotations

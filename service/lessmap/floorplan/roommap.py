@@ -1,26 +1,18 @@
-"""A room map: every free cell of an occupancy grid labelled by the area a robot gave it.
+"""A room map: each free cell of a grid labelled by the area of the robot poses it is nearest.
 
-Input: the grid and the robot's trajectory, each pose labelled with its area (the area of
-the segment its frame fell in). Output: an int32 array of the grid's shape, 0 = no label.
+Input: the grid and each pose with its area; output: int32 labels of the grid's shape, 0 none.
 
-Rules:
-
-1. **Nearest sample.** A free cell takes the area of the trajectory sample geodesically
-   nearest to it: the distance is walked over free cells (8-neighbours, diagonals √2), so a
-   wall is never crossed; several samples in one cell vote, ties to the smaller area.
-2. **Reach.** Cells farther than ``max_distance_m`` from every sample, or not connected to
-   the trajectory, stay 0. A sample on an occupied cell moves to the nearest free cell
-   within ``snap_m``, else it is dropped.
-3. **Doorways** (``door_width_m`` > 0). Free space is cut into regions at passages narrower
-   than a door: the cells with a clearance above half a door width fall apart into cores,
-   and every free cell joins its geodesically nearest core. A region no pose lies in stays
-   unlabelled (a room seen through its door was not visited). A region one area holds at
-   least ``region_share`` of is given to that area whole: its boundary moves to the doorway,
-   and a short excursion into a neighbour does not paint part of the room in two. A region
-   no area dominates keeps the labels of rule 1 (two rooms joined by a wide opening).
-4. **Fleet.** Several robots' areas are one room when, on the cells within ``merge_m`` of
-   both robots' poses, one holds at least half of the other's (transitively); then every
-   cell takes the merged label of the nearest pose of any robot (rules 1-3).
+1. **Nearest pose.** A free cell takes the area of the pose nearest by a walk over free cells
+   (8-neighbours, diagonals √2), so a wall is never crossed; poses in one cell vote.
+2. **Reach.** Cells beyond ``max_distance_m`` of walk from every pose stay 0; a pose on an
+   occupied cell moves to the nearest free cell within ``snap_m``, else is dropped.
+3. **Doorways.** Free space is cut into regions at passages narrower than ``door_width_m``
+   (cores: cells over half a door from walls; each cell joins its nearest core). A region no
+   pose lies in stays 0 (seen through a door, not visited); a region one area holds
+   ``region_share`` of goes to it whole (its boundary moves to the doorway, a late decision
+   paints nothing); other regions keep rule 1's labels (rooms joined by wide openings).
+4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
+   robots' poses, one holds half of the other's; then rules 1-3 over all poses.
 """
 
 from __future__ import annotations
