@@ -11,8 +11,14 @@ import pytest
 from PIL import Image
 
 from lessmap.floorplan.bench import main, markdown, run_bench, summarise
-from lessmap.floorplan.grid import room_labels
-from lessmap.floorplan.simcases import BenchCase, SimulatedRun, building_run, draw_building
+from lessmap.floorplan.grid import FloorplanError, room_labels
+from lessmap.floorplan.simcases import (
+    BenchCase,
+    SimulatedRun,
+    benchmark_map,
+    building_run,
+    draw_building,
+)
 from lessmap.sim.building import generate_building
 
 
@@ -55,6 +61,17 @@ def test_a_drawn_building_has_one_ground_truth_room_per_room(tmp_path: Path) -> 
     Image.fromarray(truth, mode="L").save(path)
     assert room_labels(path).max() == len(building.rooms)
     assert np.count_nonzero(occupancy) > np.count_nonzero(truth)  # the doors
+
+
+def test_the_benchmark_maps_are_found_by_name(tmp_path: Path) -> None:
+    folder = Path(__file__).resolve().parents[2] / ".." / "shared" / "floorplans"
+    if not folder.is_dir():
+        pytest.skip("../shared/floorplans not found (not in this checkout)")
+    image, labels = benchmark_map("office_b", folder, furnished=True)
+    assert image.name == "office_b_furnitures.png"
+    assert labels.name == "office_b_gt_segmentation.png"
+    with pytest.raises(FloorplanError, match="office_z"):
+        benchmark_map("office_z", folder)
 
 
 def simulator_that_fails(case: BenchCase, folder: Path) -> SimulatedRun:

@@ -23,7 +23,15 @@ if TYPE_CHECKING:
 
     from lessmap.sim.building import Building
 
-__all__ = ["SENSORS", "BenchCase", "SimulatedRun", "Simulator", "building_run", "draw_building"]
+__all__ = [
+    "SENSORS",
+    "BenchCase",
+    "SimulatedRun",
+    "Simulator",
+    "benchmark_map",
+    "building_run",
+    "draw_building",
+]
 
 RESOLUTION_M = 0.05
 MARGIN_M = 0.5
@@ -70,6 +78,26 @@ class Simulator(Protocol):
     """Runs a case and writes its files into a folder."""
 
     def __call__(self, case: BenchCase, folder: Path) -> SimulatedRun: ...  # noqa: D102
+
+
+def benchmark_map(name: str, folder: Path, *, furnished: bool = False) -> tuple[Path, Path]:
+    """The occupancy image and ground-truth rooms of a room-segmentation benchmark map.
+
+    ``folder`` holds the benchmark's files (``../shared/floorplans``): ``<name>.png`` or
+    ``<name>_furnitures.png``, and ``<name>_gt_segmentation.png``; 0.05 m a pixel.
+
+    Raises:
+        FloorplanError: either file is missing.
+    """
+    from lessmap.floorplan.grid import FloorplanError
+
+    image = folder / (f"{name}_furnitures.png" if furnished else f"{name}.png")
+    labels = folder / f"{name}_gt_segmentation.png"
+    for path in (image, labels):
+        if not path.is_file():
+            msg = f"{path}: no such file (benchmark map {name!r})"
+            raise FloorplanError(msg)
+    return image, labels
 
 
 def draw_building(building: Building) -> tuple[np.ndarray[Any, Any], np.ndarray[Any, Any]]:
