@@ -58,7 +58,6 @@ if TYPE_CHECKING:
     from lessmap.floorplan.metric import Cut, Track
 
 METHODS = ("areas", "paper", "fixed")
-REFERENCES = ("truth", "geometry")
 SIMULATORS: dict[str, Simulator] = {"building": building_run}
 
 
