@@ -107,6 +107,7 @@ def test_each_templated_instance_has_its_own_name_and_state_directory() -> None:
 
 
 @pytest.mark.timeout(180)
+@pytest.mark.slow
 def test_the_local_cluster_starts_two_routers_and_three_instances_and_stops_them(
     tmp_path: Path,
 ) -> None:

@@ -318,13 +318,13 @@ def _loss(result: MethodResult) -> Loss:
 
 
 def areas_lines(tables: str) -> list[str]:
-    """The comparison of the paper's method with ``lessmap.core.areas.tracker`` (issue 18)."""
+    """The comparison of the paper's method with ``lessmap.core.areas.tracker``."""
     p = AreaParams()
     return [
         "## Beyond the paper: areas",
         "",
-        "`lessmap segment --method areas` (`lessmap.core.areas.tracker`, rules in its module "
-        "docstring) drives the paper's partitioner as a proposer of new areas "
+        "`lessmap segment --method areas` (`lessmap.core.areas.tracker`, rules in "
+        "`docs/design/area-rules.md`) drives the paper's partitioner as a proposer of new areas "
         f"(Ncut ≤ {p.proposal.ncut_min:g}, λ2 ≤ {p.proposal.lambda2_min:g}) on frames pooled "
         f"to {p.pool_min_features} features or {p.pool_max_frames} frames. A proposal "
         f"becomes a transition when both sides hold {p.min_area_features} features or more, "
@@ -352,7 +352,7 @@ def areas_lines(tables: str) -> list[str]:
         "are seen on both sides, so two submaps share the landmarks seen at the door. "
         "A change found by recognition is "
         "reported with reason `RECOGNISED` (`AreaTransition.reason`). Areas is the default "
-        "method (`--method paper` keeps the paper): it meets the targets of issue 18 below; "
+        "method (`--method paper` keeps the paper): it meets the targets below; "
         "the tables say where it wins and where it loses. Transitions are "
         "counted per robot "
         "over its stamps; the simulated open room is `simulate(seed, rooms=1, "
@@ -370,7 +370,7 @@ def areas_lines(tables: str) -> list[str]:
 
 
 def area_graph_lines(tables: str) -> list[str]:
-    """The area graph against the simulated door graph, and the fleet merge (issue 18)."""
+    """The area graph against the simulated door graph, and the fleet merge."""
     return [
         "### The area graph",
         "",

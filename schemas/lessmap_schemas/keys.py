@@ -1,29 +1,16 @@
 """Key expressions of every lessmap stream, one function per stream.
 
-Layout (all under `KEY_PREFIX`, one chunk per name):
+Layout under `KEY_PREFIX` (in full: schemas/README.md section 2), then rules of this file:
 
-    lessmap/v3/<fleet>/<robot>/frames/<p>      robot -> service  put Frame, SessionEnd
-    lessmap/v3/<fleet>/<robot>/transitions     service -> apps   put Transition
-    lessmap/v3/<fleet>/<robot>/errors          service -> apps   put Error
-    lessmap/v3/<fleet>/<robot>/state           apps -> service   get SessionState
-    lessmap/v3/<fleet>/<robot>/areas           apps -> service   get AreaGraph
-    lessmap/v3/<fleet>/<robot>/submaps/<id>    apps -> service   get Submap
-    lessmap/v3/@/instances/<instance>          service           liveliness token
-    lessmap/v3/@/health/<instance>             apps -> service   get Health
-    lessmap/v3/@/errors/<instance>             service -> ops    put Error (unattributable input)
-    lessmap/v3/@/checkpoints/<p>/<fleet>/<robot>  service <-> service  put, get (session state)
-    lessmap/v3/@/released/<p>/<instance>          service -> service  put (partition handed over)
+    lessmap/v3/<fleet>/<robot>/{frames/<p>, transitions, errors, state, areas, submaps/<id>}
+    lessmap/v3/@/{instances, health, errors}/<instance>, .../@/{checkpoints, released}/<p>/...
 
-`<p>` is the robot's partition (`partition.partition_of`): a service instance subscribes to the
-frames of the partitions it owns only (`frames_of_partition`), so Zenoh's routers deliver it no
-other robot's frames, or to every partition's (`frames_of_every_partition`, one subscription,
-cheaper to route) and keeps those of the partitions it owns.
-
-Service bookkeeping sits under the `@` chunk: Zenoh never lets `*` or `**` match a chunk that
-starts with `@`, so a fleet-wide `lessmap/v3/**` subscription sees robot traffic only.
-
-A fleet or robot argument may be `"*"` (any single name) wherever the key is used to subscribe,
-declare a queryable or query; publishers must pass concrete names, which `validate_name` checks.
+1. `<p>` is the robot's partition (`partition.partition_of`), the last chunk of its frames
+   key, so an instance may subscribe to the partitions it owns only.
+2. Service bookkeeping sits under `@`: Zenoh never lets `*` or `**` match a chunk that starts
+   with `@`, so a fleet-wide `lessmap/v3/**` subscription sees robot traffic only.
+3. A fleet or robot may be `"*"` to subscribe, declare a queryable or query; publishers pass
+   concrete names, which `validate_name` checks.
 """
 
 from __future__ import annotations

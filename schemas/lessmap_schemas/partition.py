@@ -1,22 +1,15 @@
 """Partitions and their owners: the two functions every client and instance computes alike.
 
-A robot belongs to one of `PARTITIONS` partitions, a fixed function of its fleet and name:
+The contract, with the formulas, is schemas/README.md section 2a. Rules of this file:
 
-    partition_of(fleet, robot) = u64(sha256(utf8(fleet + "/" + robot))[0:8]) mod PARTITIONS
-
-where `u64(b)` reads 8 bytes as a big-endian unsigned integer. The partition is the last chunk
-of the robot's frames key, so Zenoh routes a partition's frames only to the instances that
-subscribed to it.
-
-Each partition is served by one live service instance, its *owner*, and shadowed by a second,
-its *standby*: the first two instances when the live instance names are ranked by rendezvous
-(highest random weight) hashing,
-
-    score(instance, partition) = u64(sha256(utf8(instance + "/" + str(partition)))[0:8])
-
-highest score first, ties (never seen in practice) broken by the name in ascending order.
-Every participant that sees the same liveliness tokens ranks the same way, and when an
-instance joins or leaves only the partitions it wins or held change hands.
+1. A robot belongs to one of `PARTITIONS` partitions, a fixed function of its fleet and name
+   (the first 8 bytes of a SHA-256, big-endian, modulo `PARTITIONS`); the partition is the
+   last chunk of the robot's frames key, so Zenoh routes a partition's frames only to the
+   instances that subscribed to it.
+2. Each partition's owner and standby are the first two live instances ranked by rendezvous
+   (highest random weight) hashing of `instance/partition`, highest score first, ties broken
+   by name; everyone who sees the same liveliness tokens ranks the same way, and an instance
+   that joins or leaves moves only the partitions it wins or held.
 """
 
 from __future__ import annotations

@@ -50,6 +50,7 @@ def offline_seqs(frames: list[list[int]]) -> list[int]:
     return seqs
 
 
+@pytest.mark.slow
 def test_round_trip_late_join_and_queries(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
@@ -230,6 +231,7 @@ def test_replay_command_delivers_every_frame(
             )
 
 
+@pytest.mark.slow
 def test_watch_command_shows_transitions(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
@@ -297,6 +299,7 @@ def test_sim_command_writes_frames_and_truth(tmp_path: Path) -> None:
     assert run_cli("sim").returncode == 1  # nothing to do is an error, not a silent success
 
 
+@pytest.mark.slow
 def test_demo_command_runs_to_completion() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     done = run_cli("demo", "--duration", "10", "--listen", endpoint, "--json", timeout_s=150)

@@ -47,6 +47,7 @@ SECTIONS = (
 )
 
 
+@pytest.mark.slow
 def test_results_page_and_figures(sim_frames: Path, tmp_path: Path) -> None:
     recorded = write_dataset(tmp_path)
     out = tmp_path / "docs"

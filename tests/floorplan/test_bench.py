@@ -78,6 +78,7 @@ def simulator_that_fails(case: BenchCase, folder: Path) -> SimulatedRun:
     return building_run(BenchCase(map="nowhere", sensor=case.sensor, seed=0, rate_hz=1.0), folder)
 
 
+@pytest.mark.slow
 def test_the_script_runs_cases_in_worker_processes(tmp_path: Path) -> None:
     out = tmp_path / "results.md"
     done = subprocess.run(

@@ -33,7 +33,7 @@ EXAMPLES = ("close_fleet", "follow_fleet", "publish_walk", "replay_frames")
 
 # A cold build of zenoh takes minutes on a small machine; scripts/check runs `cargo test`
 # first, which builds the examples, so here the build is usually a no-op.
-pytestmark = pytest.mark.timeout(1800)
+pytestmark = [pytest.mark.timeout(1800), pytest.mark.slow]
 
 
 def cargo_target_dir() -> str:

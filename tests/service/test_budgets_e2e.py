@@ -77,6 +77,7 @@ class Errors:
         self._sub.undeclare()
 
 
+@pytest.mark.slow
 def test_oversized_pair_work_is_refused_and_the_good_robot_is_exact(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
@@ -128,6 +129,7 @@ def test_oversized_pair_work_is_refused_and_the_good_robot_is_exact(
     assert service.terminate() == 0
 
 
+@pytest.mark.slow
 def test_a_heavy_robot_within_budget_does_not_change_the_good_robots_segmentation(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],

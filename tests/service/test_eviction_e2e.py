@@ -50,6 +50,7 @@ AFTER_OVER_BEFORE = {"paper": 1.25, "areas": 1.35}
 
 
 @pytest.mark.parametrize("method", list(AFTER_OVER_BEFORE))
+@pytest.mark.slow
 def test_ten_thousand_idle_sessions_are_evicted_and_memory_returns(
     method: str,
     serve: Callable[..., ServeProcess],

@@ -193,6 +193,7 @@ class PacedRobot:
     ],
     ids=["kill-9", "sigterm", "kill-9-areas"],
 )
+@pytest.mark.slow
 def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
     how: signal.Signals,
     method: Method,

@@ -332,6 +332,7 @@ def test_a_taken_port_is_a_one_line_error(serve: Callable[..., ServeProcess]) ->
 
 
 @pytest.mark.parametrize("subscription", ["all", "partitions"])
+@pytest.mark.slow
 def test_two_instances_split_a_fleet_by_partition(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],

@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
+import pytest
 from prometheus_client import generate_latest
 
 from lessmap.core import Partitioner, PartitionParams
@@ -189,6 +190,7 @@ def test_a_shard_behind_its_robots_shares_their_decisions(
     assert counted(roomy, "lessmap_decisions_total") == FRAMES * len(ROBOTS)
 
 
+@pytest.mark.slow
 def test_a_robot_with_a_huge_graph_never_coalesces_the_others(
     router: str, client_session: Callable[[str], zenoh.Session]
 ) -> None:

@@ -10,10 +10,8 @@ async with aio.connect() as conn:
 ```
 
 Built on the threaded SDK, so both behave the same: a subscription's handler thread hands
-each event to the event loop with ``loop.call_soon_threadsafe`` into a bounded
-``asyncio.Queue`` (full: the event is dropped and counted in ``dropped``), and blocking
-calls (connecting, queries, publishing, closing) run in ``asyncio.to_thread``. Zenoh's own
-threads never wait for the loop.
+each event to the loop (``call_soon_threadsafe``) into a bounded ``asyncio.Queue`` (full: the
+event is dropped and counted in ``dropped``); blocking calls run in ``asyncio.to_thread``.
 """
 
 from __future__ import annotations

@@ -1,20 +1,16 @@
 """Ending robot sessions: keep the publication caches until the service confirms the ends.
 
-A robot's publication cache is the only copy of the frames the service has not applied yet.
-When a partition moves between instances as a robot ends its session, the frames (and the
-``SessionEnd``) queued at the old owner are dropped there, and the new owner fetches them
-from the cache (contract section 6, rules 8 and 9). A publisher that closed its cache right
-after the end would lose them, so the ends are confirmed first, by the robots'
-``SessionState``.
+A robot's cache is the only copy of the frames the service has not applied yet: when a
+partition moves between instances as a robot ends its session, the new owner fetches them
+from it (contract section 6, rules 8 and 9). So the ends are confirmed first, by the robots'
+``SessionState``. Rules of this file:
 
-Invariants of this file:
-
-- It never raises and never waits past the deadline (a query is bounded by what is left).
-- One state query per Zenoh session and fleet per poll, whatever the number of robots
-  waiting: a fleet's robots are asked with one wildcard key.
-- A robot is confirmed when the service's current state shows its session closed, or open
-  with every frame up to the robot's last seq applied (then only the end is missing: it is
-  put again, which the service ignores if it had it, contract section 6 rule 3).
+1. It never raises and never waits past the deadline (a query is bounded by what is left).
+2. One state query per Zenoh session and fleet per poll, whatever the number of robots
+   waiting: a fleet's robots are asked with one wildcard key.
+3. A robot is confirmed when the service's current state shows its session closed, or open
+   with every frame up to the robot's last seq applied (then only the end is missing: it is
+   put again, which the service ignores if it had it, contract section 6 rule 3).
 """
 
 from __future__ import annotations

@@ -1,41 +1,17 @@
 """Fleet areas: the robots' area graphs merged into one graph of the fleet's places.
 
-Each robot's session has its own area ids (``AreaGraph``, the ``areas`` query). A fleet app
-wants the places: "robots 3 and 7 are in the same room". ``fleet_graph`` merges robot
-graphs into fleet areas and the passages between them. It is pure (graphs in, graph out) so
-that a fleet app (``FleetClient.fleet_area_graph``, over the bus) and the offline tools
-(``lessmap segment --area-graph``, from a frames file) compute the same fleet areas from the
-same robot graphs; it runs where the robots' graphs meet, in the app, because a fleet's
-robots are spread over the service's instances by partition.
+``fleet_graph`` is pure (graphs in, graph out, no I/O), so a fleet app (over the bus) and the
+offline tools (from a frames file) compute the same fleet areas where the robots' graphs
+meet. Rules (in full, with why: ``docs/design/fleet-areas.md``):
 
-Rules:
-
-1. **Members.** A fleet area stands for robot areas, each named ``(robot, area id)``.
-2. **Without ``shared_features``** a fleet area is one robot's area: feature ids mean
-   nothing across robots (each robot's front end numbers its own landmarks).
-3. **With ``shared_features``** (feature ids global across the fleet's robots: fiducials, a
-   shared landmark map), areas of *different* robots are linked when their feature sets
-   ``A``, ``B`` have ``|A ∩ B| / min(|A|, |B|) >= min_containment`` and ``|A ∩ B| >=
-   min_shared``. Links do not chain: they are taken in order of decreasing Jaccard
-   ``|A ∩ B| / (|A| + |B| - |A ∩ B|)`` (ties: member order), and a link joins the fleet
-   areas of its two ends only if at least ``min_linked_share`` of the pairs of areas of
-   different robots across them are linked and every such pair shares ``min_shared``
-   features. Why: a 360° sensor's area that sees into the next room contains both rooms'
-   areas of other robots, and under union-find that one link joined the two rooms and all
-   areas linked to either. Same-robot pairs are not counted (they are never linked), so a
-   place one robot split in two can still be one fleet area (a lab arena).
-4. **Ids.** Fleet ids count from 0 in the order of each fleet area's first member, members
-   ordered by (robot name, area id): the result does not depend on the order robots are
-   given in. They name the areas of *this* graph: a later graph, with more areas or more
-   robots, may number them otherwise. Across graphs a fleet area is named by its first
-   member (``FleetGraph.key_of``), which a later graph keeps unless the area merged with
-   one whose first member is lower.
-5. **Passages.** Each robot passage between two different fleet areas counts, per
-   direction; the boundary features add up over robots and the ``max_boundary_features``
-   most frequent are kept (ties: smaller id). A passage inside one fleet area is dropped.
-
-The thresholds' defaults were measured on simulated buildings (docs/RESULTS.md, "The area
-graph"). No I/O.
+1. A fleet area stands for robot areas, each named ``(robot, area id)``.
+2. Without ``shared_features`` a fleet area is one robot's area.
+3. With ``shared_features``, areas of different robots are linked by containment and shared
+   features, closest pairs (Jaccard) first; a link joins two fleet areas only if at least
+   ``min_linked_share`` of their cross pairs are linked, so one wrong link does not chain.
+4. Fleet ids count from 0 in member order (robot name, area id), whatever the robot order;
+   across graphs a fleet area is named by its first member (``FleetGraph.key_of``).
+5. Passages between fleet areas count per direction; one inside a fleet area is dropped.
 """
 
 from __future__ import annotations
@@ -49,12 +25,11 @@ if TYPE_CHECKING:
 
 #: Boundary features kept per fleet passage (rule 5): enough to name a doorway's landmarks.
 MAX_BOUNDARY_FEATURES = 16
-#: Link thresholds (rule 3), chosen on simulated buildings (seeds 0-4; docs/RESULTS.md).
+#: Link thresholds (rule 3), chosen on simulated buildings (docs/tuning/fleet-areas.md).
 MIN_CONTAINMENT = 0.85
 MIN_SHARED = 3
-#: Share of the cross pairs that must be linked for two fleet areas to merge (rule 3). On
-#: seeds 0-4 "at least half" kept every true pair; "more than half" lost 10 of 110 (270°
-#: sparse) and 4 of 114 (360° sparse).
+#: Share of the cross pairs that must be linked for two fleet areas to merge (rule 3): the
+#: loosest that stops one wrong link from chaining two rooms (docs/tuning/fleet-areas.md).
 MIN_LINKED_SHARE = 0.5
 
 

@@ -1,32 +1,19 @@
 """The robot side: publish frames of one robot session to the lessmap service.
 
-Invariants of this file:
+Rules of this file (the bookkeeping's are in ``robot_status``, the follower's in
+``robot_reports``):
 
-- A robot follows its own ``errors`` key. The transport's callback (Zenoh's thread) only
-  appends the raw payload to the robot's bounded inbox; the robot's follower thread decodes
-  it, updates the status, queries the service if needed and calls ``on_error``.
-- A robot follows the service instances' liveliness tokens: the transport's callback only
-  updates the set of live instances (and wakes the follower); ``status.owner`` ranks that set
-  for the robot's partition (contract section 2a), and the follower logs when nobody serves
-  the robot any more, and when somebody does again.
-- Reports are fenced by epoch: an ``Error`` whose epoch is below the highest this robot has
-  seen comes from a deposed owner of its partition and is dropped (``reports_stale``).
-- The session id and the numbering change only on the publishing thread (``publish``,
-  ``new_session``): a ``SESSION_CLOSED`` report is turned into a flag that the next
-  ``publish`` acts on, so frames are never renumbered behind the caller's back mid-call.
-- The publication cache outlives the ``SessionEnd`` until the service confirms the end
-  (``closing.confirm_ends``): it may still need frames from it after a take-over.
+1. The session id and the numbering change only on the publishing thread (``publish``,
+   ``new_session``); the follower thread only flags a session the service closed.
+2. The publication cache outlives the ``SessionEnd`` until the service confirms the end
+   (``closing.confirm_ends``): it may still need frames from it after a take-over.
+3. ``close`` and ``close_all`` never raise and never wait past their timeout.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 import time
-import uuid
-from collections import Counter, deque
-from dataclasses import dataclass
-from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -34,16 +21,18 @@ import zenoh
 from lessmap_client.closing import PendingEnd, confirm_ends
 from lessmap_client.errors import SessionClosedError
 from lessmap_client.fencing import current_states
+from lessmap_client.robot_reports import ReportFollower
+from lessmap_client.robot_status import RobotBook, RobotStatus, new_session_id
 from lessmap_client.session import DEFAULT_ENDPOINT, open_session
 from lessmap_client.transport import ZenohTransport
-from lessmap_schemas import keys, partition
+from lessmap_schemas import keys
 from lessmap_schemas.codec import decode, encode, encoding
 from lessmap_schemas.errors import ErrorCode, WireError
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
 from lessmap_schemas.messages import Error, Frame, Health, SessionEnd, SessionState
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Mapping, Sequence
+    from collections.abc import Callable, Iterable, Sequence
     from types import TracebackType
 
     from lessmap_client.transport import Handle, Host, Transport
@@ -54,65 +43,10 @@ log = logging.getLogger(__name__)
 
 _FRAME_ENCODING = encoding(Frame)
 _END_ENCODING = encoding(SessionEnd)
-_INBOX_MAX = 1000  # error reports waiting for the follower thread; more are dropped, counted
-_HOLDER_QUERY_S = 1.0  # how long the follower asks who holds the robot after SESSION_CLOSED
-_JOIN_TIMEOUT_S = 5.0
-_UNSERVED_GRACE_S = 2.0  # after this long without an owner since start, warn once
 #: How long ``close`` waits for the service to confirm the end: room for a take-over of the
 #: robot's partition, whose catch-up from the cache the service bounds by ``catchup_wait_s``
 #: (2 s by default).
 DEFAULT_CLOSE_TIMEOUT_S = 5.0
-
-
-def new_session_id() -> str:
-    """Return a fresh session id: start time plus randomness, a valid name."""
-    return f"{int(time.time())}-{uuid.uuid4().hex[:12]}"
-
-
-@dataclass(frozen=True, slots=True)
-class RobotStatus:
-    """What a robot publisher sent and what the service reported back (a snapshot).
-
-    Attributes:
-        fleet: fleet of the robot.
-        robot: the robot.
-        session_id: the current session.
-        next_seq: seq the next frame of the current session will carry.
-        last_seq: last seq sent in the current session (None before the first frame).
-        frames_sent: frames published over every session of this publisher.
-        sessions: sessions this publisher started (1, plus one per new session).
-        errors: ``Error`` reports about this publisher's sessions, counted per code.
-        last_error: the latest of them.
-        closed_by_service: the service reported the current session closed; the next
-            ``publish`` starts a new session (``auto_new_session``) or raises.
-        reports_dropped: reports dropped unread because too many were waiting.
-        partition: the robot's partition (``lessmap_schemas.partition.partition_of``), the
-            last chunk of its frames key.
-        owner: the service instance that owns the partition among the live instances (the
-            first by rendezvous ranking), None when no instance is alive: nobody serves the
-            robot, and its frames wait in the publisher's cache for the next owner.
-        reports_stale: reports dropped because their epoch was below the highest this robot
-            had seen (the late report of a deposed owner).
-    """
-
-    fleet: str
-    robot: str
-    session_id: str
-    next_seq: int
-    last_seq: int | None
-    frames_sent: int
-    sessions: int
-    errors: Mapping[str, int]
-    last_error: Error | None
-    closed_by_service: bool
-    reports_dropped: int = 0
-    partition: int = 0
-    owner: str | None = None
-    reports_stale: int = 0
-
-    def count(self, code: ErrorCode | str) -> int:
-        """Reports received with this code (``"SEQ_GAP"`` or ``ErrorCode.SEQ_GAP``)."""
-        return self.errors.get(str(code), 0)
 
 
 class RobotPublisher:
@@ -171,37 +105,12 @@ class RobotPublisher:
     ) -> None:
         self.fleet = keys.validate_name(fleet, "fleet", limits)
         self.robot = keys.validate_name(robot, "robot", limits)
-        self.session_id = keys.validate_name(session_id or new_session_id(), "session", limits)
+        first_session = keys.validate_name(session_id or new_session_id(), "session", limits)
         self.auto_new_session = auto_new_session
         self._limits = limits
-        self._on_error = on_error
         self._key = keys.frames(self.fleet, self.robot)
-        self.partition = partition.partition_of(self.fleet, self.robot)
-        # Session bookkeeping (the publishing thread and the follower share it).
-        self._lock = threading.Lock()
-        self._next_seq = 0
-        self._frames_sent = 0
-        self._sessions = [self.session_id]
-        self._errors: Counter[str] = Counter()
-        self._last_error: Error | None = None
-        self._closed_report: Error | None = None  # SESSION_CLOSED for the current session
-        self._holder: str | None = None  # another open session of this robot name, if seen
-        self._closed = False
-        self._highest_epoch = 0  # fencing: the highest epoch of a report about this robot
-        self._stale = 0
-        # Live service instances (the transport's thread updates them under ``_lock``).
-        self._live: set[str] = set()
-        self._live_changed = threading.Condition(self._lock)
-        self._served: str | None = None  # the owner the follower last logged about
-        self._unserved_warned = False
-        # The inbox of raw error reports (Zenoh's thread appends, the follower takes); None
-        # marks a change of the live instances.
-        self._inbox: deque[bytes | None] = deque()
-        self._inbox_cond = threading.Condition(threading.Lock())
-        self._received = 0
-        self._handled = 0
-        self._dropped = 0
-        self._stopping = False
+        self._book = RobotBook(self.fleet, self.robot, first_session)
+        self.partition = self._book.partition
         # A Connection adopts the publisher (closing it ends the session); a Zenoh session or
         # none gets a transport of the publisher's own.
         self._host: Host | None = None
@@ -215,20 +124,20 @@ class RobotPublisher:
             session._check_open()
             self._host, self._transport, self._owns_transport = session, session.transport, False
         self._publisher = self._transport.publisher(self._key, _FRAME_ENCODING, cache)
-        self._follower = threading.Thread(
-            target=self._follow, name=f"lessmap-robot-{self.fleet}/{self.robot}", daemon=True
+        self._follower = ReportFollower(
+            self._book, self._transport, on_error, lambda: self.auto_new_session
         )
         self._follower.start()
         self._errors_handle: Handle | None = None
         self._instances_handle: Handle | None = None
         try:
             self._errors_handle = self._transport.subscribe(
-                keys.errors(self.fleet, self.robot), self._push_error, history=None
+                keys.errors(self.fleet, self.robot), self._follower.push_report, history=None
             )
-            self._instances_handle = self._transport.watch_instances(self._on_instance)
+            self._instances_handle = self._transport.watch_instances(self._follower.push_instance)
         except BaseException:
             self._release_handles()
-            self._stop_follower()
+            self._follower.stop()
             self._publisher.close()
             if self._owns_transport:
                 self._transport.close()
@@ -237,39 +146,24 @@ class RobotPublisher:
             self._host._adopt(self)
 
     @property
+    def session_id(self) -> str:
+        """The current session."""
+        return self._book.session_id
+
+    @property
     def next_seq(self) -> int:
         """Seq the next frame will carry."""
-        return self._next_seq
+        return self._book.next_seq
 
     @property
     def closed(self) -> bool:
         """Whether the session was ended."""
-        return self._closed
+        return self._book.closed
 
     @property
     def status(self) -> RobotStatus:
         """A snapshot of what was sent and what the service reported about it."""
-        with self._lock:
-            return RobotStatus(
-                fleet=self.fleet,
-                robot=self.robot,
-                session_id=self.session_id,
-                next_seq=self._next_seq,
-                last_seq=self._next_seq - 1 if self._next_seq else None,
-                frames_sent=self._frames_sent,
-                sessions=len(self._sessions),
-                errors=MappingProxyType(dict(self._errors)),
-                last_error=self._last_error,
-                closed_by_service=self._closed_report is not None,
-                reports_dropped=self._dropped,
-                partition=self.partition,
-                owner=self._owner(),
-                reports_stale=self._stale,
-            )
-
-    def _owner(self) -> str | None:
-        """The owner of the robot's partition among the live instances (holding ``_lock``)."""
-        return partition.owner_and_standby(self.partition, self._live)[0]
+        return self._book.status(self._follower.dropped)
 
     def wait_for_service(self, timeout_s: float = 10.0) -> bool:
         """Wait until the robot's partition has an owner that serves it; False after ``timeout_s``.
@@ -285,12 +179,12 @@ class RobotPublisher:
         """
         deadline = time.monotonic() + timeout_s
         while True:
-            with self._live_changed:
-                while (owner := self._owner()) is None:
+            with self._book.live_changed:
+                while (owner := self._book.owner()) is None:
                     remaining = deadline - time.monotonic()
                     if remaining <= 0:
                         return False
-                    self._live_changed.wait(remaining)
+                    self._book.live_changed.wait(remaining)
             if self._owner_serves(owner, min(1.0, max(0.1, deadline - time.monotonic()))):
                 # Served, and the owner's frames subscription has reached this session: a
                 # frame published now is routed to it (before that, Zenoh would drop it here).
@@ -316,7 +210,7 @@ class RobotPublisher:
             except WireError:
                 continue
             answered = True
-            if health.instance == owner and self.partition in health.partitions:
+            if health.instance == owner and self._book.partition in health.partitions:
                 return True
         return not answered
 
@@ -365,25 +259,26 @@ class RobotPublisher:
                 (``auto_new_session=False``, or another publisher holds the robot name).
             RuntimeError: the publisher is closed.
         """
-        with self._lock:
-            if self._closed:
+        book = self._book
+        with book.lock:
+            if book.closed:
                 msg = "RobotPublisher is closed"
                 raise RuntimeError(msg)
-            if self._closed_report is not None:
-                if not self.auto_new_session or self._holder is not None:
+            if book.closed_report is not None:
+                if not self.auto_new_session or book.holder is not None:
                     raise SessionClosedError(
-                        self.fleet, self.robot, self.session_id, self._closed_report, self._holder
+                        self.fleet, self.robot, book.session_id, book.closed_report, book.holder
                     )
-                old = self.session_id
-                self._start_session(new_session_id())
+                old = book.session_id
+                book.start_session(new_session_id())
                 log.warning(
                     "%s/%s: the service closed session %s; publishing under new session %s",
                     self.fleet,
                     self.robot,
                     old,
-                    self.session_id,
+                    book.session_id,
                 )
-            session_id, next_seq = self.session_id, self._next_seq
+            session_id, next_seq = book.session_id, book.next_seq
         feature_list = list(features)
         if len(feature_list) > self._limits.max_features_per_frame:
             msg = (
@@ -411,10 +306,10 @@ class RobotPublisher:
             msg = f"frame of {len(payload)} bytes, over max_payload_bytes"
             raise WireError(msg, code=ErrorCode.LIMIT_EXCEEDED, limit="max_payload_bytes")
         self._publisher.put(payload)
-        with self._lock:
-            self._frames_sent += 1
-            if self.session_id == session_id:
-                self._next_seq = frame_seq + 1
+        with book.lock:
+            book.frames_sent += 1
+            if book.session_id == session_id:
+                book.next_seq = frame_seq + 1
         return frame_seq
 
     def new_session(self, session_id: str | None = None) -> str:
@@ -424,27 +319,20 @@ class RobotPublisher:
         Returns the new session id.
         """
         new_id = keys.validate_name(session_id or new_session_id(), "session", self._limits)
-        with self._lock:
-            if self._closed:
+        book = self._book
+        with book.lock:
+            if book.closed:
                 msg = "RobotPublisher is closed"
                 raise RuntimeError(msg)
-            if new_id in self._sessions:
+            if new_id in book.sessions:
                 msg = f"session id {new_id!r} was already used by this publisher"
                 raise ValueError(msg)
-            old, still_open = self.session_id, self._closed_report is None
-            last = self._next_seq - 1 if self._next_seq else None
-            self._start_session(new_id)
+            old, still_open = book.session_id, book.closed_report is None
+            last = book.last_seq()
+            book.start_session(new_id)
         if still_open:
             self._send_end(old, last)
         return new_id
-
-    def _start_session(self, session_id: str) -> None:
-        """Switch to a new session numbered from 0 (holding ``_lock``)."""
-        self.session_id = session_id
-        self._sessions.append(session_id)
-        self._next_seq = 0
-        self._closed_report = None
-        self._holder = None
 
     def flush_errors(self, timeout_s: float = 1.0) -> bool:
         """Wait until every error report received so far is handled (status, ``on_error``).
@@ -453,169 +341,7 @@ class RobotPublisher:
         whose delivery is synchronous, a report injected before this call is reflected in
         ``status`` when it returns True. False after ``timeout_s``.
         """
-        if threading.current_thread() is self._follower:
-            return True  # called from on_error: waiting for ourselves would never end
-        with self._inbox_cond:
-            target = self._received
-            return self._inbox_cond.wait_for(
-                lambda: self._handled >= target or self._stopping, timeout_s
-            )
-
-    # -- the service's instances ------------------------------------------------------------
-
-    def _on_instance(self, instance: str, alive: bool) -> None:
-        """Note a token that appeared or left (the transport's thread: no log, no Zenoh)."""
-        with self._lock:
-            if alive:
-                self._live.add(instance)
-            else:
-                self._live.discard(instance)
-            self._live_changed.notify_all()
-        with self._inbox_cond:
-            if not self._stopping:
-                self._inbox.append(None)
-                self._received += 1
-                self._inbox_cond.notify_all()
-
-    def _check_owner(self, *, startup: bool = False) -> None:
-        """Log when the robot becomes unserved, and when it is served again (follower)."""
-        with self._lock:
-            owner = self._owner()
-            before, self._served = self._served, owner
-            warned = self._unserved_warned
-            if owner is None and not warned and (before is not None or startup):
-                self._unserved_warned = True
-            elif owner is not None:
-                self._unserved_warned = False
-        if owner is None and not warned and (before is not None or startup):
-            log.warning(
-                "%s/%s: no live lessmap instance owns partition %d: the robot is not served "
-                "(its recent frames wait in the publisher's cache for the next owner)",
-                self.fleet,
-                self.robot,
-                self.partition,
-            )
-        elif owner is not None and warned:
-            log.info(
-                "%s/%s: partition %d is served again, by %s",
-                self.fleet,
-                self.robot,
-                self.partition,
-                owner,
-            )
-        elif owner != before and owner is not None:
-            log.debug("%s/%s: partition %d owner %s", self.fleet, self.robot, self.partition, owner)
-
-    # -- the service's reports -------------------------------------------------------------
-
-    def _push_error(self, payload: bytes) -> None:
-        """Queue one raw report (the transport's thread: constant time, no Zenoh, no log)."""
-        with self._inbox_cond:
-            if self._stopping:
-                return
-            if len(self._inbox) >= _INBOX_MAX:
-                self._dropped += 1
-                return
-            self._inbox.append(payload)
-            self._received += 1
-            self._inbox_cond.notify_all()
-
-    def _follow(self) -> None:
-        """The follower thread: handle reports one by one until the publisher closes."""
-        grace_until: float | None = time.monotonic() + _UNSERVED_GRACE_S
-        while True:
-            with self._inbox_cond:
-                while not self._inbox and not self._stopping:
-                    if grace_until is None:
-                        self._inbox_cond.wait()
-                        continue
-                    remaining = grace_until - time.monotonic()
-                    if remaining <= 0:
-                        break
-                    self._inbox_cond.wait(remaining)
-                if self._stopping:
-                    return
-                popped = bool(self._inbox)
-                payload = self._inbox.popleft() if popped else None
-                check_startup = grace_until is not None and time.monotonic() >= grace_until
-            if check_startup:
-                grace_until = None
-                self._check_owner(startup=True)
-            if not popped:
-                continue
-            try:
-                if payload is None:
-                    self._check_owner()
-                else:
-                    self._handle(payload)
-            except Exception:
-                log.exception("%s/%s: handling an error report failed", self.fleet, self.robot)
-            with self._inbox_cond:
-                self._handled += 1
-                self._inbox_cond.notify_all()
-
-    def _handle(self, payload: bytes) -> None:
-        try:
-            error = decode(payload, Error)
-        except WireError as exc:
-            log.warning(
-                "%s/%s: skipped an undecodable error report: %s", self.fleet, self.robot, exc
-            )
-            return
-        with self._lock:
-            if error.session is not None and error.session not in self._sessions:
-                return  # about another publisher's session of this robot name
-            if error.epoch is not None:
-                if error.epoch < self._highest_epoch:
-                    self._stale += 1  # a deposed owner's late report
-                    return
-                self._highest_epoch = error.epoch
-            self._errors[str(error.code)] += 1
-            self._last_error = error
-            current = self.session_id
-            closes_current = (
-                error.code == ErrorCode.SESSION_CLOSED
-                and error.session == current
-                and self._closed_report is None
-            )
-        log.warning(
-            "%s/%s: the service reported %s for session %s seq %s: %s",
-            self.fleet,
-            self.robot,
-            error.code,
-            error.session,
-            error.seq,
-            error.detail,
-        )
-        if closes_current:
-            # Starting a new session would close any other open session of this robot name:
-            # never fight another publisher for it.
-            holder = self._other_holder(current) if self.auto_new_session else None
-            with self._lock:
-                if self.session_id == current and self._closed_report is None:
-                    self._closed_report, self._holder = error, holder
-        if self._on_error is not None:
-            try:
-                self._on_error(error)
-            except Exception:
-                log.exception("on_error of %s/%s failed", self.fleet, self.robot)
-
-    def _other_holder(self, current: str) -> str | None:
-        """Return another open session the service holds for this robot name, if any."""
-        try:
-            replies = self._transport.get(keys.state(self.fleet, self.robot), _HOLDER_QUERY_S)
-        except Exception:  # a closed transport: nobody to ask
-            return None
-        found = []
-        for _, payload in replies:
-            try:
-                found.append(decode(payload, SessionState))
-            except WireError:
-                continue
-        for state in current_states(found):  # the current owner's answer only
-            if state.open and state.session != current and state.session not in self._sessions:
-                return state.session
-        return None
+        return self._follower.flush(timeout_s)
 
     # -- lifetime --------------------------------------------------------------------------
 
@@ -636,14 +362,6 @@ class RobotPublisher:
             if handle is not None:
                 handle.close()
 
-    def _stop_follower(self) -> None:
-        with self._inbox_cond:
-            self._stopping = True
-            self._inbox.clear()
-            self._inbox_cond.notify_all()
-        if self._follower is not threading.current_thread():
-            self._follower.join(_JOIN_TIMEOUT_S)
-
     def close(self, timeout_s: float = DEFAULT_CLOSE_TIMEOUT_S) -> None:
         """End the session, wait until the service confirms the end, then release (idempotent).
 
@@ -662,13 +380,14 @@ class RobotPublisher:
 
     def _end_for_close(self, *, confirm: bool) -> tuple[bool, PendingEnd | None]:
         """Mark closed and send the end; return (closed by this call, the end to confirm)."""
-        with self._lock:
-            if self._closed:
+        book = self._book
+        with book.lock:
+            if book.closed:
                 return False, None
-            self._closed = True
-            still_open = self._closed_report is None
-            last = self._next_seq - 1 if self._next_seq else None
-            session_id = self.session_id
+            book.closed = True
+            still_open = book.closed_report is None
+            last = book.last_seq()
+            session_id = book.session_id
         if not still_open or not self._send_end(session_id, last):
             return True, None
         # Only a Zenoh publisher has a cache a service can query: the in-process fake
@@ -682,18 +401,14 @@ class RobotPublisher:
             last_seq=last,
             transport=self._transport,
             route=self._transport.session,
-            served=self._has_live_instance,
-            closed_by_service=lambda: self._closed_report is not None,
+            served=book.has_live_instance,
+            closed_by_service=lambda: book.closed_report is not None,
             resend=lambda: self._send_end(session_id, last),
         )
 
-    def _has_live_instance(self) -> bool:
-        with self._lock:
-            return bool(self._live)
-
     def _release_after_close(self) -> None:
         self._release_handles()
-        self._stop_follower()
+        self._follower.stop()
         self._publisher.close()
         if self._host is not None:
             self._host._release(self)

@@ -1,20 +1,17 @@
 """One subscription: its own bounded queue, or its own handler thread.
 
-Invariants of this file:
+Rules of this file:
 
-- Every ``Subscription`` owns its queue. Two subscriptions on one key each receive every
-  event; nothing is shared between them but the transport.
-- ``_push`` runs on the transport's thread (Zenoh's): it appends raw bytes under a lock held
-  for a few instructions and returns. It never decodes, logs, blocks or calls Zenoh.
-- Overflow policy: when ``maxsize`` events wait unread, a new event is dropped and counted in
-  ``dropped`` (the queue keeps the oldest ones, so what a slow reader gets is an unbroken
-  prefix; the same policy as nats.py's pending limits). A warning is logged from the reader's
-  side when it notices new drops.
-- Decoding, fencing and de-duplication happen on the reader's thread (``recv``) or on the
-  subscription's own dispatcher thread (handler mode).
-- Fencing (contract section 2a): per robot, the highest ``epoch`` seen on a ``Transition`` or
-  an ``Error`` is kept; an event with a lower epoch (a deposed owner's late event) is dropped
-  and counted in ``dropped_stale``, before the de-duplication by identity.
+1. Every ``Subscription`` owns its queue: two subscriptions on one key each get every event.
+2. ``_push`` runs on the transport's thread (Zenoh's): it appends raw bytes under a lock held
+   for a few instructions and returns. It never decodes, logs, blocks or calls Zenoh.
+3. Overflow: when ``maxsize`` events wait unread, a new event is dropped and counted in
+   ``dropped``, so a slow reader gets an unbroken prefix (as nats.py's pending limits); the
+   reader's side logs a warning when it notices new drops.
+4. Decoding, fencing and de-duplication happen on the reader's thread (``recv``) or on the
+   subscription's own dispatcher thread (handler mode).
+5. Fencing (contract section 2a): per robot, an event with an ``epoch`` below the highest
+   seen (a deposed owner's late event) is dropped and counted in ``dropped_stale``.
 """
 
 from __future__ import annotations

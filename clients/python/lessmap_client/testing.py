@@ -1,36 +1,16 @@
 """An in-process lessmap network for testing your robot code and fleet apps without a router.
 
-In the manner of httpx's ``MockTransport``: the SDK ships the fake, and your code keeps
-calling the real ``Connection`` API. Every message still goes through the wire codec, so a
-test also catches what a real service would reject.
+In the manner of httpx's ``MockTransport``: the SDK ships the fake, your code keeps calling
+the real ``Connection`` API (robots too: ``bus.frames`` holds what they published).
 
 ```python
 from lessmap_client.testing import FakeBus, make_transition
 
 bus = FakeBus()
-with bus.connect() as conn:
-    sub = conn.subscribe_transitions("warehouse")
+with bus.connect() as conn, conn.subscribe_transitions("warehouse") as sub:
     bus.publish_transition(make_transition("warehouse", "amr-7"))
     assert sub.try_recv().robot == "amr-7"      # delivered before publish_transition returns
-
-    with conn.robot("warehouse", "amr-7") as robot:
-        robot.publish([1, 2, 3])
-    assert [f.features for f in bus.frames("warehouse", "amr-7")] == [[1, 2, 3]]
-    assert bus.session_ends("warehouse", "amr-7")[0].last_seq == 0
 ```
-
-Semantics: delivery is synchronous (subscribers have the event when ``publish_*`` returns;
-handlers are still called on their subscription's thread), ``*`` matches one key chunk and
-``**`` any number, transitions are retained (``history`` per key) for subscriptions that ask
-for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
-stored. The fake is no service: publishing frames produces no transitions by itself.
-
-Contract v3: robots put their frames on ``lessmap/v3/<fleet>/<robot>/frames/<partition>``;
-a frames key naming another partition reaches no service and is counted in
-``misrouted_sent``. The bus's ``instances`` are the live service instances (their liveliness
-tokens): robot publishers follow them (``status.owner``), ``coverage()`` ranks them. Events
-carry an ``epoch``: publish one with a lower epoch than an earlier one for the same robot to
-test that your app never sees a deposed owner's late event (the SDK drops it).
 """
 
 from __future__ import annotations
@@ -97,6 +77,20 @@ def _match(pattern: list[str], key: list[str]) -> bool:
 
 class FakeBus:
     """An in-process stand-in for a lessmap network: one bus, any number of connections.
+
+    Every message goes through the wire codec, so a test also catches what a real service
+    would reject. Delivery is synchronous (subscribers have the event when ``publish_*`` returns;
+    handlers are still called on their subscription's thread), ``*`` matches one key chunk and
+    ``**`` any number, transitions are retained (``history`` per key) for subscriptions that ask
+    for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
+    stored. The fake is no service: publishing frames produces no transitions by itself.
+
+    Contract v3: robots put their frames on ``lessmap/v3/<fleet>/<robot>/frames/<partition>``;
+    a frames key naming another partition reaches no service and is counted in
+    ``misrouted_sent``. The bus's ``instances`` are the live service instances (their liveliness
+    tokens): robot publishers follow them (``status.owner``), ``coverage()`` ranks them. Events
+    carry an ``epoch``: publish one with a lower epoch than an earlier one for the same robot to
+    test that your app never sees a deposed owner's late event (the SDK drops it).
 
     Args:
         history: transitions retained per robot for subscriptions with ``history``.

@@ -1,12 +1,12 @@
 """What a ``Connection`` needs from the network, and its Zenoh implementation.
 
-Invariants of this file:
+Rules of this file:
 
-- A ``Transport`` moves bytes; it never decodes. Decoding, de-duplication and queueing
-  belong to ``Subscription`` and ``Connection``, so the Zenoh transport and the in-process
-  fake (``lessmap_client.testing``) share every line above this one.
-- ``deliver`` callbacks run on the transport's threads (Zenoh's, for ``ZenohTransport``):
-  they must return at once and never call back into the transport.
+1. A ``Transport`` moves bytes; it never decodes. Decoding, de-duplication and queueing
+   belong to ``Subscription`` and ``Connection``, so the Zenoh transport and the in-process
+   fake (``lessmap_client.testing``) share every line above this one.
+2. ``deliver`` callbacks run on the transport's threads (Zenoh's, for ``ZenohTransport``):
+   they must return at once and never call back into the transport.
 """
 
 from __future__ import annotations

@@ -45,6 +45,11 @@ fn parse_args() -> Args {
     args
 }
 
+/// `0.307` for a value, `-` for none (ncut and lambda2 are set for spectral splits only).
+fn three_decimals(value: Option<f64>) -> String {
+    value.map_or_else(|| "-".to_owned(), |v| format!("{v:.3}"))
+}
+
 fn main() -> Result<(), ClientError> {
     let args = parse_args();
     let conn = Connection::connect(&[&args.endpoint], Duration::from_secs(10))?;
@@ -72,13 +77,13 @@ fn main() -> Result<(), ClientError> {
                     println!("{}", serde_json::to_string(&t).expect("json"));
                 } else {
                     println!(
-                        "{}: frame {} {} ncut={:?} lambda2={:?} closed submap {} ({} features), \
+                        "{}: frame {} {} ncut={} lambda2={} closed submap {} ({} features), \
                          area {} -> {}{}",
                         t.robot,
                         t.seq,
                         t.reason.as_str(),
-                        t.ncut,
-                        t.lambda2,
+                        three_decimals(t.ncut),
+                        three_decimals(t.lambda2),
                         t.closed.id,
                         t.closed.features.len(),
                         t.left_area,

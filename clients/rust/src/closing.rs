@@ -8,6 +8,10 @@
 //! right after the end would lose them, so the ends are confirmed first, by the robots'
 //! `SessionState`.
 //!
+//! Closing runs in three steps over every publisher given (`close_each`; `close_all` and a
+//! single `close` both use it): every end is sent, then one wait confirms them all, then every
+//! publisher is released. This module reaches the publishers through `EndingPublisher`.
+//!
 //! Invariants of this file:
 //!
 //! * It never fails and never waits past the deadline by more than one bounded query (a query
@@ -24,11 +28,12 @@ use std::fmt;
 use std::time::{Duration, Instant};
 
 use zenoh::session::ZenohId;
+use zenoh::Session;
 
-use crate::connection::{current_states, get_all, instances, ClientError};
+use crate::error::ClientError;
 use crate::messages::SessionState;
 use crate::names::keys;
-use crate::robot::{progress_of, EndProgress, RobotPublisher};
+use crate::query::{current_states, get_all, instances};
 
 /// Pauses before the state polls, in ms: the first is short (a live end is handled within a
 /// receiver sweep, 10-50 ms); later ones grow, so a slow take-over costs few queries.
@@ -114,11 +119,92 @@ impl CloseReport {
     }
 }
 
+/// What the service's state of a robot says about a session end the robot sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EndProgress {
+    /// The session is closed: the end is confirmed and the cache is no longer needed.
+    Closed,
+    /// Open with every frame up to the last seq applied: only the end is missing (it may have
+    /// been dropped at a deposed owner), so it is put again after a short grace.
+    CaughtUp,
+    /// Frames still to apply, no state yet (a take-over in progress), or the newest state is
+    /// about another session: the cache may still be needed.
+    Pending,
+}
+
+/// Where the end of `session` (last frame `last_seq`) of `fleet`/`robot` stands, per the
+/// `SessionState` replies of its `state` key: of several replies (an old and a new owner),
+/// the highest epoch is current.
+pub fn end_progress(
+    replies: Vec<SessionState>,
+    fleet: &str,
+    robot: &str,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
+    let current = current_states(replies)
+        .into_iter()
+        .find(|state| state.fleet == fleet && state.robot == robot);
+    progress_of(current.as_ref(), session, last_seq)
+}
+
+/// Where the end of `session` (last frame `last_seq`) stands per the robot's current state.
+pub(crate) fn progress_of(
+    current: Option<&SessionState>,
+    session: &str,
+    last_seq: u64,
+) -> EndProgress {
+    match current {
+        // Another session is no proof either way: it may be older than this one.
+        Some(state) if state.session == session => {
+            if !state.open {
+                EndProgress::Closed
+            } else if state.last_seq.is_some_and(|seq| seq >= last_seq) {
+                EndProgress::CaughtUp
+            } else {
+                EndProgress::Pending
+            }
+        }
+        _ => EndProgress::Pending,
+    }
+}
+
+/// What the wait for the ends asks of a robot publisher. `RobotPublisher` implements it; a
+/// trait keeps this module below the publisher's, which calls [`confirm_ends`].
+pub(crate) trait EndingPublisher {
+    /// Fleet of the robot.
+    fn fleet(&self) -> &str;
+    /// The robot.
+    fn robot(&self) -> &str;
+    /// The Zenoh session the publisher puts on: one query per session serves its robots.
+    fn zenoh_session(&self) -> &Session;
+    /// Whether the publisher has seen a live instance's token.
+    fn knows_live_instance(&self) -> bool;
+    /// Whether the service reported the current session closed.
+    fn closed_by_service(&self) -> bool;
+    /// Put the end of `session_id` again (ignored by the service if it had it).
+    fn resend_end(&self, session_id: &str, last_seq: u64);
+    /// Send the end of a publisher not released yet; `None` when it was released already.
+    /// The publication cache stays until `release`.
+    fn end_for_close(&mut self, confirm: bool) -> Option<Ending>;
+    /// Stop following errors and instances, then undeclare the publisher (its cache goes with
+    /// it). Every step runs; the first error is returned.
+    fn release(&mut self) -> Result<(), ClientError>;
+}
+
+/// What a publisher's end did: whether it went out, and the end to confirm (the session and its
+/// last seq) when confirmation was asked for and one is needed (no frame sent, or a session the
+/// service closed, needs none).
+pub(crate) struct Ending {
+    pub(crate) sent: Result<(), ClientError>,
+    pub(crate) to_confirm: Option<(String, u64)>,
+}
+
 /// A session end sent and not confirmed yet (one per robot publisher).
 pub(crate) struct PendingEnd<'a> {
     /// Position of the publisher among those closed together (the report's order).
     pub(crate) index: usize,
-    pub(crate) robot: &'a RobotPublisher,
+    pub(crate) robot: &'a dyn EndingPublisher,
     pub(crate) session: String,
     pub(crate) last_seq: u64,
     caught_up_at: Option<Instant>,
@@ -127,7 +213,7 @@ pub(crate) struct PendingEnd<'a> {
 impl<'a> PendingEnd<'a> {
     pub(crate) fn new(
         index: usize,
-        robot: &'a RobotPublisher,
+        robot: &'a dyn EndingPublisher,
         session: String,
         last_seq: u64,
     ) -> Self {
@@ -305,4 +391,81 @@ fn current_states_of(
         .into_iter()
         .map(|state| ((state.fleet.clone(), state.robot.clone()), state))
         .collect())
+}
+
+/// `close_all` over publishers borrowed (a single `close` and `Drop` use it too).
+pub(crate) fn close_each(
+    mut robots: Vec<&mut dyn EndingPublisher>,
+    timeout: Duration,
+) -> CloseReport {
+    let mut report = CloseReport::default();
+    let mut closing = Vec::with_capacity(robots.len());
+    let mut pending = Vec::new();
+    for (index, robot) in robots.iter_mut().enumerate() {
+        let Some(Ending { sent, to_confirm }) = robot.end_for_close(!timeout.is_zero()) else {
+            continue; // closed already
+        };
+        closing.push(index);
+        if let Err(error) = sent {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet().to_owned(),
+                robot: robot.robot().to_owned(),
+                error,
+            });
+        }
+        if let Some((session, last_seq)) = to_confirm {
+            pending.push((index, session, last_seq));
+        }
+    }
+    if !pending.is_empty() {
+        // The caches live with the publishers until their release below.
+        let ends = pending
+            .into_iter()
+            .map(|(index, session, last_seq)| {
+                PendingEnd::new(index, &*robots[index], session, last_seq)
+            })
+            .collect();
+        report.unconfirmed = confirm_ends(ends, timeout);
+        warn_unconfirmed(&report.unconfirmed);
+    }
+    for index in closing {
+        let robot = &mut robots[index];
+        if let Err(error) = robot.release() {
+            report.failures.push(CloseFailure {
+                fleet: robot.fleet().to_owned(),
+                robot: robot.robot().to_owned(),
+                error,
+            });
+        }
+        report.closed += 1;
+    }
+    report
+}
+
+/// One warning line per reason for the ends left unconfirmed.
+fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
+    let mut reasons: Vec<String> = Vec::new();
+    for end in ends {
+        let reason = end.reason.to_string();
+        if !reasons.contains(&reason) {
+            reasons.push(reason);
+        }
+    }
+    for reason in reasons {
+        let names: Vec<String> = ends
+            .iter()
+            .filter(|end| end.reason.to_string() == reason)
+            .map(|end| format!("{}/{} session {}", end.fleet, end.robot, end.session))
+            .collect();
+        let more = match names.len() {
+            n if n > 5 => format!(" and {} more", n - 5),
+            _ => String::new(),
+        };
+        tracing::warn!(
+            "end of {} session(s) not confirmed by the service ({reason}): {}{more}; closing \
+             their publication caches anyway, frames not applied yet are lost",
+            names.len(),
+            names[..names.len().min(5)].join(", ")
+        );
+    }
 }

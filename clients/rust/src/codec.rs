@@ -12,14 +12,12 @@
 //!
 //! Every failure is a [`WireError`] carrying an [`ErrorCode`]; nothing else escapes.
 
-use std::fmt;
-
 use rmpv::{Utf8String, Value};
-use serde::de::DeserializeOwned;
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+pub use crate::error::{ErrorCode, WireError};
 use crate::messages::{Frame, Message, SessionEnd};
 use crate::names::WIRE_VERSION;
+use crate::wire_serde::{from_value, kind_of};
 
 /// Zenoh encoding of every lessmap payload; the schema suffix names the message.
 pub const MEDIA_TYPE: &str = "application/msgpack";
@@ -27,150 +25,6 @@ pub const MEDIA_TYPE: &str = "application/msgpack";
 const MAX_MAP_LEN: usize = 32;
 /// Most nested arrays and maps, as the reference reader's msgpack allows.
 const MAX_DEPTH: usize = 1024;
-
-/// Why a message was rejected or a frame was not applied (the `code` of an `Error`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ErrorCode {
-    /// Not msgpack, truncated, trailing bytes, nesting too deep, invalid UTF-8, not a map.
-    Malformed,
-    /// A well-formed map that breaks the schema.
-    Invalid,
-    /// `type` missing, unknown, or not accepted on this key.
-    UnknownType,
-    /// `v` missing or not 3.
-    UnsupportedVersion,
-    /// A name or a key breaks the name rule.
-    BadName,
-    /// A limit of section 8 was exceeded.
-    LimitExceeded,
-    /// The frame's seq was already applied.
-    DuplicateSeq,
-    /// The frame arrived after a later one, inside a gap.
-    OutOfOrder,
-    /// Frames between the last applied seq and this one never arrived.
-    SeqGap,
-    /// The service holds as many sessions as it is configured for.
-    SessionLimit,
-    /// The session's CovGraph reached its configured size.
-    GraphLimit,
-    /// A frame arrived for a session already closed.
-    SessionClosed,
-    /// The service failed on valid input.
-    Internal,
-}
-
-impl ErrorCode {
-    /// Every code, in the contract's order.
-    pub const ALL: [ErrorCode; 13] = [
-        ErrorCode::Malformed,
-        ErrorCode::Invalid,
-        ErrorCode::UnknownType,
-        ErrorCode::UnsupportedVersion,
-        ErrorCode::BadName,
-        ErrorCode::LimitExceeded,
-        ErrorCode::DuplicateSeq,
-        ErrorCode::OutOfOrder,
-        ErrorCode::SeqGap,
-        ErrorCode::SessionLimit,
-        ErrorCode::GraphLimit,
-        ErrorCode::SessionClosed,
-        ErrorCode::Internal,
-    ];
-
-    /// The code as it is written on the wire, e.g. `"SEQ_GAP"`.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            ErrorCode::Malformed => "MALFORMED",
-            ErrorCode::Invalid => "INVALID",
-            ErrorCode::UnknownType => "UNKNOWN_TYPE",
-            ErrorCode::UnsupportedVersion => "UNSUPPORTED_VERSION",
-            ErrorCode::BadName => "BAD_NAME",
-            ErrorCode::LimitExceeded => "LIMIT_EXCEEDED",
-            ErrorCode::DuplicateSeq => "DUPLICATE_SEQ",
-            ErrorCode::OutOfOrder => "OUT_OF_ORDER",
-            ErrorCode::SeqGap => "SEQ_GAP",
-            ErrorCode::SessionLimit => "SESSION_LIMIT",
-            ErrorCode::GraphLimit => "GRAPH_LIMIT",
-            ErrorCode::SessionClosed => "SESSION_CLOSED",
-            ErrorCode::Internal => "INTERNAL",
-        }
-    }
-
-    /// The code written as `text`, if it is one.
-    pub fn parse(text: &str) -> Option<ErrorCode> {
-        ErrorCode::ALL
-            .into_iter()
-            .find(|code| code.as_str() == text)
-    }
-}
-
-impl fmt::Display for ErrorCode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl Serialize for ErrorCode {
-    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.as_str())
-    }
-}
-
-impl<'de> Deserialize<'de> for ErrorCode {
-    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        // Only a msgpack str: an integer must not pass as a variant index.
-        let text = String::deserialize(deserializer)?;
-        ErrorCode::parse(&text)
-            .ok_or_else(|| serde::de::Error::custom(format!("unknown error code {text:?}")))
-    }
-}
-
-/// Remote bytes or names that break the contract: drop the sample, count it, go on.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct WireError {
-    /// The code a service reports for this failure.
-    pub code: ErrorCode,
-    /// The [`WireLimits`] field that was exceeded, if a limit caused it.
-    pub limit: Option<&'static str>,
-    /// What went wrong, for people.
-    pub message: String,
-}
-
-impl WireError {
-    /// A failure with a code and no limit.
-    pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
-        WireError {
-            code,
-            limit: None,
-            message: message.into(),
-        }
-    }
-
-    /// A failure caused by the limit named `limit`.
-    pub fn with_limit(code: ErrorCode, limit: &'static str, message: impl Into<String>) -> Self {
-        WireError {
-            code,
-            limit: Some(limit),
-            message: message.into(),
-        }
-    }
-
-    fn invalid(message: impl Into<String>) -> Self {
-        WireError::new(ErrorCode::Invalid, message)
-    }
-
-    fn malformed(message: impl Into<String>) -> Self {
-        WireError::new(ErrorCode::Malformed, message)
-    }
-}
-
-impl fmt::Display for WireError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}: {}", self.code, self.message)
-    }
-}
-
-impl std::error::Error for WireError {}
 
 /// Bounds a reader enforces (contract section 8); the defaults are the contract's.
 ///
@@ -366,17 +220,6 @@ fn fields<M: Message>(map: Vec<(Value, Value)>) -> Result<M, WireError> {
     Ok(message)
 }
 
-/// Deserialize a value that must be a msgpack map (a struct never comes from an array).
-pub(crate) fn from_value<T: DeserializeOwned>(value: Value) -> Result<T, rmpv::ext::Error> {
-    if !value.is_map() {
-        return Err(serde::de::Error::custom(format!(
-            "expected a map, got a msgpack {}",
-            kind_of(&value)
-        )));
-    }
-    rmpv::ext::from_value(value)
-}
-
 fn has_binary(value: &Value) -> bool {
     // Iterative: a value may nest MAX_DEPTH deep.
     let mut stack = vec![value];
@@ -394,20 +237,6 @@ fn has_binary(value: &Value) -> bool {
         }
     }
     false
-}
-
-fn kind_of(value: &Value) -> &'static str {
-    match value {
-        Value::Nil => "nil",
-        Value::Boolean(_) => "bool",
-        Value::Integer(_) => "int",
-        Value::F32(_) | Value::F64(_) => "float",
-        Value::String(_) => "str",
-        Value::Binary(_) => "bin",
-        Value::Array(_) => "array",
-        Value::Map(_) => "map",
-        Value::Ext(..) => "ext",
-    }
 }
 
 /// A bounded msgpack reader: every length is checked before anything is allocated for it.

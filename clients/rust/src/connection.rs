@@ -1,77 +1,26 @@
 //! One Zenoh session to a lessmap network, from which robots, subscriptions and queries are
 //! declared (the shape of the Python SDK's `lessmap_client.connect()`).
 //!
-//! Invariants of this file:
-//!
-//! * Queries ask every queryable and keep every reply (target `ALL`, consolidation `NONE`):
-//!   during a hand-over an old and a new owner answer on the same key, and Zenoh's default
-//!   consolidation would keep one of them, not necessarily the current one.
-//! * Of several `SessionState` replies for one robot, the highest epoch (then the most
-//!   `frames_applied`) is current; of several `AreaGraph` replies, the highest epoch (then
-//!   the most frames over its areas).
-//! * A reply that does not decode is skipped and logged, never returned.
+//! The queries themselves are in [`crate::query`]; the methods here name them for users.
 
-use std::collections::{BTreeMap, BTreeSet};
-use std::fmt;
 use std::time::{Duration, Instant};
 
-use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::{Session, Wait};
 
-use crate::codec::{decode, WireError};
-use crate::fleet_areas::{fleet_graph, FleetGraph, FleetMergeError, FleetParams};
-use crate::messages::{AreaGraph, Health, Message, SessionState, Submap, Transition};
-use crate::names::{keys, owner_and_standby, PARTITIONS};
+pub use crate::error::ClientError;
+use crate::fleet_areas::{FleetGraph, FleetParams};
+use crate::messages::{AreaGraph, Error, Health, SessionState, Submap, Transition};
+use crate::names::keys;
+use crate::query;
+// Their old home: `connection::current_states` and the rest still resolve.
+pub use crate::query::{current_area_graphs, current_states, OwnerAndStandby};
 use crate::robot::{RobotOptions, RobotPublisher};
-use crate::subscription::Subscription;
+use crate::subscription::{Subscription, DEFAULT_MAXSIZE};
 
 /// The embedded router of `lessmap serve` with no options.
 pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
 /// Recent transitions per robot recovered on joining by default.
 pub const DEFAULT_HISTORY: usize = 64;
-
-/// What can go wrong on the client side.
-#[derive(Debug)]
-pub enum ClientError {
-    /// A name, a limit or a payload broke the contract (nothing was sent).
-    Wire(WireError),
-    /// Zenoh failed (config, session, declaration, put).
-    Zenoh(zenoh::Error),
-    /// No router answered within the timeout.
-    Connect(String),
-    /// The service closed the session and no new one may be started.
-    SessionClosed(String),
-    /// The object was already closed.
-    Closed,
-    /// The robots' area graphs could not be merged into the fleet's.
-    FleetMerge(FleetMergeError),
-}
-
-impl fmt::Display for ClientError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ClientError::Wire(err) => write!(f, "{err}"),
-            ClientError::Zenoh(err) => write!(f, "zenoh: {err}"),
-            ClientError::Connect(msg) | ClientError::SessionClosed(msg) => f.write_str(msg),
-            ClientError::Closed => f.write_str("already closed"),
-            ClientError::FleetMerge(err) => write!(f, "{err}"),
-        }
-    }
-}
-
-impl std::error::Error for ClientError {}
-
-impl From<WireError> for ClientError {
-    fn from(err: WireError) -> Self {
-        ClientError::Wire(err)
-    }
-}
-
-impl From<zenoh::Error> for ClientError {
-    fn from(err: zenoh::Error) -> Self {
-        ClientError::Zenoh(err)
-    }
-}
 
 /// A Zenoh config for a lessmap client: `mode`, explicit endpoints, no multicast scouting.
 pub fn client_config(endpoints: &[&str], mode: &str) -> Result<zenoh::Config, ClientError> {
@@ -103,9 +52,6 @@ fn json_string(text: &str) -> String {
     out.push('"');
     out
 }
-
-/// The owner and the standby of a partition, `None` where no instance is alive.
-pub type OwnerAndStandby = (Option<String>, Option<String>);
 
 /// An open connection to a lessmap network.
 ///
@@ -189,12 +135,7 @@ impl Connection {
         history: Option<usize>,
     ) -> Result<Subscription<Transition>, ClientError> {
         let key = keys::transitions(fleet, robot)?;
-        Subscription::advanced(
-            &self.session,
-            key,
-            history,
-            crate::subscription::DEFAULT_MAXSIZE,
-        )
+        Subscription::advanced(&self.session, key, history, DEFAULT_MAXSIZE)
     }
 
     /// Follow the errors the service reports about `fleet`/`robot` (live only).
@@ -202,9 +143,9 @@ impl Connection {
         &self,
         fleet: &str,
         robot: &str,
-    ) -> Result<Subscription<crate::messages::Error>, ClientError> {
+    ) -> Result<Subscription<Error>, ClientError> {
         let key = keys::errors(fleet, robot)?;
-        Subscription::plain(&self.session, key, crate::subscription::DEFAULT_MAXSIZE)
+        Subscription::plain(&self.session, key, DEFAULT_MAXSIZE)
     }
 
     /// The robot's session state (open session, else the last closed one), or `None`.
@@ -224,8 +165,7 @@ impl Connection {
         robot: &str,
         timeout: Duration,
     ) -> Result<Vec<SessionState>, ClientError> {
-        let found = get_all::<SessionState>(&self.session, &keys::state(fleet, robot)?, timeout)?;
-        Ok(current_states(found))
+        query::states(&self.session, fleet, robot, timeout)
     }
 
     /// One submap of the robot's session, or `None`.
@@ -236,10 +176,7 @@ impl Connection {
         submap_id: u64,
         timeout: Duration,
     ) -> Result<Option<Submap>, ClientError> {
-        let key = keys::submap(fleet, robot, submap_id)?;
-        Ok(get_all::<Submap>(&self.session, &key, timeout)?
-            .into_iter()
-            .next())
+        query::submap(&self.session, fleet, robot, submap_id, timeout)
     }
 
     /// Every submap of the robot's session, by id.
@@ -249,12 +186,7 @@ impl Connection {
         robot: &str,
         timeout: Duration,
     ) -> Result<Vec<Submap>, ClientError> {
-        let key = keys::submaps(fleet, robot)?;
-        let mut by_id = BTreeMap::new();
-        for submap in get_all::<Submap>(&self.session, &key, timeout)? {
-            by_id.entry(submap.summary.id).or_insert(submap);
-        }
-        Ok(by_id.into_values().collect())
+        query::submaps(&self.session, fleet, robot, timeout)
     }
 
     /// The areas of the robot's current session and the passages between them, or `None`.
@@ -278,12 +210,11 @@ impl Connection {
         robot: &str,
         timeout: Duration,
     ) -> Result<Vec<AreaGraph>, ClientError> {
-        let found = get_all::<AreaGraph>(&self.session, &keys::areas(fleet, robot)?, timeout)?;
-        Ok(current_area_graphs(found))
+        query::area_graphs(&self.session, fleet, robot, timeout)
     }
 
     /// The places of one fleet: every robot's area graph (one query for the fleet, wherever
-    /// each robot's session lives) merged by [`fleet_graph`]. With
+    /// each robot's session lives) merged by [`fleet_graph`](crate::fleet_graph). With
     /// [`FleetParams::shared`] (global feature ids) robots that have been in the same place
     /// share its fleet area; fleet ids name this answer's areas, [`FleetGraph::key_of`] names
     /// them across answers.
@@ -293,47 +224,27 @@ impl Connection {
         params: &FleetParams,
         timeout: Duration,
     ) -> Result<FleetGraph, ClientError> {
-        if fleet.contains('*') {
-            return Err(ClientError::FleetMerge(FleetMergeError::SeveralFleets(
-                vec![fleet.to_owned()],
-            )));
-        }
-        let graphs = self.area_graphs(fleet, "*", timeout)?;
-        fleet_graph(&graphs, params).map_err(ClientError::FleetMerge)
+        query::fleet_area_graph(&self.session, fleet, params, timeout)
     }
 
     /// The `Health` of every live instance that answers.
     pub fn health(&self, timeout: Duration) -> Result<Vec<Health>, ClientError> {
-        get_all::<Health>(&self.session, &keys::health("*")?, timeout)
+        query::health(&self.session, timeout)
     }
 
     /// Sorted names of the live service instances (their liveliness tokens).
     pub fn instances(&self, timeout: Duration) -> Result<Vec<String>, ClientError> {
-        instances(&self.session, timeout)
+        query::instances(&self.session, timeout)
     }
 
     /// `(owner, standby)` of every partition, ranked over the live instances.
     pub fn coverage(&self, timeout: Duration) -> Result<Vec<OwnerAndStandby>, ClientError> {
-        let live = self.instances(timeout)?;
-        Ok((0..PARTITIONS)
-            .map(|p| owner_and_standby(p, &live))
-            .collect())
+        query::coverage(&self.session, timeout)
     }
 
     /// Wait until a service instance is alive (then every partition has an owner).
     pub fn wait_for_service(&self, timeout: Duration) -> Result<bool, ClientError> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let ask = left.clamp(Duration::from_millis(100), Duration::from_secs(1));
-            if !self.instances(ask)?.is_empty() {
-                return Ok(true);
-            }
-            if Instant::now() >= deadline {
-                return Ok(false);
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        query::wait_for_service(&self.session, timeout)
     }
 
     /// Close the Zenoh session if the connection opened it.
@@ -354,80 +265,4 @@ impl Drop for Connection {
     fn drop(&mut self) {
         let _ = self.shut();
     }
-}
-
-/// Query `key`, asking everybody, and decode every reply as `M` (undecodable ones skipped).
-pub(crate) fn get_all<M: Message>(
-    session: &Session,
-    key: &str,
-    timeout: Duration,
-) -> Result<Vec<M>, ClientError> {
-    let replies = session
-        .get(key)
-        .target(QueryTarget::All)
-        .consolidation(ConsolidationMode::None)
-        .timeout(timeout)
-        .wait()?;
-    let mut found = Vec::new();
-    while let Ok(reply) = replies.recv() {
-        let Ok(sample) = reply.result() else { continue };
-        match decode::<M>(&sample.payload().to_bytes()) {
-            Ok(message) => found.push(message),
-            Err(err) => tracing::warn!(
-                "skipped an undecodable reply on {}: {err}",
-                sample.key_expr()
-            ),
-        }
-    }
-    Ok(found)
-}
-
-pub(crate) fn instances(session: &Session, timeout: Duration) -> Result<Vec<String>, ClientError> {
-    let replies = session
-        .liveliness()
-        .get(keys::instances())
-        .timeout(timeout)
-        .wait()?;
-    let mut names = BTreeSet::new();
-    while let Ok(reply) = replies.recv() {
-        if let Ok(sample) = reply.result() {
-            if let Some(name) = sample.key_expr().as_str().rsplit('/').next() {
-                names.insert(name.to_owned());
-            }
-        }
-    }
-    Ok(names.into_iter().collect())
-}
-
-/// Keep one state per robot: the highest epoch, then the most `frames_applied`.
-pub fn current_states(states: Vec<SessionState>) -> Vec<SessionState> {
-    let mut best: BTreeMap<(String, String), SessionState> = BTreeMap::new();
-    for state in states {
-        let robot = (state.fleet.clone(), state.robot.clone());
-        match best.get(&robot) {
-            Some(kept)
-                if (kept.epoch, kept.frames_applied) >= (state.epoch, state.frames_applied) => {}
-            _ => {
-                best.insert(robot, state);
-            }
-        }
-    }
-    best.into_values().collect()
-}
-
-/// Keep one area graph per robot: the highest epoch, then the most frames over its areas
-/// ([`AreaGraph::total_frames`]); by fleet and robot name.
-pub fn current_area_graphs(graphs: Vec<AreaGraph>) -> Vec<AreaGraph> {
-    let mut best: BTreeMap<(String, String), AreaGraph> = BTreeMap::new();
-    for graph in graphs {
-        let robot = (graph.fleet.clone(), graph.robot.clone());
-        match best.get(&robot) {
-            Some(kept)
-                if (kept.epoch, kept.total_frames()) >= (graph.epoch, graph.total_frames()) => {}
-            _ => {
-                best.insert(robot, graph);
-            }
-        }
-    }
-    best.into_values().collect()
 }

@@ -16,10 +16,9 @@
 //! 5. Passages between two fleet areas add up per direction; the boundary features add up
 //!    and the `max_boundary_features` most frequent are kept (ties: smaller id).
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
-use std::fmt;
-
+pub use crate::error::FleetMergeError;
 use crate::messages::AreaGraph;
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 
 /// Boundary features kept per fleet passage (rule 5).
 pub const MAX_BOUNDARY_FEATURES: usize = 16;
@@ -159,36 +158,6 @@ impl FleetGraph {
         robots.into_iter().collect()
     }
 }
-
-/// Why graphs cannot be merged.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum FleetMergeError {
-    /// Graphs of several fleets: a merge is of one fleet.
-    SeveralFleets(Vec<String>),
-    /// Two graphs of one robot: a merge takes one per robot.
-    DuplicateRobot(String),
-    /// A threshold out of range.
-    BadParams(String),
-}
-
-impl fmt::Display for FleetMergeError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            FleetMergeError::SeveralFleets(fleets) => write!(
-                f,
-                "area graphs of several fleets ({}): merge one fleet",
-                fleets.join(", ")
-            ),
-            FleetMergeError::DuplicateRobot(robot) => write!(
-                f,
-                "two area graphs for robot {robot:?}: merge one per robot"
-            ),
-            FleetMergeError::BadParams(msg) => f.write_str(msg),
-        }
-    }
-}
-
-impl std::error::Error for FleetMergeError {}
 
 type Pair = (Member, Member);
 

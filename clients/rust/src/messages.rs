@@ -1,4 +1,5 @@
-//! The messages of the wire contract v3 (section 5), field for field.
+//! The messages of the wire contract v3 (section 5), field for field: those robots put and
+//! the service publishes here, the replies of its queryables in `messages/replies.rs`.
 //!
 //! Invariants of this file:
 //!
@@ -11,16 +12,14 @@
 //!   contract gives each failure.
 
 use serde::de::{DeserializeOwned, Error as _};
-use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::codec::{ErrorCode, WireError};
-use crate::names::{validate_name, PARTITIONS, WIRE_VERSION};
+use crate::checks::{check, count, ensure, features, finite, partition, positive, seq, seq_span};
+// Their old home: `messages::MAX_SEQ` and `messages::MAX_FEATURE_ID` still resolve.
+pub use crate::checks::{MAX_FEATURE_ID, MAX_SEQ};
+use crate::error::{ErrorCode, WireError};
+use crate::wire_serde::{nested, nullable, pose};
 
-/// Largest seq and counter: the largest integer a JavaScript number holds exactly.
-pub const MAX_SEQ: u64 = (1 << 53) - 1;
-/// Largest feature ID: fits a signed 64-bit integer.
-pub const MAX_FEATURE_ID: u64 = (1 << 63) - 1;
 /// Longest `Error.detail`, in characters.
 pub const MAX_DETAIL_CHARS: usize = 1024;
 
@@ -33,14 +32,16 @@ pub trait Message: Serialize + DeserializeOwned + Clone + std::fmt::Debug {
     fn validate(&self) -> Result<(), WireError>;
 }
 
+/// The canonical `Serialize` of a message: `type`, `v`, then the fields in the order given.
 macro_rules! wire_map {
     ($name:ident, [$($field:ident),* $(,)?]) => {
-        impl Serialize for $name {
-            fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        impl ::serde::Serialize for $name {
+            fn serialize<S: ::serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+                use ::serde::ser::SerializeMap as _;
                 let fields: &[&str] = &[$(stringify!($field)),*];
                 let mut map = serializer.serialize_map(Some(2 + fields.len()))?;
-                map.serialize_entry("type", <$name as Message>::TYPE)?;
-                map.serialize_entry("v", &WIRE_VERSION)?;
+                map.serialize_entry("type", <$name as $crate::messages::Message>::TYPE)?;
+                map.serialize_entry("v", &$crate::names::WIRE_VERSION)?;
                 $(map.serialize_entry(stringify!($field), &self.$field)?;)*
                 map.end()
             }
@@ -48,117 +49,8 @@ macro_rules! wire_map {
     };
 }
 
-/// A field that must be present but may be `nil` (serde would default a missing `Option`).
-fn nullable<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<Option<T>, D::Error> {
-    Option::<T>::deserialize(d)
-}
-
-/// A nested struct: only from a msgpack map, never from an array.
-fn nested<'de, D: Deserializer<'de>, T: DeserializeOwned>(d: D) -> Result<T, D::Error> {
-    let value = rmpv::Value::deserialize(d)?;
-    crate::codec::from_value(value).map_err(D::Error::custom)
-}
-
-fn nested_list<'de, D: Deserializer<'de>, T: DeserializeOwned>(d: D) -> Result<Vec<T>, D::Error> {
-    Vec::<rmpv::Value>::deserialize(d)?
-        .into_iter()
-        .map(|value| crate::codec::from_value(value).map_err(D::Error::custom))
-        .collect()
-}
-
-fn pose<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
-    match Option::<Vec<f64>>::deserialize(d)? {
-        None => Ok(None),
-        Some(values) => <[f64; 3]>::try_from(values.as_slice())
-            .map(Some)
-            .map_err(|_| D::Error::custom(format!("a pose has 3 values, not {}", values.len()))),
-    }
-}
-
-fn invalid(message: String) -> WireError {
-    WireError::new(ErrorCode::Invalid, message)
-}
-
-fn name(value: &str, what: &str) -> Result<(), WireError> {
-    validate_name(value, what)
-}
-
-fn opt_name(value: &Option<String>, what: &str) -> Result<(), WireError> {
-    value.as_deref().map_or(Ok(()), |v| validate_name(v, what))
-}
-
-fn seq(value: u64, field: &str) -> Result<(), WireError> {
-    if value > MAX_SEQ {
-        return Err(WireError::with_limit(
-            ErrorCode::LimitExceeded,
-            "max_seq",
-            format!("{field}={value} exceeds max_seq={MAX_SEQ}"),
-        ));
-    }
-    Ok(())
-}
-
-fn count(value: u64, field: &str) -> Result<(), WireError> {
-    if value > MAX_SEQ {
-        return Err(invalid(format!("{field}={value} is above 2**53-1")));
-    }
-    Ok(())
-}
-
-fn epoch(value: u64, field: &str) -> Result<(), WireError> {
-    if value == 0 || value > MAX_SEQ {
-        return Err(invalid(format!("{field}={value} is not in 1..2**53-1")));
-    }
-    Ok(())
-}
-
-fn features(values: &[u64], field: &str) -> Result<(), WireError> {
-    if let Some(big) = values.iter().find(|id| **id > MAX_FEATURE_ID) {
-        return Err(feature_limit(*big, field));
-    }
-    Ok(())
-}
-
-fn feature_limit(id: u64, field: &str) -> WireError {
-    WireError::with_limit(
-        ErrorCode::LimitExceeded,
-        "max_feature_id",
-        format!("{field} holds {id}; max_feature_id={MAX_FEATURE_ID}"),
-    )
-}
-
-/// An integer in 1..2**53-1 (a count that cannot be 0).
-fn positive(value: u64, field: &str) -> Result<(), WireError> {
-    if value == 0 || value > MAX_SEQ {
-        return Err(invalid(format!("{field}={value} is not in 1..2**53-1")));
-    }
-    Ok(())
-}
-
-fn finite(value: f64, field: &str) -> Result<(), WireError> {
-    if !value.is_finite() {
-        return Err(invalid(format!("{field} must be finite, not {value}")));
-    }
-    Ok(())
-}
-
-fn non_negative(value: f64, field: &str) -> Result<(), WireError> {
-    finite(value, field)?;
-    if value < 0.0 {
-        return Err(invalid(format!("{field} must be >= 0, not {value}")));
-    }
-    Ok(())
-}
-
-fn partition(value: u16, field: &str) -> Result<(), WireError> {
-    if value >= PARTITIONS {
-        return Err(invalid(format!(
-            "{field}={value} is not in 0..{}",
-            PARTITIONS - 1
-        )));
-    }
-    Ok(())
-}
+mod replies;
+pub use replies::{AreaGraph, AreaNode, Health, Method, Passage, SessionState, Submap};
 
 /// One sensor frame of a robot session (robot -> service, `frames` key).
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -181,9 +73,9 @@ impl Message for Frame {
     const TYPE: &'static str = "Frame";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.session, "session")?;
-        seq(self.seq, "Frame.seq")?;
-        finite(self.stamp_s, "Frame.stamp_s")?;
+        check!(self, names: session);
+        check!(self, "Frame", seq: seq);
+        check!(self, "Frame", finite: stamp_s);
         features(&self.features, "Frame.features")?;
         for value in self.pose.iter().flatten() {
             finite(*value, "Frame.pose")?;
@@ -210,11 +102,10 @@ impl Message for SessionEnd {
     const TYPE: &'static str = "SessionEnd";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.session, "session")?;
-        if let Some(last) = self.last_seq {
-            seq(last, "SessionEnd.last_seq")?;
-        }
-        finite(self.stamp_s, "SessionEnd.stamp_s")
+        check!(self, names: session);
+        check!(self, "SessionEnd", seq?: last_seq);
+        check!(self, "SessionEnd", finite: stamp_s);
+        Ok(())
     }
 }
 wire_map!(SessionEnd, [session, last_seq, stamp_s]);
@@ -237,18 +128,11 @@ pub struct SubmapSummary {
 
 impl SubmapSummary {
     fn validate(&self, at: &str) -> Result<(), WireError> {
-        count(self.id, &format!("{at}.id"))?;
-        seq(self.first_seq, &format!("{at}.first_seq"))?;
-        seq(self.last_seq, &format!("{at}.last_seq"))?;
-        count(self.frame_count, &format!("{at}.frame_count"))?;
+        check!(self, at, count: id);
+        check!(self, at, seq: first_seq, last_seq);
+        check!(self, at, count: frame_count);
         features(&self.features, &format!("{at}.features"))?;
-        if self.first_seq > self.last_seq {
-            return Err(invalid(format!(
-                "{at}: first_seq {} is after last_seq {}",
-                self.first_seq, self.last_seq
-            )));
-        }
-        Ok(())
+        seq_span(self.first_seq, self.last_seq, at)
     }
 }
 
@@ -287,42 +171,6 @@ impl<'de> Deserialize<'de> for Reason {
             "DISCONNECTED" => Ok(Reason::Disconnected),
             "RECOGNISED" => Ok(Reason::Recognised),
             other => Err(D::Error::custom(format!("unknown reason {other:?}"))),
-        }
-    }
-}
-
-/// Segmentation method of a session (a service setting, contract section 6a).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Method {
-    /// LESS-mapping as published: every submap is an area of its own.
-    Paper,
-    /// Proposed area changes are confirmed on more evidence, and a robot coming back to an
-    /// area it mapped gets that area's id again.
-    Areas,
-}
-
-impl Method {
-    /// The method as written on the wire.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Method::Paper => "paper",
-            Method::Areas => "areas",
-        }
-    }
-}
-
-impl Serialize for Method {
-    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.as_str())
-    }
-}
-
-impl<'de> Deserialize<'de> for Method {
-    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        match String::deserialize(deserializer)?.as_str() {
-            "paper" => Ok(Method::Paper),
-            "areas" => Ok(Method::Areas),
-            other => Err(D::Error::custom(format!("unknown method {other:?}"))),
         }
     }
 }
@@ -381,44 +229,42 @@ impl Message for Transition {
     const TYPE: &'static str = "Transition";
 
     fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        seq(self.seq, "Transition.seq")?;
-        seq(self.boundary_seq, "Transition.boundary_seq")?;
-        finite(self.stamp_s, "Transition.stamp_s")?;
+        check!(self, names: fleet, robot, session);
+        check!(self, "Transition", seq: seq, boundary_seq);
+        check!(self, "Transition", finite: stamp_s);
         for value in [self.ncut, self.lambda2].into_iter().flatten() {
             finite(value, "Transition.ncut/lambda2")?;
         }
         self.closed.validate("Transition.closed")?;
         self.opened.validate("Transition.opened")?;
         features(&self.boundary_features, "Transition.boundary_features")?;
-        count(self.area, "Transition.area")?;
-        count(self.left_area, "Transition.left_area")?;
-        positive(self.batch_frames, "Transition.batch_frames")?;
-        name(&self.instance, "instance")?;
-        partition(self.partition, "Transition.partition")?;
-        epoch(self.epoch, "Transition.epoch")?;
-        if self.boundary_seq > self.seq {
-            return Err(invalid(format!(
+        check!(self, "Transition", count: area, left_area);
+        check!(self, "Transition", positive: batch_frames);
+        check!(self, names: instance);
+        check!(self, "Transition", partition: partition);
+        check!(self, "Transition", positive: epoch);
+        ensure(self.boundary_seq <= self.seq, || {
+            format!(
                 "boundary_seq {} is after seq {}",
                 self.boundary_seq, self.seq
-            )));
-        }
+            )
+        })?;
         let spectral = self.reason == Reason::Spectral;
-        if self.ncut.is_some() != spectral || self.lambda2.is_some() != spectral {
-            return Err(invalid(format!(
-                "{}: ncut, lambda2 are set for SPECTRAL only, null otherwise",
-                self.reason.as_str()
-            )));
-        }
-        if self.area == self.left_area {
-            return Err(invalid(format!(
+        ensure(
+            self.ncut.is_some() == spectral && self.lambda2.is_some() == spectral,
+            || {
+                format!(
+                    "{}: ncut, lambda2 are set for SPECTRAL only, null otherwise",
+                    self.reason.as_str()
+                )
+            },
+        )?;
+        ensure(self.area != self.left_area, || {
+            format!(
                 "Transition: area {} equals left_area; a transition changes area",
                 self.area
-            )));
-        }
-        Ok(())
+            )
+        })
     }
 }
 wire_map!(
@@ -479,9 +325,7 @@ impl Message for Error {
     const TYPE: &'static str = "Error";
 
     fn validate(&self) -> Result<(), WireError> {
-        opt_name(&self.fleet, "fleet")?;
-        opt_name(&self.robot, "robot")?;
-        opt_name(&self.session, "session")?;
+        check!(self, names?: fleet, robot, session);
         let chars = self.detail.chars().count();
         if chars > MAX_DETAIL_CHARS {
             return Err(WireError::with_limit(
@@ -490,379 +334,14 @@ impl Message for Error {
                 format!("Error.detail has {chars} characters; max_detail_len={MAX_DETAIL_CHARS}"),
             ));
         }
-        if let Some(value) = self.seq {
-            seq(value, "Error.seq")?;
-        }
-        finite(self.stamp_s, "Error.stamp_s")?;
-        name(&self.instance, "instance")?;
-        if let Some(value) = self.epoch {
-            epoch(value, "Error.epoch")?;
-        }
+        check!(self, "Error", seq?: seq);
+        check!(self, "Error", finite: stamp_s);
+        check!(self, names: instance);
+        check!(self, "Error", positive?: epoch);
         Ok(())
     }
 }
 wire_map!(
     Error,
     [fleet, robot, session, code, detail, seq, stamp_s, instance, epoch]
-);
-
-/// Counters and submaps of a robot's current session (reply on the `state` key).
-#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SessionState {
-    /// Fleet of the robot.
-    pub fleet: String,
-    /// The robot.
-    pub robot: String,
-    /// The robot's current (latest) session.
-    pub session: String,
-    /// Service instance holding it.
-    pub instance: String,
-    /// Ownership epoch of the robot's partition at that instance.
-    pub epoch: u64,
-    /// `false` once a `SessionEnd` (or a newer session) closed it.
-    pub open: bool,
-    /// Last frame applied; `None` before the first.
-    #[serde(deserialize_with = "nullable")]
-    pub last_seq: Option<u64>,
-    /// Frames applied to the CovGraph, each once, in seq order.
-    pub frames_applied: u64,
-    /// Frames ignored as `DUPLICATE_SEQ`.
-    pub frames_duplicate: u64,
-    /// Seqs skipped by a gap and never received.
-    pub frames_missing: u64,
-    /// Other frames received but not applied.
-    pub frames_rejected: u64,
-    /// Transitions published for this session.
-    pub transitions: u64,
-    /// Segmentation method of the session.
-    pub method: Method,
-    /// The area the robot is in (an [`AreaGraph`] node id).
-    pub current_area: u64,
-    /// The submap the robot is in.
-    #[serde(deserialize_with = "nested")]
-    pub current_submap: SubmapSummary,
-    /// Submaps left behind, oldest first.
-    #[serde(deserialize_with = "nested_list")]
-    pub closed_submaps: Vec<SubmapSummary>,
-    /// Nodes of the CovGraph.
-    pub nodes: u64,
-    /// Edges of the CovGraph.
-    pub edges: u64,
-}
-
-impl Message for SessionState {
-    const TYPE: &'static str = "SessionState";
-
-    fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        name(&self.instance, "instance")?;
-        epoch(self.epoch, "SessionState.epoch")?;
-        if let Some(value) = self.last_seq {
-            seq(value, "SessionState.last_seq")?;
-        }
-        count(self.frames_applied, "SessionState.frames_applied")?;
-        count(self.frames_duplicate, "SessionState.frames_duplicate")?;
-        count(self.frames_missing, "SessionState.frames_missing")?;
-        count(self.frames_rejected, "SessionState.frames_rejected")?;
-        count(self.transitions, "SessionState.transitions")?;
-        count(self.current_area, "SessionState.current_area")?;
-        self.current_submap
-            .validate("SessionState.current_submap")?;
-        for (index, summary) in self.closed_submaps.iter().enumerate() {
-            summary.validate(&format!("SessionState.closed_submaps.{index}"))?;
-        }
-        count(self.nodes, "SessionState.nodes")?;
-        count(self.edges, "SessionState.edges")
-    }
-}
-wire_map!(
-    SessionState,
-    [
-        fleet,
-        robot,
-        session,
-        instance,
-        epoch,
-        open,
-        last_seq,
-        frames_applied,
-        frames_duplicate,
-        frames_missing,
-        frames_rejected,
-        transitions,
-        method,
-        current_area,
-        current_submap,
-        closed_submaps,
-        nodes,
-        edges,
-    ]
-);
-
-/// One submap of a robot's session (reply on the `submaps/<id>` key).
-#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Submap {
-    /// Fleet of the robot.
-    pub fleet: String,
-    /// The robot.
-    pub robot: String,
-    /// Session the submap belongs to.
-    pub session: String,
-    /// Frames and features of the submap.
-    #[serde(deserialize_with = "nested")]
-    pub summary: SubmapSummary,
-    /// `true` for the submap the robot is in (it still grows).
-    pub open: bool,
-}
-
-impl Message for Submap {
-    const TYPE: &'static str = "Submap";
-
-    fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        self.summary.validate("Submap.summary")
-    }
-}
-wire_map!(Submap, [fleet, robot, session, summary, open]);
-
-/// One area of a robot's session: a node of its [`AreaGraph`] (nested only).
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AreaNode {
-    /// Area id within the session, from 0 in order of opening; a merged id is not reused.
-    pub id: u64,
-    /// Frames the robot spent in the area over all its visits (empty frames too).
-    pub frames: u64,
-    /// Separate stays in the area, at least 1.
-    pub visits: u64,
-    /// First frame in the area.
-    pub first_seq: u64,
-    /// Last frame in the area so far; `first_seq <= last_seq`.
-    pub last_seq: u64,
-    /// Distinct feature IDs of the area, ascending.
-    pub features: Vec<u64>,
-}
-
-impl AreaNode {
-    fn validate(&self, at: &str) -> Result<(), WireError> {
-        count(self.id, &format!("{at}.id"))?;
-        count(self.frames, &format!("{at}.frames"))?;
-        positive(self.visits, &format!("{at}.visits"))?;
-        seq(self.first_seq, &format!("{at}.first_seq"))?;
-        seq(self.last_seq, &format!("{at}.last_seq"))?;
-        features(&self.features, &format!("{at}.features"))?;
-        if self.first_seq > self.last_seq {
-            return Err(invalid(format!(
-                "{at}: first_seq {} is after last_seq {}",
-                self.first_seq, self.last_seq
-            )));
-        }
-        Ok(())
-    }
-}
-
-/// The robot's passages between two areas `a < b`: an edge of its [`AreaGraph`] (nested only).
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Passage {
-    /// The lower area id.
-    pub a: u64,
-    /// The higher area id; `a < b`.
-    pub b: u64,
-    /// Passages from `a` to `b`.
-    pub a_to_b: u64,
-    /// Passages from `b` to `a`; `a_to_b + b_to_a >= 1`.
-    pub b_to_a: u64,
-    /// `(feature ID, passages that reported it)`: the features most often reported on this
-    /// boundary, most frequent first (ties: smaller id); at most 16 (a service setting), and a
-    /// trimmed count is a lower bound. Each pair is a 2-item msgpack array.
-    pub boundary_features: Vec<(u64, u64)>,
-}
-
-impl Passage {
-    fn validate(&self, at: &str) -> Result<(), WireError> {
-        count(self.a, &format!("{at}.a"))?;
-        count(self.b, &format!("{at}.b"))?;
-        count(self.a_to_b, &format!("{at}.a_to_b"))?;
-        count(self.b_to_a, &format!("{at}.b_to_a"))?;
-        for (index, (id, reports)) in self.boundary_features.iter().enumerate() {
-            let field = format!("{at}.boundary_features.{index}");
-            if *id > MAX_FEATURE_ID {
-                return Err(feature_limit(*id, &field));
-            }
-            count(*reports, &field)?;
-        }
-        if self.a >= self.b {
-            return Err(invalid(format!(
-                "{at}: a={} must be below b={}",
-                self.a, self.b
-            )));
-        }
-        // Both are at most 2**53-1 here: the sum cannot overflow.
-        if self.a_to_b + self.b_to_a == 0 {
-            return Err(invalid(format!(
-                "{at}: passage {}-{} counts no passage",
-                self.a, self.b
-            )));
-        }
-        Ok(())
-    }
-}
-
-/// The areas of a robot's current session and the passages between them (reply on the
-/// `areas` key).
-#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AreaGraph {
-    /// Fleet of the robot.
-    pub fleet: String,
-    /// The robot.
-    pub robot: String,
-    /// The session the areas belong to (the robot's current one, open or closed).
-    pub session: String,
-    /// Service instance holding the session.
-    pub instance: String,
-    /// Ownership epoch of the robot's partition at that instance.
-    pub epoch: u64,
-    /// Segmentation method of the session; under `Paper` every submap is its own area.
-    pub method: Method,
-    /// The areas the robot has been in, by strictly ascending id; empty before the first frame.
-    #[serde(deserialize_with = "nested_list")]
-    pub areas: Vec<AreaNode>,
-    /// One per pair of areas the robot passed between, by strictly ascending `(a, b)`; every
-    /// `a` and `b` is the id of a listed area.
-    #[serde(deserialize_with = "nested_list")]
-    pub passages: Vec<Passage>,
-}
-
-impl AreaGraph {
-    /// Frames over every area: of two replies with one epoch, the one with more is current.
-    pub fn total_frames(&self) -> u64 {
-        self.areas
-            .iter()
-            .fold(0u64, |sum, area| sum.saturating_add(area.frames))
-    }
-
-    /// The area with id `id`, if listed (a binary search: a decoded graph lists its areas by
-    /// ascending id).
-    pub fn area(&self, id: u64) -> Option<&AreaNode> {
-        self.areas
-            .binary_search_by_key(&id, |area| area.id)
-            .ok()
-            .map(|index| &self.areas[index])
-    }
-}
-
-impl Message for AreaGraph {
-    const TYPE: &'static str = "AreaGraph";
-
-    fn validate(&self) -> Result<(), WireError> {
-        name(&self.fleet, "fleet")?;
-        name(&self.robot, "robot")?;
-        name(&self.session, "session")?;
-        name(&self.instance, "instance")?;
-        epoch(self.epoch, "AreaGraph.epoch")?;
-        for (index, area) in self.areas.iter().enumerate() {
-            area.validate(&format!("AreaGraph.areas.{index}"))?;
-        }
-        for (index, passage) in self.passages.iter().enumerate() {
-            passage.validate(&format!("AreaGraph.passages.{index}"))?;
-        }
-        if self.areas.windows(2).any(|pair| pair[1].id <= pair[0].id) {
-            return Err(invalid(
-                "AreaGraph: areas must be listed by strictly ascending id".into(),
-            ));
-        }
-        // The ids are sorted now, so `area` may search them.
-        if let Some(passage) = self
-            .passages
-            .iter()
-            .find(|p| self.area(p.a).is_none() || self.area(p.b).is_none())
-        {
-            return Err(invalid(format!(
-                "AreaGraph: passage {}-{} names an area that is not listed",
-                passage.a, passage.b
-            )));
-        }
-        if self
-            .passages
-            .windows(2)
-            .any(|pair| (pair[1].a, pair[1].b) <= (pair[0].a, pair[0].b))
-        {
-            return Err(invalid(
-                "AreaGraph: passages must be listed by strictly ascending (a, b)".into(),
-            ));
-        }
-        Ok(())
-    }
-}
-wire_map!(
-    AreaGraph,
-    [fleet, robot, session, instance, epoch, method, areas, passages]
-);
-
-/// Liveness figures of one service instance (reply on the `@/health/<instance>` key).
-#[derive(Clone, Debug, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Health {
-    /// The instance reporting.
-    pub instance: String,
-    /// Service software version, 1 to 64 characters.
-    pub version: String,
-    /// Sessions held in memory.
-    pub sessions: u64,
-    /// Seconds since the instance started.
-    pub uptime_s: f64,
-    /// Frames applied over all sessions since start.
-    pub frames_applied: u64,
-    /// Partitions this instance owns, ascending.
-    pub partitions: Vec<u16>,
-    /// Partitions this instance is the standby of, ascending.
-    pub standby: Vec<u16>,
-    /// Messages received and not yet handled.
-    pub queue_depth: u64,
-    /// Age of the oldest message not yet handled, seconds.
-    pub lag_s: f64,
-}
-
-impl Message for Health {
-    const TYPE: &'static str = "Health";
-
-    fn validate(&self) -> Result<(), WireError> {
-        name(&self.instance, "instance")?;
-        let chars = self.version.chars().count();
-        if chars == 0 || chars > 64 {
-            return Err(invalid(format!(
-                "Health.version has {chars} characters, not 1..64"
-            )));
-        }
-        count(self.sessions, "Health.sessions")?;
-        non_negative(self.uptime_s, "Health.uptime_s")?;
-        count(self.frames_applied, "Health.frames_applied")?;
-        for p in self.partitions.iter().chain(&self.standby) {
-            partition(*p, "Health.partitions")?;
-        }
-        count(self.queue_depth, "Health.queue_depth")?;
-        non_negative(self.lag_s, "Health.lag_s")
-    }
-}
-wire_map!(
-    Health,
-    [
-        instance,
-        version,
-        sessions,
-        uptime_s,
-        frames_applied,
-        partitions,
-        standby,
-        queue_depth,
-        lag_s
-    ]
 );

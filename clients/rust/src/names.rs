@@ -5,7 +5,7 @@
 
 use sha2::{Digest, Sha256};
 
-use crate::codec::{ErrorCode, WireError};
+use crate::error::{ErrorCode, WireError};
 
 /// Value of the `v` field of every message and of the `v3` key chunk.
 pub const WIRE_VERSION: u64 = 3;
@@ -107,7 +107,7 @@ pub fn owner_and_standby<S: AsRef<str>>(
 /// Key expressions of every lessmap stream, one function per stream.
 pub mod keys {
     use super::{chunk, partition_of, validate_name, ANY, KEY_PREFIX};
-    use crate::codec::WireError;
+    use crate::error::WireError;
 
     fn robot_key(fleet: &str, robot: &str, stream: &str) -> Result<String, WireError> {
         Ok(format!(

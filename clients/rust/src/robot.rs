@@ -7,16 +7,8 @@
 //!   frames it missed (contract section 6, rule 8). Congestion control is *block*: a frame is
 //!   never dropped silently.
 //! * `SessionEnd` goes on the same key as the frames, so it never overtakes them.
-//! * The robot follows its own `errors` key: Zenoh's callback only hands the payload to a
-//!   bounded channel; the robot's follower thread decodes it, fences it by epoch, updates the
-//!   status and calls `on_error`. A `SESSION_CLOSED` about the current session becomes a flag
-//!   the next `publish` acts on, so frames are never renumbered behind the caller's back.
-//! * The robot follows the instances' liveliness tokens; `status().owner` ranks them for its
-//!   partition (section 2a). The follower logs one warning when the robot becomes unserved
-//!   (or still is 2 s after the start) and one info line when it is served again.
-//! * After a `SESSION_CLOSED` for the current session, with `auto_new_session`, the follower
-//!   asks the robot's state: another publisher's open session of the robot name (a holder)
-//!   makes `publish` fail instead of starting a session that would close that one.
+//! * The robot follows its own `errors` key (on a follower thread) and the instances'
+//!   liveliness tokens (`follower.rs` has the rules); `publish` acts on what they report.
 //! * Closing keeps the publication cache after the `SessionEnd` until the service confirms
 //!   the end (its `SessionState` shows the session closed, or open with every frame up to the
 //!   last seq applied, then the end is put again): frames dropped at a deposed owner during a
@@ -26,37 +18,32 @@
 //!   is `close_all` of one publisher.
 
 use std::collections::hash_map::RandomState;
-use std::collections::{BTreeMap, BTreeSet};
 use std::hash::{BuildHasher, Hasher};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, RecvTimeoutError};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
-use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
-use crate::closing::{confirm_ends, CloseFailure, CloseReport, PendingEnd, UnconfirmedEnd};
-use crate::codec::{decode, encode, encoding, ErrorCode, WireError, WireLimits};
-use crate::connection::{current_area_graphs, current_states, get_all, ClientError};
-use crate::messages::{AreaGraph, Error, Frame, Health, Message, SessionEnd, SessionState};
+use crate::closing::{close_each, CloseReport, Ending, EndingPublisher};
+// Their old home: `robot::EndProgress` and `robot::end_progress` still resolve.
+pub use crate::closing::{end_progress, EndProgress};
+use crate::codec::{encode, encoding, WireLimits};
+use crate::error::{ClientError, ErrorCode, WireError};
+// Its old home: `robot::ErrorCallback` still resolves.
+pub use crate::follower::ErrorCallback;
+use crate::follower::{follow_errors, follow_instances, Shared};
+use crate::messages::{AreaGraph, Frame, Message, SessionEnd, SessionState};
 use crate::names::{keys, owner_and_standby, partition_of, validate_name};
+use crate::query;
 
-/// Error reports waiting for the follower thread; more are dropped and counted.
-const INBOX_MAX: usize = 1000;
-/// After this long without an owner since the publisher started, it warns once.
-const UNSERVED_GRACE: Duration = Duration::from_secs(2);
-/// How long the follower asks who holds the robot after a `SESSION_CLOSED`.
-const HOLDER_QUERY: Duration = Duration::from_secs(1);
+mod options;
+pub use options::{RobotOptions, RobotStatus, DEFAULT_CLOSE_TIMEOUT};
 
-/// How long closing waits by default for the service to confirm the end: room for a take-over
-/// of the robot's partition, whose catch-up from the cache the service bounds by
-/// `catchup_wait_s` (2 s by default).
-pub const DEFAULT_CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
 /// A fresh session id: the start time plus randomness, a valid name.
 pub fn new_session_id() -> String {
     let secs = SystemTime::now()
@@ -77,187 +64,6 @@ fn now_s() -> f64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// A callback for the service's reports about a robot's sessions.
-pub type ErrorCallback = Box<dyn Fn(&Error) + Send + 'static>;
-
-/// How a robot publisher behaves.
-pub struct RobotOptions {
-    /// The session id; a fresh random one by default (a restarted robot must use a new one).
-    pub session_id: Option<String>,
-    /// Frames kept in the publication cache for recovery by the service.
-    pub cache: usize,
-    /// Start a new session by itself when the service closed the current one (default
-    /// `true`: a closed session discards every frame, and a robot in the field should keep
-    /// being segmented). `false`: `publish` fails with `ClientError::SessionClosed`.
-    pub auto_new_session: bool,
-    /// Called with every `Error` the service reports about this publisher's sessions, on the
-    /// publisher's own thread (never Zenoh's), so it may block.
-    pub on_error: Option<ErrorCallback>,
-    /// How long `close` (and dropping the publisher) waits after the `SessionEnd` for the
-    /// service to confirm it, keeping the publication cache meanwhile (default
-    /// [`DEFAULT_CLOSE_TIMEOUT`]). `Duration::ZERO`: release right after sending the end.
-    pub close_timeout: Duration,
-}
-
-impl Default for RobotOptions {
-    fn default() -> Self {
-        RobotOptions {
-            session_id: None,
-            cache: 1000,
-            auto_new_session: true,
-            on_error: None,
-            close_timeout: DEFAULT_CLOSE_TIMEOUT,
-        }
-    }
-}
-
-/// What a robot publisher sent and what the service reported back (a snapshot).
-#[derive(Clone, Debug)]
-pub struct RobotStatus {
-    /// Fleet of the robot.
-    pub fleet: String,
-    /// The robot.
-    pub robot: String,
-    /// The current session.
-    pub session_id: String,
-    /// Seq the next frame of the current session will carry.
-    pub next_seq: u64,
-    /// Last seq sent in the current session.
-    pub last_seq: Option<u64>,
-    /// Frames published over every session of this publisher.
-    pub frames_sent: u64,
-    /// Sessions this publisher started.
-    pub sessions: usize,
-    /// `Error` reports about this publisher's sessions, per code.
-    pub errors: BTreeMap<String, u64>,
-    /// The latest of them.
-    pub last_error: Option<Error>,
-    /// The service reported the current session closed.
-    pub closed_by_service: bool,
-    /// Reports dropped unread because too many were waiting.
-    pub reports_dropped: u64,
-    /// The robot's partition, the last chunk of its frames key.
-    pub partition: u16,
-    /// The owner of the partition among the live instances; `None`: nobody serves the robot.
-    pub owner: Option<String>,
-    /// Reports dropped for an epoch below the highest seen (a deposed owner's).
-    pub reports_stale: u64,
-}
-
-impl RobotStatus {
-    /// Reports received with this code.
-    pub fn count(&self, code: ErrorCode) -> u64 {
-        self.errors.get(code.as_str()).copied().unwrap_or(0)
-    }
-}
-
-struct State {
-    session_id: String,
-    next_seq: u64,
-    frames_sent: u64,
-    sessions: Vec<String>,
-    errors: BTreeMap<String, u64>,
-    last_error: Option<Error>,
-    closed_report: bool,
-    /// Another open session of this robot name the service holds (seen after a
-    /// `SESSION_CLOSED`): `publish` does not start a new session over it.
-    holder: Option<String>,
-    highest_epoch: u64,
-    stale: u64,
-    live: BTreeSet<String>,
-}
-
-impl State {
-    fn start_session(&mut self, session_id: String) {
-        self.session_id = session_id.clone();
-        self.sessions.push(session_id);
-        self.next_seq = 0;
-        self.closed_report = false;
-        self.holder = None;
-    }
-}
-
-struct Shared {
-    state: Mutex<State>,
-    live_changed: Condvar,
-    /// Reports handed to the follower and reports it handled (`flush_errors`).
-    inbox: Mutex<Inbox>,
-    inbox_changed: Condvar,
-    dropped: AtomicU64,
-    stop: AtomicBool,
-}
-
-#[derive(Default)]
-struct Inbox {
-    received: u64,
-    handled: u64,
-}
-
-impl Shared {
-    fn lock(&self) -> MutexGuard<'_, State> {
-        // A panic in on_error never holds this lock, so poisoning is not expected; recover.
-        self.state
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-
-    fn inbox(&self) -> MutexGuard<'_, Inbox> {
-        self.inbox
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-}
-
-/// What the service's state of a robot says about a session end the robot sent.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum EndProgress {
-    /// The session is closed: the end is confirmed and the cache is no longer needed.
-    Closed,
-    /// Open with every frame up to the last seq applied: only the end is missing (it may have
-    /// been dropped at a deposed owner), so it is put again after a short grace.
-    CaughtUp,
-    /// Frames still to apply, no state yet (a take-over in progress), or the newest state is
-    /// about another session: the cache may still be needed.
-    Pending,
-}
-
-/// Where the end of `session` (last frame `last_seq`) of `fleet`/`robot` stands, per the
-/// `SessionState` replies of its `state` key: of several replies (an old and a new owner),
-/// the highest epoch is current.
-pub fn end_progress(
-    replies: Vec<SessionState>,
-    fleet: &str,
-    robot: &str,
-    session: &str,
-    last_seq: u64,
-) -> EndProgress {
-    let current = current_states(replies)
-        .into_iter()
-        .find(|state| state.fleet == fleet && state.robot == robot);
-    progress_of(current.as_ref(), session, last_seq)
-}
-
-/// Where the end of `session` (last frame `last_seq`) stands per the robot's current state.
-pub(crate) fn progress_of(
-    current: Option<&SessionState>,
-    session: &str,
-    last_seq: u64,
-) -> EndProgress {
-    match current {
-        // Another session is no proof either way: it may be older than this one.
-        Some(state) if state.session == session => {
-            if !state.open {
-                EndProgress::Closed
-            } else if state.last_seq.is_some_and(|seq| seq >= last_seq) {
-                EndProgress::CaughtUp
-            } else {
-                EndProgress::Pending
-            }
-        }
-        _ => EndProgress::Pending,
-    }
 }
 
 /// Publishes the frames of one robot session, numbered from 0, and follows its errors.
@@ -294,26 +100,7 @@ impl RobotPublisher {
         let session_id = options.session_id.unwrap_or_else(new_session_id);
         validate_name(&session_id, "session")?;
         let key = keys::frames(fleet, robot)?;
-        let shared = Arc::new(Shared {
-            state: Mutex::new(State {
-                session_id: session_id.clone(),
-                next_seq: 0,
-                frames_sent: 0,
-                sessions: vec![session_id],
-                errors: BTreeMap::new(),
-                last_error: None,
-                closed_report: false,
-                holder: None,
-                highest_epoch: 0,
-                stale: 0,
-                live: BTreeSet::new(),
-            }),
-            live_changed: Condvar::new(),
-            inbox: Mutex::new(Inbox::default()),
-            inbox_changed: Condvar::new(),
-            dropped: AtomicU64::new(0),
-            stop: AtomicBool::new(false),
-        });
+        let shared = Arc::new(Shared::new(session_id));
         let publisher = session
             .declare_publisher(key.clone())
             .encoding(encoding::<Frame>())
@@ -336,80 +123,17 @@ impl RobotPublisher {
             live_sub: None,
             follower: None,
         };
-        // Reports: Zenoh's thread hands them over; the follower handles them.
-        let (tx, rx) = sync_channel::<Vec<u8>>(INBOX_MAX);
-        let counter = Arc::clone(&shared);
-        robot_pub.errors_sub = Some(
-            session
-                .declare_subscriber(keys::errors(fleet, robot)?)
-                .callback(move |sample: Sample| {
-                    // Counted under the inbox lock, so `handled` never runs ahead of it.
-                    let mut inbox = counter.inbox();
-                    match tx.try_send(sample.payload().to_bytes().into_owned()) {
-                        Ok(()) => inbox.received += 1,
-                        Err(_) => {
-                            counter.dropped.fetch_add(1, Ordering::Relaxed);
-                        }
-                    }
-                })
-                .wait()?,
-        );
-        let follower_shared = Arc::clone(&shared);
-        let on_error = options.on_error;
-        let label = format!("{fleet}/{robot}");
-        let reports = Reports {
-            label: label.clone(),
-            partition: partition_of(fleet, robot),
-            session: session.clone(),
-            state_key: keys::state(fleet, robot)?,
-            auto_new_session: options.auto_new_session,
-            on_error,
-        };
-        robot_pub.follower = Some(
-            std::thread::Builder::new()
-                .name(format!("lessmap-robot-{label}"))
-                .spawn(move || {
-                    let mut served = Served::new(Instant::now() + UNSERVED_GRACE);
-                    loop {
-                        match rx.recv_timeout(Duration::from_millis(100)) {
-                            Ok(payload) => {
-                                handle_report(&follower_shared, &reports, &payload);
-                                follower_shared.inbox().handled += 1;
-                                follower_shared.inbox_changed.notify_all();
-                            }
-                            Err(RecvTimeoutError::Timeout) => {}
-                            Err(RecvTimeoutError::Disconnected) => return,
-                        }
-                        if follower_shared.stop.load(Ordering::Relaxed) {
-                            return;
-                        }
-                        served.check(&follower_shared, &reports);
-                    }
-                })
-                .map_err(|err| ClientError::Connect(format!("cannot start a thread: {err}")))?,
-        );
-        // Instances: a liveliness subscriber with history gives the live ones, then changes.
-        let prefix = keys::instances().trim_end_matches('*').to_owned();
-        let live_shared = Arc::clone(&shared);
-        robot_pub.live_sub = Some(
-            session
-                .liveliness()
-                .declare_subscriber(keys::instances())
-                .history(true)
-                .callback(move |sample: Sample| {
-                    let key = sample.key_expr().as_str();
-                    if let Some(name) = key.strip_prefix(prefix.as_str()) {
-                        let mut state = live_shared.lock();
-                        if sample.kind() == SampleKind::Put {
-                            state.live.insert(name.to_owned());
-                        } else {
-                            state.live.remove(name);
-                        }
-                        live_shared.live_changed.notify_all();
-                    }
-                })
-                .wait()?,
-        );
+        let (errors_sub, follower) = follow_errors(
+            &session,
+            fleet,
+            robot,
+            Arc::clone(&shared),
+            options.auto_new_session,
+            options.on_error,
+        )?;
+        robot_pub.errors_sub = Some(errors_sub);
+        robot_pub.follower = Some(follower);
+        robot_pub.live_sub = Some(follow_instances(&session, Arc::clone(&shared))?);
         Ok(robot_pub)
     }
 
@@ -639,7 +363,7 @@ impl RobotPublisher {
             let ask = deadline
                 .saturating_duration_since(Instant::now())
                 .clamp(Duration::from_millis(100), Duration::from_secs(1));
-            if self.owner_serves(&owner, ask)? {
+            if query::owner_serves(&self.session, &owner, self.partition, ask)? {
                 while !publisher.matching_status().wait()?.matching() {
                     if Instant::now() >= deadline {
                         return Ok(false);
@@ -655,26 +379,12 @@ impl RobotPublisher {
         }
     }
 
-    fn owner_serves(&self, owner: &str, timeout: Duration) -> Result<bool, ClientError> {
-        let replies = get_all::<Health>(&self.session, &keys::health(owner)?, timeout)?;
-        if replies.is_empty() {
-            return Ok(true);
-        }
-        Ok(replies
-            .iter()
-            .any(|h| h.instance == owner && h.partitions.contains(&self.partition)))
-    }
-
     /// The service's state of the current session, or `None` (no frame of it arrived yet, no
     /// service, or the service holds another session for this robot name).
     pub fn state(&self, timeout: Duration) -> Result<Option<SessionState>, ClientError> {
         let session_id = self.session_id();
-        let found = get_all::<SessionState>(
-            &self.session,
-            &keys::state(&self.fleet, &self.robot)?,
-            timeout,
-        )?;
-        Ok(current_states(found)
+        let states = query::states(&self.session, &self.fleet, &self.robot, timeout)?;
+        Ok(states
             .into_iter()
             .next()
             .filter(|state| state.session == session_id))
@@ -684,12 +394,8 @@ impl RobotPublisher {
     /// [`RobotPublisher::state`]).
     pub fn area_graph(&self, timeout: Duration) -> Result<Option<AreaGraph>, ClientError> {
         let session_id = self.session_id();
-        let found = get_all::<AreaGraph>(
-            &self.session,
-            &keys::areas(&self.fleet, &self.robot)?,
-            timeout,
-        )?;
-        Ok(current_area_graphs(found)
+        let graphs = query::area_graphs(&self.session, &self.fleet, &self.robot, timeout)?;
+        Ok(graphs
             .into_iter()
             .next()
             .filter(|graph| graph.session == session_id))
@@ -738,15 +444,45 @@ impl RobotPublisher {
     }
 
     fn shut(&mut self, timeout: Duration) -> Result<(), ClientError> {
-        let report = close_each(vec![self], timeout);
+        let report = close_each(vec![self as &mut dyn EndingPublisher], timeout);
         match report.failures.into_iter().next() {
             Some(failure) => Err(failure.error),
             None => Ok(()),
         }
     }
+}
 
-    /// Send the end of a publisher not released yet; `None` when it was released already.
-    /// The publication cache stays until `release`.
+impl EndingPublisher for RobotPublisher {
+    fn fleet(&self) -> &str {
+        &self.fleet
+    }
+
+    fn robot(&self) -> &str {
+        &self.robot
+    }
+
+    fn zenoh_session(&self) -> &Session {
+        &self.session
+    }
+
+    fn knows_live_instance(&self) -> bool {
+        !self.shared.lock().live.is_empty()
+    }
+
+    fn closed_by_service(&self) -> bool {
+        self.shared.lock().closed_report
+    }
+
+    fn resend_end(&self, session_id: &str, last_seq: u64) {
+        if let Err(err) = self.send_end(session_id, Some(last_seq)) {
+            tracing::debug!(
+                "{}/{}: putting the end again: {err}",
+                self.fleet,
+                self.robot
+            );
+        }
+    }
+
     fn end_for_close(&mut self, confirm: bool) -> Option<Ending> {
         self.publisher.as_ref()?;
         let (session_id, last, still_open) = {
@@ -769,8 +505,6 @@ impl RobotPublisher {
         Some(Ending { sent, to_confirm })
     }
 
-    /// Stop following errors and instances, then undeclare the publisher (its cache goes with
-    /// it). Every step runs; the first error is returned.
     fn release(&mut self) -> Result<(), ClientError> {
         self.shared.stop.store(true, Ordering::Relaxed);
         let mut first: Result<(), ClientError> = Ok(());
@@ -795,39 +529,6 @@ impl RobotPublisher {
         }
         first
     }
-
-    pub(crate) fn zenoh_session(&self) -> &Session {
-        &self.session
-    }
-
-    /// Whether the publisher has seen a live instance's token.
-    pub(crate) fn knows_live_instance(&self) -> bool {
-        !self.shared.lock().live.is_empty()
-    }
-
-    /// Whether the service reported the current session closed.
-    pub(crate) fn closed_by_service(&self) -> bool {
-        self.shared.lock().closed_report
-    }
-
-    /// Put the end of `session_id` again (ignored by the service if it had it).
-    pub(crate) fn resend_end(&self, session_id: &str, last_seq: u64) {
-        if let Err(err) = self.send_end(session_id, Some(last_seq)) {
-            tracing::debug!(
-                "{}/{}: putting the end again: {err}",
-                self.fleet,
-                self.robot
-            );
-        }
-    }
-}
-
-/// What a publisher's end did: whether it went out, and the end to confirm (the session and its
-/// last seq) when confirmation was asked for and one is needed (no frame sent, or a session the
-/// service closed, needs none).
-struct Ending {
-    sent: Result<(), ClientError>,
-    to_confirm: Option<(String, u64)>,
 }
 
 impl Drop for RobotPublisher {
@@ -876,7 +577,11 @@ where
     I: IntoIterator<Item = RobotPublisher>,
 {
     let mut robots: Vec<RobotPublisher> = publishers.into_iter().collect();
-    let report = close_each(robots.iter_mut().collect(), timeout);
+    let borrowed = robots
+        .iter_mut()
+        .map(|robot| robot as &mut dyn EndingPublisher)
+        .collect();
+    let report = close_each(borrowed, timeout);
     for failure in &report.failures {
         tracing::warn!(
             "{}/{}: closing the robot publisher: {}",
@@ -887,213 +592,4 @@ where
     }
     drop(robots); // closed: dropping them does nothing more
     report
-}
-
-/// `close_all` over publishers borrowed (a single `close` and `Drop` use it too).
-fn close_each(mut robots: Vec<&mut RobotPublisher>, timeout: Duration) -> CloseReport {
-    let mut report = CloseReport::default();
-    let mut closing = Vec::with_capacity(robots.len());
-    let mut pending = Vec::new();
-    for (index, robot) in robots.iter_mut().enumerate() {
-        let Some(Ending { sent, to_confirm }) = robot.end_for_close(!timeout.is_zero()) else {
-            continue; // closed already
-        };
-        closing.push(index);
-        if let Err(error) = sent {
-            report.failures.push(CloseFailure {
-                fleet: robot.fleet.clone(),
-                robot: robot.robot.clone(),
-                error,
-            });
-        }
-        if let Some((session, last_seq)) = to_confirm {
-            pending.push((index, session, last_seq));
-        }
-    }
-    if !pending.is_empty() {
-        // The caches live with the publishers until their release below.
-        let ends = pending
-            .into_iter()
-            .map(|(index, session, last_seq)| {
-                PendingEnd::new(index, &*robots[index], session, last_seq)
-            })
-            .collect();
-        report.unconfirmed = confirm_ends(ends, timeout);
-        warn_unconfirmed(&report.unconfirmed);
-    }
-    for index in closing {
-        let robot = &mut robots[index];
-        if let Err(error) = robot.release() {
-            report.failures.push(CloseFailure {
-                fleet: robot.fleet.clone(),
-                robot: robot.robot.clone(),
-                error,
-            });
-        }
-        report.closed += 1;
-    }
-    report
-}
-
-/// One warning line per reason for the ends left unconfirmed.
-fn warn_unconfirmed(ends: &[UnconfirmedEnd]) {
-    let mut reasons: Vec<String> = Vec::new();
-    for end in ends {
-        let reason = end.reason.to_string();
-        if !reasons.contains(&reason) {
-            reasons.push(reason);
-        }
-    }
-    for reason in reasons {
-        let names: Vec<String> = ends
-            .iter()
-            .filter(|end| end.reason.to_string() == reason)
-            .map(|end| format!("{}/{} session {}", end.fleet, end.robot, end.session))
-            .collect();
-        let more = match names.len() {
-            n if n > 5 => format!(" and {} more", n - 5),
-            _ => String::new(),
-        };
-        tracing::warn!(
-            "end of {} session(s) not confirmed by the service ({reason}): {}{more}; closing \
-             their publication caches anyway, frames not applied yet are lost",
-            names.len(),
-            names[..names.len().min(5)].join(", ")
-        );
-    }
-}
-
-/// What the follower thread needs to handle the reports of one robot.
-struct Reports {
-    label: String,
-    partition: u16,
-    session: Session,
-    state_key: String,
-    auto_new_session: bool,
-    on_error: Option<ErrorCallback>,
-}
-
-/// Whether the robot is served, as the follower last logged it: one warning when the robot
-/// becomes unserved (or still is [`UNSERVED_GRACE`] after the start), one info line when it is
-/// served again. The follower checks after every report and every 100 ms.
-struct Served {
-    owner: Option<String>,
-    warned: bool,
-    grace_until: Option<Instant>,
-}
-
-impl Served {
-    fn new(grace_until: Instant) -> Served {
-        Served {
-            owner: None,
-            warned: false,
-            grace_until: Some(grace_until),
-        }
-    }
-
-    fn check(&mut self, shared: &Shared, reports: &Reports) {
-        let owner = {
-            let state = shared.lock();
-            let live: Vec<&String> = state.live.iter().collect();
-            owner_and_standby(reports.partition, &live).0
-        };
-        let startup = self
-            .grace_until
-            .is_some_and(|until| Instant::now() >= until);
-        if startup {
-            self.grace_until = None;
-        }
-        let before = std::mem::replace(&mut self.owner, owner.clone());
-        let (label, partition) = (&reports.label, reports.partition);
-        match owner {
-            None if !self.warned && (before.is_some() || startup) => {
-                self.warned = true;
-                tracing::warn!(
-                    "{label}: no live lessmap instance owns partition {partition}: the robot is \
-                     not served (its recent frames wait in the publisher's cache for the next \
-                     owner)"
-                );
-            }
-            Some(owner) if self.warned => {
-                self.warned = false;
-                tracing::info!("{label}: partition {partition} is served again, by {owner}");
-            }
-            Some(owner) if before.as_deref() != Some(owner.as_str()) => {
-                tracing::debug!("{label}: partition {partition} owner {owner}");
-            }
-            _ => {}
-        }
-    }
-}
-
-/// Handle one report on the follower thread.
-fn handle_report(shared: &Shared, reports: &Reports, payload: &[u8]) {
-    let label = &reports.label;
-    let error = match decode::<Error>(payload) {
-        Ok(error) => error,
-        Err(err) => {
-            tracing::warn!("{label}: skipped an undecodable error report: {err}");
-            return;
-        }
-    };
-    let closes_current = {
-        let mut state = shared.lock();
-        if let Some(session) = &error.session {
-            if !state.sessions.contains(session) {
-                return; // about another publisher's session of this robot name
-            }
-        }
-        if let Some(epoch) = error.epoch {
-            if epoch < state.highest_epoch {
-                state.stale += 1; // a deposed owner's late report
-                return;
-            }
-            state.highest_epoch = epoch;
-        }
-        *state
-            .errors
-            .entry(error.code.as_str().to_owned())
-            .or_insert(0) += 1;
-        state.last_error = Some(error.clone());
-        let current = state.session_id.clone();
-        (error.code == ErrorCode::SessionClosed
-            && error.session.as_deref() == Some(current.as_str())
-            && !state.closed_report)
-            .then_some(current)
-    };
-    tracing::warn!(
-        "{label}: the service reported {} for session {:?} seq {:?}: {}",
-        error.code,
-        error.session,
-        error.seq,
-        error.detail
-    );
-    if let Some(current) = closes_current {
-        // Starting a new session would close any other open session of this robot name:
-        // never fight another publisher for it.
-        let holder = if reports.auto_new_session {
-            other_holder(shared, reports, &current)
-        } else {
-            None
-        };
-        let mut state = shared.lock();
-        if state.session_id == current && !state.closed_report {
-            state.closed_report = true;
-            state.holder = holder;
-        }
-    }
-    if let Some(callback) = &reports.on_error {
-        if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| callback(&error))).is_err() {
-            tracing::error!("{label}: on_error panicked");
-        }
-    }
-}
-
-/// Another open session the service holds for this robot name, if any (the current owner's
-/// answer only; a failed query or no answer: none).
-fn other_holder(shared: &Shared, reports: &Reports, current: &str) -> Option<String> {
-    let found = get_all::<SessionState>(&reports.session, &reports.state_key, HOLDER_QUERY).ok()?;
-    let state = current_states(found).into_iter().next()?;
-    let ours = shared.lock().sessions.contains(&state.session);
-    (state.open && state.session != current && !ours).then_some(state.session)
 }

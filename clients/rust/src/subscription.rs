@@ -25,7 +25,7 @@ use zenoh::{Session, Wait};
 use zenoh_ext::{AdvancedSubscriber, AdvancedSubscriberBuilderExt, HistoryConfig, RecoveryConfig};
 
 use crate::codec::decode;
-use crate::connection::ClientError;
+use crate::error::ClientError;
 use crate::messages::{Error, Message, Transition};
 
 /// Events a subscription buffers by default before it drops new ones.

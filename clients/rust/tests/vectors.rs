@@ -8,9 +8,9 @@ use std::collections::BTreeSet;
 use std::path::PathBuf;
 
 use lessmap_client::codec::{decode, encode};
-use lessmap_client::connection::current_area_graphs;
 use lessmap_client::fleet_areas::{fleet_graph, FleetParams};
 use lessmap_client::names::{partition_of, ranking, score, PARTITIONS};
+use lessmap_client::query::current_area_graphs;
 use lessmap_client::{
     end_progress, AreaGraph, EndProgress, Error, Frame, Health, Message, Method, Reason,
     SessionEnd, SessionState, Submap, Transition,

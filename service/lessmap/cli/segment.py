@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 from lessmap.core import GraphError, Partitioner, Transition
 from lessmap.core.areas.graph import AreaGraph, AreaGraphBuilder
 from lessmap.core.areas.tracker import AreaTracker, AreaTransition
+from lessmap.core.rooms.params import RoomParams
+from lessmap.core.rooms.tracker import RoomTracker
 from lessmap.errors import DatasetError
 from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_SHARED
 
@@ -142,10 +144,10 @@ def segment_areas(
 
 def segment_area_graphs(
     frames: Iterable[FrameRow],
-    params: AreaParams,
+    params: AreaParams | RoomParams,
     on_change: Callable[[str, AreaTransition], None] | None = None,
 ) -> tuple[SegmentSummary, dict[str, AreaGraph]]:
-    """Run the area trackers as ``segment_areas`` does; also return each robot's area graph."""
+    """Run the area (or room) trackers as ``segment_areas`` does; also each robot's graph."""
     summary = SegmentSummary(areas={})
     builders: dict[str, AreaGraphBuilder] = {}
 
@@ -154,11 +156,16 @@ def segment_area_graphs(
         if on_change is not None:
             on_change(robot, change)
 
-    trackers = _run(frames, lambda: AreaTracker(params), feed, summary)
+    make: Callable[[], AreaTracker | RoomTracker] = (
+        (lambda: RoomTracker(params))
+        if isinstance(params, RoomParams)
+        else (lambda: AreaTracker(params))
+    )
+    trackers = _run(frames, make, feed, summary)
     graphs: dict[str, AreaGraph] = {}
     summary.areas = {}
     for robot, tracker in trackers.items():
-        if isinstance(tracker, AreaTracker):
+        if isinstance(tracker, (AreaTracker, RoomTracker)):
             summary.areas[robot] = tracker.area_count
             graphs[robot] = builders.get(robot, AreaGraphBuilder()).graph(tracker)
     return summary, graphs
@@ -225,8 +232,8 @@ def run(args: argparse.Namespace) -> int:
     from lessmap.errors import ConfigError
     from lessmap.files.frames import read_frames
 
-    if args.area_graph is not None and args.method != "areas":
-        msg = "--area-graph needs --method areas (the paper names no areas)"
+    if args.area_graph is not None and args.method == "paper":
+        msg = "--area-graph needs --method areas or rooms (the paper names no areas)"
         raise ConfigError(msg)
     if args.shared_features and args.area_graph is None:
         msg = "--shared-features needs --area-graph OUT.json"
@@ -264,6 +271,9 @@ def run(args: argparse.Namespace) -> int:
         areas = area_params(settings, empty_frames_omitted=args.empty_frames_omitted)
         summary, graphs = segment_area_graphs(frames, areas, on_change=emit_area)
         params = areas.proposal
+    elif args.method == "rooms":
+        rooms = RoomParams()
+        summary, graphs = segment_area_graphs(frames, rooms, on_change=emit_area)
     else:
         summary = segment(frames, params, on_transition=emit)
     record = summary.as_dict()
@@ -275,6 +285,9 @@ def run(args: argparse.Namespace) -> int:
         "lambda2_min": params.lambda2_min,
         "seed_mode": str(params.seed_mode),
     }
+    if args.method == "rooms":
+        record["method"] = "rooms"
+        record["params"] = {f.name: getattr(rooms, f.name) for f in dataclass_fields(rooms)}
     if args.method == "areas":
         # Every scalar of AreaParams (its proposer's are the paper's above), listed from the
         # dataclass so that a new rule's setting shows without a second list to keep.

@@ -23,8 +23,9 @@ if TYPE_CHECKING:
 TITLE = "partitioning (LESS-mapping Eq. 4)"
 
 #: The segmentation methods: ``paper`` is LESS-mapping as published; ``areas`` is
-#: ``lessmap.core.areas.tracker`` (pooled evidence, confirmed splits, named revisits; the default).
-METHODS = ("paper", "areas")
+#: ``lessmap.core.areas.tracker`` (pooled evidence, confirmed splits, named revisits; the
+#: default); ``rooms`` is ``lessmap.core.rooms.tracker`` (a windowed cut, areas named).
+METHODS = ("paper", "areas", "rooms")
 #: The default method's name, for the offline commands and ``lessmap serve``.
 DEFAULT_METHOD: Final = _DEFAULT_METHOD.value
 
@@ -99,7 +100,9 @@ def add_method_option(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_METHOD,
         help="areas (default): pooled evidence, confirmed splits of at least 5 features, "
         "revisits named (the proposer's thresholds are Ncut 0.4, λ2 0.4 unless "
-        "--ncut-min/--lambda2-min are given); paper: LESS-mapping as published",
+        "--ncut-min/--lambda2-min are given); rooms: a windowed cut of the recent frames "
+        "sized by how fast the view changes, for buildings (finds small rooms and wide "
+        "openings, decides at the door); paper: LESS-mapping as published",
     )
     parser.add_argument(
         "--empty-frames-omitted",

@@ -109,9 +109,10 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         gt=0.0,
         description="seconds before an idle session is evicted (closed when memory-only)",
     )
-    method: Literal["paper", "areas"] = Field(
+    method: Literal["paper", "areas", "rooms"] = Field(
         DEFAULT_METHOD,
         description="segmentation of new sessions: areas = confirmed splits, revisits named; "
+        "rooms = a windowed cut for buildings, revisits named (on the wire: areas); "
         "paper = LESS-mapping as published (a session keeps the method it started with)",
     )
     # Rule 3b of the areas method reads a stamp gap as blindness only in a stream that
@@ -151,10 +152,9 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     new_sessions_burst: int = Field(
         2000, ge=1, description="new sessions a fleet may open in a burst"
     )
-    # Deciding at every frame is the paper's loop and the default; a shard that falls behind
-    # (a frame waited this long) decides once per robot turn instead, for all the frames the
-    # robot has pending (up to max_batch_frames, ``Transition.batch_frames``): a decision
-    # costs 1.5-3 x a frame's counting, so deciding per frame under a backlog only deepens it.
+    # Deciding at every frame is the paper's loop; a shard that falls behind decides once per
+    # robot turn instead: a decision costs more than a frame's counting, so deciding per
+    # frame under a backlog only deepens it (figures: docs/tuning/service.md).
     coalesce_after_ms: float = Field(
         50.0,
         ge=0.0,
@@ -183,9 +183,8 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     checkpoint_every_frames: int = Field(
         100, ge=1, description="checkpoint a session after this many applied frames"
     )
-    # 10 s: at 10 Hz the same spacing as checkpoint_every_frames. A checkpoint rewrites the
-    # session's whole state (its frame history alone is ~300 KiB at 20 features a frame), and
-    # at 5 s the checkpoints of 500 robots took ~15 % of the worker (docs/BENCHMARKS.md).
+    # 10 s: at 10 Hz the same spacing as checkpoint_every_frames; a checkpoint rewrites the
+    # session's whole state, so shorter intervals cost the worker (docs/tuning/service.md).
     checkpoint_interval_s: float = Field(
         10.0, gt=0.0, description="or after this many seconds with new frames"
     )
@@ -206,14 +205,13 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     )
 
     # -- receive path --
-    # One shard by default: shards are threads sharing one GIL, and a second one measured
-    # slower, not faster (docs/BENCHMARKS.md); more shards only isolate robots from each other.
+    # One shard by default: shards are threads sharing one GIL, so more shards isolate robots
+    # from each other but do not add throughput (docs/tuning/service.md).
     workers: int = Field(1, ge=1, le=64, description="shards (worker threads); a robot maps to one")
     queue_depth: int = Field(50_000, ge=1, description="pending messages per shard")
     # A shard that wakes on a nearly empty queue may wait this long for more frames, so one
-    # round serves several. Off by default: at 200 robots x 10 Hz, 2 ms saved 12 % of the
-    # service's CPU but doubled the median latency; at saturation it changed nothing, since
-    # rounds are large anyway (docs/BENCHMARKS.md). For CPU-tight hosts.
+    # round serves several. Off by default: it saves CPU but costs latency; for CPU-tight
+    # hosts (docs/tuning/service.md).
     batch_linger_ms: float = Field(
         0.0,
         ge=0.0,
@@ -222,12 +220,9 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     )
     # Several instances: partitions are owned by rendezvous hashing over the live instances
     # (schemas/README.md section 2a); nothing to configure but distinct instance names.
-    # One subscription to every partition's frames, filtered by ownership in the receiver,
-    # or one per owned partition. Zenoh's routing cost per sample grows with the number of
-    # subscriptions it matches against: measured in one process, 256 partition subscriptions
-    # cost ~37 us of Zenoh CPU per frame against ~3 us for one (docs/BENCHMARKS.md). The one
-    # subscription takes every instance's frames over the network, though: past a handful of
-    # instances on one network, "partitions" costs less in all.
+    # One subscription to every partition's frames, filtered by ownership, or one per owned
+    # partition: Zenoh's cost per sample grows with the subscriptions it matches, but "all"
+    # takes every instance's frames; past a handful of instances "partitions" costs less.
     frames_subscription: Literal["all", "partitions"] = Field(
         "all",
         description="subscribe to every partition's frames (filtered by ownership) or only "

@@ -1,42 +1,21 @@
-"""One interface over both segmentation methods, so that a service can run either per session.
+"""One interface over the segmentation methods, so that a service can run either per session.
 
-``Segmenter`` is what a robot session drives: frames in (``apply``), changes out
-(``decide``), its segments, its area graph and its bytes. ``PaperSegmenter`` wraps the
-paper's ``Partitioner``; ``AreasSegmenter`` wraps an ``AreaTracker`` and the
-``AreaGraphBuilder`` fed its changes. No I/O.
+``Segmenter``: frames in (``apply``), changes out (``decide``), its segments, area graph and
+bytes. ``PaperSegmenter`` wraps a ``Partitioner``, ``AreasSegmenter`` an ``AreaTracker`` and
+its ``AreaGraphBuilder``. No I/O. Rules (in full: ``docs/design/segmenter.md``):
 
-Rules of this file:
-
-1. **The wrapped method decides.** An adapter adds no rule of its own. ``PaperSegmenter``
-   makes the partitioner's calls in the caller's order, so a burst of ``apply`` and one
-   ``decide`` coalesce exactly as on a bare partitioner; ``AreasSegmenter``'s changes are
-   the tracker's, which observes every frame on its own.
-2. **Errors at apply, before any change.** ``apply`` accepts and refuses what
-   ``Partitioner.apply`` does, with the same errors. The tracker's frames go through the
-   partitioner's check first: on its own the tracker takes an ID beyond int64 and fails
-   only when the pool holding it reaches its proposer, half-way through a later frame.
-3. **Changes wait for decide.** The tracker finds a change while it observes a frame; the
-   segmenter holds it until ``decide`` (oldest first), so the caller meets the changes of
-   both methods at one point. Segments, counters and the area graph already include a
-   held change: they describe the frames applied.
-4. **Segments and areas.** A change closes a segment (ids 0, 1, 2, ..., one more per change)
-   and enters an area. Under the paper every segment is its own area (area = segment id,
-   never a revisit); under areas, segments of one area recur (``revisit_of``).
-5. **Bounded.** What an adapter keeps beside its method grows with changes, never frames,
-   and is cut to the method's ``keep_closed_submaps`` closed segments; the paper's boundary
-   features also to ``MAX_BOUNDARY_FEATURES`` per passage, as an area graph keeps them.
-6. **Whole state in bytes.** ``to_bytes`` holds everything a later change or graph depends
-   on, pending frames and held changes included; ``segmenter_from_bytes`` rebuilds a
-   segmenter that goes on exactly as the original (format: ``segmenter_snapshot``). A bare
-   partitioner snapshot, as checkpoints held before segmenters, reads as a paper segmenter
-   whose past passages have no boundary features.
+1. The wrapped method decides: an adapter adds no rule of its own.
+2. Errors at apply, before any change: the partitioner's checks, for every method.
+3. Changes wait for ``decide`` (oldest first); segments and graph already include them.
+4. A change closes a segment (ids 0, 1, 2, ...) and enters an area; under the paper every
+   segment is its own area, under areas segments of one area recur (``revisit_of``).
+5. Bounded: what an adapter keeps grows with changes, never frames, and is cut.
+6. Whole state in bytes: ``segmenter_from_bytes`` goes on exactly as the original.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
-from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from lessmap.core import segmenter_snapshot as record
@@ -48,42 +27,45 @@ from lessmap.core.areas.graph import (
     AreaGraphBuilder,
     AreaNode,
 )
-from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
+from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.params import PartitionParams
 from lessmap.core.paper.partitioner import Partitioner, _feature_ids  # rule 2: its own check
-from lessmap.core.paper.submaps import Submap, Transition
+from lessmap.core.paper.submaps import Submap
+from lessmap.core.rooms.params import RoomParams
+from lessmap.core.rooms.tracker import RoomTracker
+from lessmap.core.segment_change import (
+    SIGHTING_EDGES,
+    Method,
+    SegmentChange,
+    change_from,
+    change_json,
+    change_of,
+)
+from lessmap.core.segmenter_rooms import RoomsSegmenter
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
 
 
-class Method(StrEnum):
-    """Which method segments a session."""
+__all__ = [
+    "DEFAULT_METHOD",
+    "SIGHTING_EDGES",
+    "AreasSegmenter",
+    "Method",
+    "PaperSegmenter",
+    "RoomsSegmenter",
+    "SegmentChange",
+    "Segmenter",
+    "make_segmenter",
+    "segmenter_from_bytes",
+]
 
-    PAPER = "paper"  # LESS-mapping's partitioner: every transition opens a new area
-    AREAS = "areas"  # ``AreaTracker``: confirmed changes, recognised revisits
 
-
-#: The method of a new session and of the offline commands unless one is chosen (issue 18:
-#: ``areas`` met its targets). ``paper`` stays one flag away (``--method paper``).
+#: The method of a new session and of the offline commands unless one is chosen: ``areas``
+#: met its targets (``docs/decisions/0002-areas-by-default.md``); ``--method paper`` remains.
 DEFAULT_METHOD: Final = Method.AREAS
-
-#: Edges' worth (24 B each, the sparse store's) of one sighting in an area model: a dict
-#: entry with its own int key measures 65 B (tracemalloc, 500,000 entries).
-SIGHTING_EDGES: Final = 3
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SegmentChange:
-    """The robot left one area for another: the segment closed and opened, and the areas."""
-
-    transition: Transition  # closed / opened are segments (rule 4)
-    reason: str  # "SPECTRAL", "DISCONNECTED" or "RECOGNISED" (areas only)
-    area: int  # the area entered
-    left_area: int  # the area left
-    revisit_of: int | None  # == area when the area was known before, else None
 
 
 class Segmenter(Protocol):
@@ -157,6 +139,7 @@ def make_segmenter(
     method: Method | str,
     params: PartitionParams | None = None,
     area_params: AreaParams | None = None,
+    room_params: RoomParams | None = None,
 ) -> Segmenter:
     """A new session's segmenter; each method reads its own parameters, not the other's.
 
@@ -170,6 +153,8 @@ def make_segmenter(
         raise GraphError(msg) from None
     if chosen is Method.PAPER:
         return PaperSegmenter(Partitioner(params))
+    if chosen is Method.ROOMS:
+        return RoomsSegmenter(RoomTracker(room_params))
     return AreasSegmenter(AreaTracker(area_params))
 
 
@@ -190,6 +175,8 @@ def segmenter_from_bytes(data: bytes) -> Segmenter:
             return PaperSegmenter._from_record(found)
         if found.method == Method.AREAS:
             return AreasSegmenter._from_record(found)
+        if found.method == Method.ROOMS:
+            return RoomsSegmenter.from_record(found)
     except GraphError:
         raise
     except Exception as exc:  # a well-framed record with a malformed part: one error type
@@ -426,7 +413,7 @@ class AreasSegmenter:
             if found is not None:
                 self.builder.add(found)
                 self._closed.append(found.transition.closed)
-                self._held.append(_change(found))
+                self._held.append(change_from(found))
         changes = tuple(self._held)
         self._held.clear()
         self._pending_frames = 0
@@ -447,7 +434,7 @@ class AreasSegmenter:
             "pending_frames": self._pending_frames,
             "builder": record.builder_json(self.builder),
             "closed": rows,
-            "held": [_change_json(change) for change in self._held],
+            "held": [change_json(change) for change in self._held],
         }
         return record.pack(Method.AREAS, meta, areas_snapshot.to_bytes(self.tracker), arrays)
 
@@ -462,36 +449,6 @@ class AreasSegmenter:
             areas_snapshot.from_bytes(found.inner),
             record.builder_of(meta["builder"]),
             closed=record.submaps_unpack(meta["closed"], found.arrays),
-            held=[_change_of(d) for d in meta["held"]],
+            held=[change_of(d) for d in meta["held"]],
             pending_frames=pending,
         )
-
-
-def _change(found: AreaTransition) -> SegmentChange:
-    return SegmentChange(
-        transition=found.transition,
-        reason=found.reason.value,
-        area=found.area,
-        left_area=found.left_area,
-        revisit_of=found.revisit_of,
-    )
-
-
-def _change_json(change: SegmentChange) -> dict[str, Any]:
-    return {
-        "transition": record.transition_json(change.transition),
-        "reason": change.reason,
-        "area": change.area,
-        "left_area": change.left_area,
-        "revisit_of": change.revisit_of,
-    }
-
-
-def _change_of(d: Mapping[str, Any]) -> SegmentChange:
-    return SegmentChange(
-        transition=record.transition_of(d["transition"]),
-        reason=str(d["reason"]),
-        area=int(d["area"]),
-        left_area=int(d["left_area"]),
-        revisit_of=None if d["revisit_of"] is None else int(d["revisit_of"]),
-    )

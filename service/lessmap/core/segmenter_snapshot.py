@@ -1,26 +1,16 @@
 """The record of a segmenter's whole state (``lessmap.core.segmenter``), bit-exact.
 
-Format (version 1): the 8-byte magic ``LMSEGM1`` + newline, the CRC-32 of the rest (4 bytes,
-little-endian), the length of the header (4 bytes, little-endian), the header (UTF-8 JSON:
-``version``, ``method``, ``meta`` and ``sections``, a list of [name, bytes]), then the
-sections back to back: ``inner``, the wrapped method's own snapshot, then int64 arrays
-(little-endian).
+Format (version 1): magic ``LMSEGM1``, CRC-32, a JSON header, then the sections: ``inner``,
+the wrapped method's own snapshot, then int64 arrays (in full: ``docs/design/segmenter.md``).
 
 Rules of this file:
 
-1. **The method's snapshot, whole.** ``inner`` is what ``lessmap.core.paper.snapshot`` (paper) or
-   ``lessmap.core.areas.snapshot`` (areas) writes, untouched: each method keeps the one
-   format its own tests hold to, and this record only adds what a segmenter keeps beside it.
-2. **The partitioner snapshot's framing.** Magic, CRC and a JSON header; the standard library
-   and numpy only (the core imports no codec); floats as hex strings, which keep them exact.
-   Segment features, the one part that grows with a session's changes, are int64 arrays:
-   JSON ints would cost a checkpoint several times as much.
-3. **One error.** Whatever is malformed (magic, CRC, lengths, JSON, a missing key) is a
-   ``GraphError`` with one line saying what: ``unpack`` checks the framing, and the
-   segmenter wraps its own reading the same way.
-4. **Older records.** A bare partitioner snapshot (``LMSNAP2`` or the older npz), as
-   checkpoints held before segmenters, is not a segmenter record: ``is_record`` tells them
-   apart, and ``segmenter_from_bytes`` reads such a snapshot as a paper segmenter.
+1. The method's snapshot is kept whole: this record only adds what a segmenter keeps beside it.
+2. The partitioner snapshot's framing, standard library and numpy only; floats as hex
+   strings, which keep them exact; segment features as int64 arrays, not JSON ints.
+3. Whatever is malformed is one ``GraphError`` with one line saying what.
+4. A bare partitioner snapshot (older checkpoints) is not a record (``is_record``) and reads
+   as a paper segmenter.
 """
 
 from __future__ import annotations

@@ -1,19 +1,13 @@
 """Run either segmentation method over frames, and score revisits against a simulated truth.
 
-``paper`` is one ``Partitioner`` per robot (LESS-mapping as published: every transition opens
-a new submap); ``areas`` is one ``AreaTracker`` per robot (``lessmap.core.areas.tracker``: pooled
-evidence, confirmed splits, known areas recognised and merged). Both give, per robot, a list
-of ``AreaEvent``: the detection frame, the estimated first frame in the new area, the area
-entered and the size of the segment closed. For ``paper`` the area is the new submap's id, so
-a revisit is never recognised.
+``paper`` is one ``Partitioner`` per robot (every transition opens a new submap); ``areas``
+one ``AreaTracker``. Both give, per robot, a list of ``AreaEvent``: the detection frame, the
+first frame in the new area, the area entered and the size of the segment closed.
 
-Revisit scoring (``revisit_score``), on a simulated run: a *visit* is a maximal run of a
-robot's frames in one true room; each frame carries the area of the last event whose
-``boundary_seq`` is at or before it, and a visit's area is the one most of its frames carry.
-
-- recognised: a visit to a room the robot was in before whose area is the area of the
-  room's first visit, over all such visits;
-- false: a visit whose area was first given to a visit of another room, over all visits.
+Revisit scoring (``revisit_score``): a *visit* is a maximal run of a robot's frames in one
+true room, its area the one most of its frames carry; *recognised* counts returns to a room
+given the area of its first visit, *false* visits given an area first given to another room
+(in full: ``docs/design/evaluation.md``).
 """
 
 from __future__ import annotations

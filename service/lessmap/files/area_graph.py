@@ -1,24 +1,9 @@
 """The area-graph file (``lessmap segment --method areas --area-graph OUT.json``).
 
-One JSON object (``FORMAT`` names the layout; a reader refuses any other)::
-
-    {"format": "lessmap.area_graph/1",
-     "source": "run.frames.jsonl",                  # the frames file's name
-     "fleet_params": {"shared_features": false, "min_containment": 0.85, "min_shared": 3,
-                      "min_linked_share": 0.5},
-     "robots": {"<robot>": {
-         "nodes": [{"area": 0, "frames": 120, "visits": 2, "first_seq": 0, "last_seq": 300,
-                    "features": [3, 4, 9]}],       # the area's feature ids, ascending
-         "edges": [{"a": 0, "b": 1, "a_to_b": 2, "b_to_a": 1,
-                    "boundary_features": [[9, 3]]}]}},   # [feature, passages], most first
-     "fleet": {
-         "nodes": [{"area": 0, "members": [["<robot>", 0]], "frames": 120, "visits": 2,
-                    "features": 3}],               # distinct features over the members
-         "edges": [{"a": 0, "b": 1, "a_to_b": 2, "b_to_a": 1, "robots": ["<robot>"],
-                    "boundary_features": [[9, 3]]}]}}
-
-Node and edge fields are those of ``lessmap.core.areas.graph`` and, for the fleet,
-``lessmap_client.fleet_areas`` (their docstrings define them).
+One JSON object, ``{"format": FORMAT, "source", "fleet_params", "robots", "fleet"}``: each
+robot's nodes and edges as ``lessmap.core.areas.graph`` defines them, the fleet's as
+``lessmap_client.fleet_areas`` does. ``FORMAT`` names the layout and a reader refuses any
+other. The layout with an example: ``docs/design/area-graph.md``.
 """
 
 from __future__ import annotations

@@ -7,10 +7,9 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
 2. **Reach.** Cells beyond ``max_distance_m`` of walk from every pose stay 0; a pose on an
    occupied cell moves to the nearest free cell within ``snap_m``, else is dropped.
 3. **Doorways.** Free space is cut into regions at passages narrower than ``door_width_m``
-   (cores: cells over half a door from walls; each cell joins its nearest core). A region no
-   pose lies in stays 0 (seen through a door, not visited); a region one area holds
-   ``region_share`` of goes to it whole (its boundary moves to the doorway, a late decision
-   paints nothing); other regions keep rule 1's labels (rooms joined by wide openings).
+   (cores: cells over half a door from walls, each cell joining its nearest). A region with
+   no pose stays 0 (seen, not visited); one an area holds ``region_share`` of goes to it
+   whole (a late decision paints nothing); others keep rule 1's labels (wide openings).
 4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
    robots' poses, one holds half of the other's; then rules 1-3 over all poses.
 """

@@ -204,7 +204,7 @@ class RobotSession:
             frames_missing=self.frames_missing,
             frames_rejected=self.frames_rejected,
             transitions=p.transitions,
-            method=p.method.value,
+            method=p.method.wire,
             current_area=p.current_area,
             current_submap=summary_of(p.current_submap()),
             closed_submaps=[summary_of(s) for s in p.closed_submaps],
@@ -219,7 +219,7 @@ class RobotSession:
             self.robot,
             self.session,
             self.segmenter.area_graph(),
-            method=self.segmenter.method.value,
+            method=self.segmenter.method.wire,
             instance=instance,
             epoch=epoch,
         )
@@ -523,7 +523,7 @@ class SessionTable:
             robot,
             record.session,
             segmenter.area_graph(),
-            method=segmenter.method.value,
+            method=segmenter.method.wire,
             instance=self._instance,
             epoch=self._epoch_of(fleet, robot),
         )

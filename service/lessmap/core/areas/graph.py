@@ -1,41 +1,44 @@
 """Area graphs: the areas an ``AreaTracker`` named as nodes, the robot's passages as edges.
 
-Rules of this file:
+Rules of this file (in full: ``docs/design/area-graph.md``; no I/O: graphs in, graphs out):
 
-1. **Built from the tracker's output.** ``AreaGraphBuilder.add`` takes each
-   ``AreaTransition`` of one robot as it is reported; ``AreaGraphBuilder.graph`` reads the
-   tracker once more (its open segment, its merges, each area's features) and returns an
-   immutable ``AreaGraph``. The builder holds sums per raw area id and per raw id pair, so
-   its size grows with the areas and their adjacencies, never with frames or time.
-2. **Merges.** The tracker merges two areas without reporting it (its rule 6). Raw ids are
-   resolved with ``tracker.area_of`` when a graph is made: the two nodes' sums add up, a
-   passage between them becomes a walk inside one area (dropped), and each such passage
-   joined two visits into one (``visits`` = visits of both - passages between them).
-3. **Nodes.** ``frames`` counts every frame of the robot's segments in the area (empty
-   frames too); ``visits`` counts maximal runs of segments in it; ``first_seq``/``last_seq``
-   are the first and last frames of those segments; ``features`` are the area's features
-   (``tracker.area_features``).
-4. **Edges.** One per unordered pair of areas with a passage: counts per direction and the
-   ``boundary_features`` of the passages (the cut edges' endpoints the proposer reported;
-   a recognised change, rule 5, reports none). These are kept as counts, trimmed to the
-   ``max_boundary_features`` most frequent (ties: smaller id) whenever they exceed twice
-   that, so the counts of a trimmed edge are lower bounds.
-5. **Fleet.** Robot graphs merge into the fleet's with ``lessmap_client.fleet_areas``,
-   the one merge that fleet apps run over the bus and the offline tools run on files; this
-   module's graphs read as its input (``areas``, ``passages``, ``AreaNode.id``).
-
-No I/O: graphs in, graphs out.
+1. Built from the tracker's output (``AreaGraphBuilder.add`` each transition, ``graph`` at
+   the end); its size grows with areas and adjacencies, never with frames or time.
+2. Merges the tracker made silently are resolved when a graph is made: the sums add up and
+   a passage between the two becomes a walk inside one area.
+3. Nodes: frames, visits (maximal runs of segments), first and last seq, features.
+4. Edges: one per unordered pair with a passage, counts per direction and boundary
+   features, trimmed to the ``max_boundary_features`` most frequent (counts then bound).
+5. Fleet: robot graphs merge with ``lessmap_client.fleet_areas``, online and offline alike.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     from lessmap.core.areas.events import AreaTransition
-    from lessmap.core.areas.tracker import AreaTracker
+    from lessmap.core.paper.submaps import Submap
+
+
+class AreaModel(Protocol):
+    """What a graph reads of a tracker: its areas now (``AreaTracker``, ``RoomTracker``)."""
+
+    @property
+    def current(self) -> int:
+        """The area of the open segment."""
+
+    def area_of(self, area: int) -> int:
+        """The area an id stands for now."""
+
+    def area_features(self, area: int) -> tuple[int, ...]:
+        """The features an area's frames have seen."""
+
+    def current_segment(self) -> Submap:
+        """The open segment."""
+
 
 #: Boundary features kept per edge (rule 4): enough to name a doorway's landmarks.
 MAX_BOUNDARY_FEATURES = 16
@@ -132,7 +135,7 @@ class AreaGraphBuilder:
         if len(seen) > 2 * self.max_boundary_features:
             self._boundary[pair] = Counter(dict(_top(seen, self.max_boundary_features)))
 
-    def graph(self, tracker: AreaTracker) -> AreaGraph:
+    def graph(self, tracker: AreaModel) -> AreaGraph:
         """The graph so far, the tracker's open segment included and its merges resolved."""
         resolve = tracker.area_of
         stats: dict[int, _Stats] = {}

@@ -1,89 +1,17 @@
 """Areas on top of LESS-mapping: pooled evidence, confirmed splits, recognised revisits.
 
-The paper's partitioner (``lessmap.core.paper.partitioner``) declares a transition whenever its
-CovGraph passes Eq. 4 or falls apart. On sparse landmark streams that makes fragments of one
-or two features; with a 360° sensor it answers late, because the room left behind stays in
-view through the door; and every return to a room opens an anonymous new submap.
-``AreaTracker`` drives one ``Partitioner`` as a *proposer* of new areas, keeps a model of
-every area it confirmed, and recognises a known area when the robot comes back to it.
+``AreaTracker`` drives a paper ``Partitioner`` as a proposer of new areas. Its rules, in full in
+``docs/design/area-rules.md`` (parameters in ``AreaParams``; no I/O, no clock, no logging):
 
-Rules of this file (the comment at each ``AreaParams`` field says why its default is what
-it is, measured with ``python -m lessmap.evaluation.studies.areabench``):
-
-1. **Minimum evidence.** Frames are pooled before they reach the proposer: a pool closes
-   when it holds ``pool_min_features`` distinct features or spans ``pool_max_frames``
-   frames, and enters the proposer as one frame.
-2. **Proposals.** The proposer runs the paper's test (Eq. 4 or a disconnected graph) with
-   its own thresholds (``proposal``; looser than the paper's so it answers sooner). A
-   proposal names a boundary frame: the first frame of the pool where the proposer's new
-   side starts. A later proposal replaces a pending one.
-3. **Confirmation.** A proposal becomes a transition when all of these hold:
-
-   a. the frames of the current segment before the boundary hold ``min_area_features``
-      distinct features (else the proposal is dropped: no closed area is that small), and
-      the frames from the boundary on hold as many within ``confirm_frames`` frames of the
-      proposal (else it expires);
-   b. the boundary does not follow ``blind_frames`` empty frames, and no run of
-      ``blind_span`` empty frames lies in the frames from ``blind_margin`` non-empty frames
-      before the boundary on: a robot that saw nothing saw no boundary (a room wider than
-      the sensor's range, crossed blind, perhaps glimpsing a wall on the way). A stream
-      declared to leave out its empty frames (``period_steps`` above 0) shows them as a gap
-      between stamps: a frame that follows the one before by ``k + 1`` periods (rounded;
-      the period is the median of the last ``period_steps`` stamp steps) has ``k`` empty
-      frames before it. Other streams' stamps are not read: there a gap is a stall or a
-      loss, not blindness;
-   c. the frames from the boundary on are not the current area's own: when ``stay_share``
-      of their sightings are of features *familiar* to the current area (seen in
-      ``familiar_rate`` of its non-empty frames, or in ``familiar_relative`` times the mean
-      count of its features if that is less, as with a sparse sensor; leaving out the
-      frames from the boundary on and the ``familiar_margin_frames`` non-empty frames before
-      it, where a doorway shows the next room), the robot moved within its area and the
-      proposal is dropped;
-   d. a *weak* proposal, spectral with an Ncut above ``weak_ncut``, waits until the frames
-      from its boundary on span ``weak_frames`` frames (else it expires as in a): weaker
-      evidence must last longer before it counts.
-
-4. **Which area, on a proposal.** The features seen from the boundary on are compared with
-   every known area other than the current one: the share of them that the area has seen.
-   The best area with a share of at least ``revisit_overlap`` is entered again
-   (``revisit_of``); otherwise a new area is opened.
-5. **Recognition.** An area's *profile* gives each feature the probability
-   ``(count + 1/2) / (frames + 1)`` of a sighting in one of its frames, features
-   independent. When each of the last ``recognise_frames`` non-empty frames is more likely
-   under a known area's profile than under the current area's (fitted without those
-   frames), by ``recognise_llr`` nats per frame on average, the robot is back in that
-   area: the change needs no proposal. Its boundary walks back over the earlier frames
-   that also fit the known area better. Rules 3a (without waiting), 3b and 6 apply.
-6. **Merging.** When a change (rule 4 or 5) would enter a known area whose *rate overlap*
-   with the current area as it would be left (without the frames from the boundary on),
-   ``Σ_f min(r_A(f), r_B(f)) / min(Σ_f r_A(f), Σ_f r_B(f))`` with ``r_X(f)`` the share of
-   X's non-empty frames that saw f, is at least ``merge_overlap``, the two are one area seen
-   in two parts: they merge (the later id into the earlier), the frames stay where they
-   are, and no transition is reported.
-7. **Area model.** Each area keeps, per feature, the number of its frames that saw it, and
-   its number of non-empty frames. On a transition the frames from the boundary on move
-   from the area left to the area entered. Area ids count from 0 per tracker, in order of
-   opening; a merged id is never reused. The *segment* entered (the submap reported:
-   ``Transition.boundary_seq``, ``opened``) starts at the *seam*: of the frames from the
-   boundary to ``seam_frames`` frames after it, the one with the most features seen both in
-   the ``seam_frames`` frames before it and in those from it on (the earliest of equals;
-   both segments keep ``min_area_features``). The frames between boundary and seam are the
-   area entered's but the segment closed's: two submaps share the landmarks their robot saw
-   at the door (Eq. 5 counts a landmark in every submap that saw it).
-8. **State.** Everything that influences a later decision is in ``AreaTracker``'s fields and
-   round-trips through ``lessmap.core.areas.snapshot`` bit for bit; the proposer is a
-   ``Partitioner``, so its state is the paper's snapshot. Cached profiles are derived from
-   those fields, summed in their (preserved) order, so a restored tracker gets equal floats.
-9. **Bounded models.** The area models hold at most ``max_area_sightings`` (feature, area)
-   sightings. Above it the areas other than the current one with the fewest non-empty
-   frames (then the lowest id) forget their features, until 3/4 of the bound is left: a
-   forgotten area keeps its id, its frame count and its place in the area graph, but is no
-   longer entered again or recognised (rules 4-6 skip it). Checked after each frame added
-   and each settle; the number of sightings is derived from the models, not stored.
-
-No I/O, no clock, no logging: frames in, ``AreaTransition`` out. The parameters are in
-``areas_params``, the reported types in ``areas_events``, the likelihoods and overlaps in
-``areas_profile``, the tests of rules 3-5 in ``areas_rules``; all are importable from here.
+1. Minimum evidence: frames are pooled before they reach the proposer.
+2. Proposals: the paper's test, with looser thresholds, names a boundary frame.
+3. Confirmation: (a) enough features, (b) not blind, (c) not the current area's own, (d) lasted.
+4. Which area: a known area that saw enough of the new side is entered again, else a new one.
+5. Recognition: when recent frames fit a known area's profile better, the robot is back there.
+6. Merging: a change into a known area overlapping the current one merges them, no transition.
+7. Area model: per-feature frame counts per area; the segment entered starts at the seam.
+8. State: everything a later decision reads round-trips through the snapshot bit for bit.
+9. Bounded models: above ``max_area_sightings`` the smallest other areas forget their features.
 """
 
 from __future__ import annotations

@@ -1,27 +1,16 @@
 """Edge counts a_ij and CovRate W of a CovGraph, in a dense and a sparse form (§3.1).
 
-``CovGraph`` owns the nodes (feature IDs, n_i, first sightings, which nodes a frame touched)
-and hands the edges to a ``CountStore``. Two stores implement the same interface:
+``CovGraph`` owns the nodes and hands the edges to a ``CountStore``: ``DenseCounts`` (a dense
+count matrix and W, for small graphs and dense ones, where rebuilding sparse containers at
+every decision would cost more than the solve) or ``SparseCounts`` (sorted upper-triangular
+keys in CSR order, so a burst of coalesced frames counts in O(pairs) and never rebuilds).
 
-- ``DenseCounts`` keeps a dense symmetric count matrix and a dense W: for small graphs (at
-  most ``dense_max_nodes`` nodes, the size of a room's features) and for dense graphs above
-  that (most pairs are edges, up to ``DENSE_STORE_MAX_NODES`` nodes). A frame adds to its
-  k x k block, and a refresh recomputes only the touched rows and columns of W. On graphs
-  of tens of nodes this avoids rebuilding scipy.sparse containers at every decision, which
-  cost several times the eigen-solve itself (profiled under fleet load); on a dense graph
-  of a thousand nodes it replaces merging each frame's pairs into the sorted keys.
-- ``SparseCounts`` keeps the upper-triangular (i < j) entries as one sorted key array (the
-  CSR order) with int64 counts and W aligned to it. Frames append their pairs in O(pairs)
-  vectorized numpy and the pending pairs are merged before anything reads the edges: known
-  pairs in place, new ones inserted, so a burst of frames (coalesced under load) counts
-  cheaply and a frame never rebuilds the matrix.
+Rules of this file:
 
-Both stores also remember W at a ``mark`` and report the entries that changed since, which is
-what the drift certificate (``lessmap.core.paper.drift``) needs.
-
-Both hold the same integer counts and compute W_ij = a_ij / min(n_i, n_j) (Eq. 1) with the
-same IEEE division, so W is equal to the last bit whichever form holds the graph. Which form
-is used is decided by ``CovGraph`` alone; the stores never convert themselves.
+1. Both stores hold the same integer counts and compute W_ij = a_ij / min(n_i, n_j) (Eq. 1)
+   with the same IEEE division, so W is equal to the last bit whichever form holds it.
+2. ``CovGraph`` alone decides the form; the stores never convert themselves.
+3. Both remember W at a ``mark`` and report the entries changed since (the drift certificate).
 """
 
 from __future__ import annotations
@@ -42,12 +31,11 @@ if TYPE_CHECKING:
 SPARSE_BYTES_PER_EDGE = 24
 
 #: Side of a new dense matrix (and the node capacity of a new CovGraph). Small, because a
-#: fleet has thousands of small sessions: 16 nodes hold 3 KiB of matrices where 64 held 48 KiB,
-#: and doubling keeps the growth amortized.
+#: fleet has thousands of small sessions; doubling keeps the growth amortized.
 INITIAL_CAPACITY = 16
 
 #: Up to this many nodes the dense store recomputes all of W at each refresh rather than the
-#: touched rows: cheaper below ~90 nodes at a frame of 20 touched (measured at 40, 64 and 96 nodes).
+#: touched rows: whole-block numpy calls beat gathering and scattering rows on small graphs.
 FULL_REFRESH_MAX_NODES = 64
 
 #: Above ``FULL_REFRESH_MAX_NODES``, the dense store also recomputes all of W when more than
@@ -122,9 +110,8 @@ class BlockChanges:
     in ``moved`` (those rows, minus the mark; unchanged entries are 0 there) or in ``new``
     (the rows of the nodes added since, whose entries were 0 at the mark). Each changed
     pair of old nodes appears once or twice (twice when both rows moved); ``entries`` lists
-    each pair once. Blocks cost one row gather and one subtraction; listing the entries cost
-    masks and index arrays several times larger, the carried decision's largest cost at
-    400 nodes (profiled).
+    each pair once. Blocks cost one row gather and one subtraction, where listing the entries
+    would cost masks and index arrays several times larger.
     """
 
     old: int  # nodes at the mark
@@ -243,8 +230,8 @@ class DenseCounts:
         rows = np.repeat(np.arange(upper.nodes, dtype=np.int64), np.diff(upper.indptr))
         self._counts[rows, upper.indices] = upper.counts
         self._counts[upper.indices, rows] = upper.counts
-        # Kept up to date by ``add_frame``: counting a whole block at every decision cost the
-        # service 1 ms at 1,600 nodes (its budgets read the edges after each decision).
+        # Kept up to date by ``add_frame``: the service's budgets read the edges after each
+        # decision, and counting a whole block each time costs more than the decision.
         self._edges = int(np.count_nonzero(upper.counts))
         self._marked: NDArray[np.float64] | None = None  # W at the last ``mark``
         self._moved = np.zeros(side, dtype=bool)  # rows recomputed since the mark
@@ -274,7 +261,7 @@ class DenseCounts:
 
     def add_frame(self, nodes: NDArray[np.int64]) -> None:
         """Add one to the frame's k x k block, off the diagonal."""
-        # The k x k block through flat indices: half the cost of np.ix_ at k ~ 20.
+        # The k x k block through flat indices: cheaper than np.ix_ at a frame's size.
         side = self._counts.shape[1]
         flat = self._counts.reshape(-1)  # a view: the matrix is C-contiguous
         at = (nodes * side)[:, None] + nodes
@@ -289,10 +276,10 @@ class DenseCounts:
         """Recompute the touched rows and columns of W (all of them after a load)."""
         n = self._nodes
         if n <= self._full_refresh_max_nodes:
-            # A fleet's sessions are mostly tens of nodes: there three whole-block numpy
-            # calls cost half of gathering and scattering the touched rows (8 against 15 µs
-            # at 40 nodes and 20 touched). Same integers, same division: the entries that
-            # did not move keep their exact values. Every row counts as moved (a superset).
+            # A fleet's sessions are mostly tens of nodes: there whole-block numpy calls cost
+            # less than gathering and scattering the touched rows. Same integers, same
+            # division: the entries that did not move keep their exact values. Every row
+            # counts as moved (a superset).
             np.divide(
                 self._counts[:n, :n], np.minimum.outer(counts, counts), out=self._rates[:n, :n]
             )

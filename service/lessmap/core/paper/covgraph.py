@@ -1,23 +1,17 @@
 """CovGraph: the covisibility graph of one robot session (LESS-mapping §3.1).
 
-Invariants kept by this module:
+Rules of this file:
 
-- Node i is a feature; ``counts[i]`` = n_i, the number of frames in which it was seen.
-- Edge counts a_ij and the CovRate values W_ij = a_ij / min(n_i, n_j) (Eq. 1) live in a
-  ``CountStore`` (``lessmap.core.paper.counts``): ``DenseCounts`` for graphs of at most
-  ``dense_max_nodes`` nodes and for dense graphs above (most pairs are edges, at most
-  ``DENSE_STORE_MAX_NODES`` nodes), ``SparseCounts`` otherwise. ``_fit_store`` is the only
-  place that picks the store (see there for the rule and its hysteresis). Both stores hold
-  the same integer counts, compute W with the same formula and hand over the same CSR, and
-  W reaches the solver as a dense array exactly when the graph has at most
-  ``dense_max_nodes`` nodes (``is_dense``), whichever store holds it: the store never
-  changes a decision.
-- A frame changes n_i and a_ij only for its own features; the graph marks those nodes as
-  touched and the store recomputes only the entries of W with a touched endpoint, the next
-  time W is read (so a burst of frames coalesced under load is counted cheaply).
-- Node indices follow first appearance and never change except through ``keep_only``;
-  together with integer counts this makes the state reproducible bit for bit after a
-  snapshot and restore.
+1. Node i is a feature; ``counts[i]`` = n_i, the number of frames in which it was seen.
+2. Edge counts a_ij and W_ij = a_ij / min(n_i, n_j) (Eq. 1) live in a ``CountStore``
+   (``lessmap.core.paper.counts``); ``_fit_store`` is the only place that picks the store.
+   W reaches the solver as a dense array exactly when the graph has at most
+   ``dense_max_nodes`` nodes (``is_dense``), whichever store holds it: the store never
+   changes a decision.
+3. A frame changes n_i and a_ij only for its own features; W is recomputed only at entries
+   with a touched endpoint, the next time it is read (coalesced frames count cheaply).
+4. Node indices follow first appearance and never change except through ``keep_only``, so
+   the state is reproducible bit for bit after a snapshot and restore.
 """
 
 from __future__ import annotations
@@ -38,7 +32,7 @@ from lessmap.core.paper.counts import (
 
 #: Dense graphs are held in the dense store up to this many nodes (if ``dense_max_nodes`` >
 #: 0). The decision's floor may factorize a dense n x n matrix up to the same size
-#: (``lessmap.core.paper.drift.PROOF_MAX_NODES``): 12 B per cell, 201 MB at the limit.
+#: (``lessmap.core.paper.drift.PROOF_MAX_NODES``), so its memory has one bound.
 DENSE_STORE_MAX_NODES = 4096
 
 #: Above ``dense_max_nodes`` nodes, a graph enters the dense store when at least this share

@@ -1,47 +1,14 @@
 """A proven lower bound of λ2 carried from one decision to the next (the drift certificate).
 
-Most decisions are nowhere near a transition: inside a room λ2 sits around 0.5-0.9 while
-λ2_min is 0.2 (Eq. 4), and a frame moves W only on the edges of its own features. Once λ2
-of the CovGraph is proven above some floor l (a Cholesky certificate, ``lambda2_exceeds``,
-or a dense LAPACK solve), the next graph's λ2 is bounded below by l minus how far the frame
-can have moved the spectrum, and that costs O(changed entries + nodes) instead of a
-factorization or an eigen-solve. While the floor stays above λ2_min the decision is proven
-(no transition: Eq. 4 needs λ2 <= λ2_min); when it sinks below, the partitioner proves
-afresh or solves, exactly as it would without the floor. The floor never decides anything
-the exact solver would not: it only proves λ2 > λ2_min + ``CERTIFICATE_MARGIN``.
+Once λ2 is proven above a floor l, the next graph's λ2 is at least l minus how far the
+frame can have moved the spectrum: O(changed entries + nodes) instead of a factorization or
+an eigen-solve. The bound and its proof: ``docs/design/drift-certificate.md``. Rules:
 
-The bound. With S = D^-1/2 W D^-1/2 and u1 = D^1/2 1 / √Σd (L_sym u1 = 0 exactly),
-
-    H = I - S + 2 u1 u1ᵀ  has the eigenvalues 2 and λ2, λ3, ... of L_sym,
-
-so λ2 >= λ_min(H) for every graph with positive degrees (connected or not). Let G be the
-graph at the mark (nodes O, degrees d0, proven λ_min(H0) >= l) and G' the graph now, with
-the nodes N added since (node indices never change between marks, so N comes last). Then:
-
-- Old block (Weyl): λ_min(H'_OO) >= l - ||H'_OO - H0||₂, and H'_OO - H0 splits into
-  D'^-1/2 (W'_OO - W0) D'^-1/2 (Frobenius norm over the changed entries), R S0 R - S0 with
-  R = diag(√(d0/d')) (norm <= r (1 + max R), r = max |R - I|, since ||S0||₂ = 1), and
-  2 (u'_O u'_Oᵀ - u0 u0ᵀ) (norm <= 2 ||u'_O - u0|| (||u'_O|| + 1)).
-- New nodes: H'_NN = I - S'_NN + 2 u'_N u'_Nᵀ >= 1 - ||S'_NN||_F, and the off-diagonal
-  block B = 2 u'_O u'_Nᵀ - S'_ON has ||B||₂ <= ||B||_F, summed exactly (the rank-one
-  part in closed form, its overlap with S'_ON over S'_ON's entries). For
-  x = (x_O, x_N), xᵀH'x >= a |x_O|² + c |x_N|² - 2 β |x_O| |x_N|, so λ_min(H') is at least
-  the smaller eigenvalue of [[a, β], [β, c]]. A new node costs the floor about β²/(c - a),
-  not β: that is why the blocks are kept apart.
-
-Every norm is bounded from above by a Frobenius norm, so the result is a proof in exact
-arithmetic. In floating point, each sum of K squares or products is within g_K = Kε/(1 - Kε)
-of its value relative to the sum of its terms' magnitudes (Higham, Accuracy and Stability,
-§3.1), and each entry carries a few more ε. ``carry`` subtracts that allowance explicitly
-(``_rounding``), with K = changed entries (or the dense store's block entries) + nodes;
-||B||_F² is a difference of sums and can
-cancel (a nearly complete bipartite block), so its allowance is added before the square
-root, never left to the margin. The allowance is ~1e-12 at thousands of changes, far below
-what a frame moves the floor. The floor itself comes from a proof that keeps
-``CERTIFICATE_MARGIN`` (1e-8) in hand over the Cholesky's own rounding (``lambda2_exceeds``).
-
-The floor is a cache of proofs, not session state: dropping it (a snapshot restore, a
-transition, a change of storage form) only means the next decision proves afresh.
+1. The floor never decides anything the exact solver would not: it only proves
+   λ2 > λ2_min + ``CERTIFICATE_MARGIN``; below, the partitioner proves afresh or solves.
+2. Every norm is bounded by a Frobenius norm and the rounding allowance is subtracted
+   explicitly (``_rounding``), so the bound is a proof in floating point too.
+3. The floor is a cache of proofs, not session state: dropping it only costs a proof.
 """
 
 from __future__ import annotations
@@ -62,10 +29,8 @@ if TYPE_CHECKING:
     from lessmap.core.paper.spectral import Similarity
 
 #: Graphs up to this many nodes may be proven by a dense Cholesky factorization when the
-#: floor is lost (O(n²) memory, ~n³/3 flops: 20 MB and ~50 ms at 1,600 nodes, 82 MB and
-#: ~350 ms at 3,200; 134 MB at the limit). Above, the sparse path solves every decision the
-#: floor does not settle, as before (the 10,000-node session of the benchmark never
-#: allocates it).
+#: floor is lost (O(n²) memory, ~n³/3 flops); above, the sparse path solves every decision
+#: the floor does not settle, so a huge session never allocates an n x n matrix.
 PROOF_MAX_NODES = 4096
 
 #: A fresh proof aims at bound + this share of (estimated λ2 - bound): the higher it is,

@@ -4,17 +4,14 @@ Rules of this file:
 
 1. Frames are applied in strictly increasing seq; anything else is a ``StaleFrameError``
    and changes nothing, so a caller can retry or drop without corrupting the session.
-2. ``apply`` only counts (cheap); ``decide`` runs the spectral test once for every frame
-   applied since the last decision. ``observe`` = apply + decide is the paper's per-frame
-   loop; a loaded service applies a burst and decides once (coalescing, never dropping).
+2. ``apply`` only counts; ``decide`` runs the spectral test once for the frames applied since
+   the last decision (``observe`` = both: a loaded service coalesces, never drops).
 3. After a transition, the cluster that holds most of the last frame's features is the new
    area (ties: the cluster whose features were first seen later). The other side is closed
    as a submap. The new CovGraph keeps the new cluster (``seed``) or starts empty (``fresh``).
 4. Everything that influences a later decision is in ``PartitionerState``; a restored
    partitioner makes exactly the decisions the original would have made. The λ2 floor
-   (``lessmap.core.paper.drift``) is not state: it only proves what a solve would find, so a
-   restored partitioner, which starts without one, proves afresh and decides the same
-   (its figures may then carry λ2 where the original reported only the bound).
+   (``drift``) is not state: a restored one proves afresh and decides the same.
 """
 
 from __future__ import annotations
@@ -113,7 +110,7 @@ def _plain_ids(features: Iterable[int]) -> list[int] | None:
     in Python, half the cost of numpy's conversion for a frame of ~20. Anything else (bools,
     floats, IDs beyond int64, arrays) is None, left to ``_numpy_ids`` and its messages.
     """
-    # ``map(type, …)`` checks the types in C: a generator over the list cost 4 % of a shard.
+    # ``map(type, …)`` checks the types in C, a generator in Python: this runs every frame.
     if type(features) is list and set(map(type, features)) <= _INT_ONLY:
         ids = sorted(set(features))
         if not ids or (ids[0] >= _INT64_MIN and ids[-1] <= _INT64_MAX):
@@ -411,7 +408,7 @@ class Partitioner:
         frame, so the boundary is never the submap's first frame when it has several.
         """
         records = list(self._history)
-        new_set = set(new_ids.tolist())  # set look-ups: np.isin costs ~20 µs per short frame
+        new_set = set(new_ids.tolist())  # set look-ups: cheaper than np.isin on short frames
         start = len(records) - 1
         for index in range(len(records) - 1, -1, -1):
             features = records[index].features.tolist()

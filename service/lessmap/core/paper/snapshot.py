@@ -6,9 +6,8 @@ little-endian), the length of the header (4 bytes, little-endian), the header (U
 the arrays' raw bytes (int64, little-endian). Readable from any language with JSON and a
 CRC; the CRC catches a damaged record, as the zip archive's did; the standard library only
 (the core imports no codec). Version 1, an uncompressed NumPy ``.npz`` archive with a JSON
-``meta`` entry, is still read (records stored before an upgrade), never written: building a
-zip archive cost ~3 ms a checkpoint, as much as 40 frames' counting, on the worker that
-decides for every robot of the shard (docs/BENCHMARKS.md).
+``meta`` entry, is still read (records stored before an upgrade), never written (why:
+``docs/decisions/0001-snapshot-format-v2.md``).
 """
 
 from __future__ import annotations

@@ -6,14 +6,10 @@ Small graphs use LAPACK (exact, deterministic); large ones use ARPACK on S with 
 first eigenvector u1 = D^1/2 1 reflected out, so Lanczos converges on u2 alone instead of
 fighting the eigenvalue cluster at 1 that a nearly separable graph produces.
 
-W arrives in the form the CovGraph holds it: a dense array for small graphs, CSR above.
-Every entry point below picks the dense or the sparse path once, at its top, and each path
-then runs straight through functions of its own (``_dense_*``, ``_sparse_*``); the two paths
-share only the formulas, never a branch on the form.
-
-This is deliberately not MRPT's variant (unnormalized Laplacian, threshold at the mean of
-the Fiedler vector, an Ncut about twice Shi–Malik's): the paper's thresholds are calibrated
-for the normalized problem and the Shi–Malik Ncut.
+Every entry point picks the dense or the sparse path of W once, at its top; the paths
+(``_dense_*``, ``_sparse_*``) share only the formulas, never a branch on the form. Not MRPT's
+variant (unnormalized Laplacian, an Ncut about twice Shi–Malik's): the paper's thresholds
+are calibrated for the normalized problem.
 """
 
 from __future__ import annotations
@@ -74,30 +70,13 @@ class Components:
 def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     """Return True when λ2 of L v = λ D v provably exceeds ``bound`` (dense W only).
 
-    A transition needs λ2 <= λ2_min (Eq. 4), and most decisions are nowhere near it: a
-    room being walked has λ2 around 0.9. Proving λ2 > λ2_min settles such a decision
-    without the eigen-solve, at the cost of one Cholesky factorization (~n³/3 flops against
-    dsyevr's ~4n³/3 and its Python wrapping). With d the degrees, S = Σd and t = bound +
-    ``CERTIFICATE_MARGIN``, the matrix
-
-        M = (1 - t) D - W + (t + 1)/S · d dᵀ = D^1/2 (L_sym - t I + (t + 1) u1 u1ᵀ) D^1/2
-
-    is congruent to a matrix with the eigenvalues 1 (on u1 = D^1/2 1 / √S, the eigenvector
-    of L_sym = I - D^-1/2 W D^-1/2 for λ1 = 0) and λk - t (k >= 2), so by Sylvester's law
-    of inertia M is positive definite exactly when λ2 > t. Cholesky is backward stable: a
-    factorization that completes is exact for M + E with |E_ij| <= g·√(M_ii M_jj),
-    g = g_{n+1}/(1 - g_{n+1}) ≈ (n+1)ε, g_k = kε/(1 - kε) (Higham, Accuracy and
-    Stability, Thm 10.5 and Cauchy-Schwarz on the computed factor). Scaled back by
-    D^-1/2, with M_ii/d_i = 1 - t + (t+1)·d_i/S <= 1.5 for 0 <= t (d_i <= S/2), E moves
-    λ2 by at most
-    ||D^-1/2 E D^-1/2||_F <= 1.5·n(n+1)·ε: 5.4e-11 at 400 nodes, 5.6e-9 at 4,096, under the
-    margin up to ``CERTIFICATE_MAX_NODES`` (rounding M's entries and the degrees adds
-    ~n·ε). Larger graphs are never factorized (False), so a True is always a proof.
-    A graph that falls apart has λ2 = 0 and never passes, nor does one with an isolated
-    node. False means "not proven": the caller solves as usual, so decisions never change.
-
-    A CSR W is factorized densely too (O(n²) memory): callers bound its size
-    (``lessmap.core.paper.drift.PROOF_MAX_NODES``), and so does ``CERTIFICATE_MAX_NODES``.
+    Most decisions are nowhere near a transition (λ2 around 0.9 in a room being walked), and
+    proving λ2 > λ2_min settles one with a Cholesky factorization of a matrix that is
+    positive definite exactly when λ2 > bound + ``CERTIFICATE_MARGIN`` (Sylvester's law of
+    inertia), cheaper than the eigen-solve. The margin covers the factorization's rounding up
+    to ``CERTIFICATE_MAX_NODES``; larger graphs are never factorized. False means "not
+    proven": the caller solves as usual, so decisions never change. The proof:
+    ``docs/design/drift-certificate.md``.
 
     Args:
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n).
@@ -283,7 +262,7 @@ def _dense_lambda2_exceeds(w: NDArray[np.float64], bound: float) -> bool:
     shift = bound + CERTIFICATE_MARGIN
     matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
     matrix -= w
-    # The diagonal through a flat view: ``ndarray.flat`` costs 3 µs more at tens of nodes.
+    # The diagonal through a flat view: cheaper than ``ndarray.flat`` at tens of nodes.
     matrix.reshape(-1)[:: n + 1] += (1.0 - shift) * degrees
     _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
     return bool(info == 0)
@@ -341,7 +320,7 @@ def _dense_ncut(
 def _dense_components(adjacent: NDArray[np.bool_]) -> tuple[int, NDArray[np.int32]]:
     # Breadth-first search one level at a time on the boolean matrix. scipy's
     # connected_components validates a dense input through masked arrays, which took more
-    # than the whole rest of a decision on room-sized graphs (profiled: ~0.9 ms at 40 nodes).
+    # than the whole rest of a decision on room-sized graphs.
     n = adjacent.shape[0]
     labels = np.full(n, -1, dtype=np.int32)
     count = 0
@@ -406,7 +385,7 @@ def _sparse_lambda2_exceeds(w: sparse.csr_array, bound: float) -> bool:
 
 def _sparse_components(w: sparse.csr_array) -> tuple[int, NDArray[np.int32]]:
     # W is symmetric, so its strong components are its components; scipy's undirected
-    # search builds the transpose first (a quarter of a decision at 1 M entries, measured).
+    # search builds the transpose first, a large share of a decision on big graphs.
     count, labels = csgraph.connected_components(w, directed=True, connection="strong")
     if count == 1:
         return 1, np.zeros(w.shape[0], dtype=np.int32)

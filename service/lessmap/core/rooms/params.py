@@ -22,11 +22,14 @@ class RoomParams:
     window_min_frames: int = 3  # fewer frames make a noisy mean of similarities
     window_max_frames: int = 30  # the memory a side may take, and the decision's lag
     lag_smoothing: float = 0.02  # weight of a new frame in the learnt lag profile
+    ahead_share: float = 0.5  # the newer half's frames, as a share of the older half's
     # Rule 2: the cut of a window, (within-side similarity) - (across-side similarity).
     cut_min: float = 0.15
+    # A peak must stay the highest over this share of a newer half's cuts after it: a door
+    # looked at from the room shows first, the door passed shows more.
+    settle_share: float = 0.0
     # Rule 3: a cut is a room change only when the new side is not the segment's own.
-    familiar_relative: float = 0.5  # familiar: seen this share of the mean sightings
-    stay_share: float = 0.5  # of the new side's sightings, familiar ones at least this
+    known_share: float = 0.9  # of the new half's features, the area's own at least this
     min_side_features: int = 5  # distinct features on each side of a change
     # Rule 4: the area entered, when the new side's features are mostly an area's.
     revisit_overlap: float = 0.5
@@ -39,9 +42,10 @@ class RoomParams:
             "window_min_frames": self.window_min_frames >= 2,
             "window_max_frames": self.window_max_frames >= self.window_min_frames,
             "lag_smoothing": 0.0 < self.lag_smoothing <= 1.0,
+            "ahead_share": 0.0 < self.ahead_share <= 1.0,
             "cut_min": self.cut_min > 0.0,
-            "familiar_relative": self.familiar_relative >= 0.0,
-            "stay_share": self.stay_share > 0.0,
+            "settle_share": 0.0 <= self.settle_share <= 2.0,
+            "known_share": self.known_share > 0.0,
             "min_side_features": self.min_side_features >= 1,
             "revisit_overlap": 0.0 < self.revisit_overlap <= 1.0,
             "max_area_sightings": self.max_area_sightings >= 0,

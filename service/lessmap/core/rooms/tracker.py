@@ -54,7 +54,7 @@ class RoomTracker:
         """Start an empty session in area 0."""
         self.params = params if params is not None else RoomParams()
         self.window = FrameWindow(self.params)
-        self.cuts: deque[Cut] = deque(maxlen=self.params.window_max_frames + 1)
+        self.cuts: deque[Cut] = deque(maxlen=2 * self.params.window_max_frames + 1)
         self.seqs: deque[int] = deque(maxlen=SEQ_MEMORY)  # every applied frame's seq
         self.segment_id = 0
         self.segment_first_seq: int | None = None
@@ -69,7 +69,6 @@ class RoomTracker:
         self.last_stamp_s = 0.0
         self.frames_applied = 0
         self.transitions = 0
-        self.pending: AreaTransition | None = None
 
     # -- read ------------------------------------------------------------------------------
 
@@ -108,8 +107,8 @@ class RoomTracker:
 
     # -- frames ----------------------------------------------------------------------------
 
-    def add(self, seq: int, stamp_s: float, features: Iterable[int]) -> None:
-        """Count one frame in and cut the window (rules 1, 2); confirmation waits for settle.
+    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
+        """Add one frame, cut the window and test the cut; return the change it confirms.
 
         Raises:
             StaleFrameError: seq is not greater than the last seq.
@@ -127,41 +126,38 @@ class RoomTracker:
             self.segment_first_seq = seq
         self.segment_frame_count += 1
         if not seen:
-            return  # a robot that saw nothing saw no boundary
+            return None  # a robot that saw nothing saw no boundary
         count(self.segment_counts, seen)
         self.segment_nonempty += 1
         count(self.areas[self.current], seen)
         self.area_frames[self.current] += 1
         self.window.add(seq, frozenset(seen))
-        cut = self.window.cut()
+        change = None
+        cut = self.window.cut(self.last_boundary)
         if cut is not None:
             self.cuts.append(cut)
-            if self.pending is None:
-                self.pending = self._proposal()
+            change = self._proposal()
         self._bound_models()
-
-    def settle(self) -> AreaTransition | None:
-        """Return the change found since the last settle, if any."""
-        change, self.pending = self.pending, None
         return change
-
-    def observe(self, seq: int, stamp_s: float, features: Iterable[int]) -> AreaTransition | None:
-        """``add`` then ``settle``."""
-        self.add(seq, stamp_s, features)
-        return self.settle()
 
     # -- rules 2-5 -------------------------------------------------------------------------
 
     def _proposal(self) -> AreaTransition | None:
-        """The change at the peak one cut back, if it is one and passes rule 3."""
-        if len(self.cuts) < 2:
-            return None
-        peak, after = self.cuts[-2], self.cuts[-1]
+        """The change at the peak a few cuts back, if it is one and passes rule 3."""
         p = self.params
-        if peak.score < p.cut_min or peak.score <= after.score:
+        settle = max(1, round(self.cuts[-1].ahead * p.settle_share))
+        if len(self.cuts) <= settle:
             return None
-        earlier = [c.score for c in self.cuts if peak.boundary_seq - peak.width <= c.boundary_seq]
-        if max(earlier[:-2], default=0.0) > peak.score:
+        peak = self.cuts[-1 - settle]
+        later = [c.score for c in list(self.cuts)[-settle:]]
+        if peak.score < p.cut_min or peak.score <= max(later):
+            return None
+        earlier = [
+            c.score
+            for c in list(self.cuts)[: -1 - settle]
+            if peak.boundary_seq - peak.width <= c.boundary_seq
+        ]
+        if max(earlier, default=0.0) > peak.score:
             return None
         if self.last_boundary is not None and peak.boundary_seq <= self.last_boundary:
             return None
@@ -177,13 +173,16 @@ class RoomTracker:
         before = {f: c for f, c in before.items() if c > 0}
         if len(before) < p.min_side_features or len(moved) < p.min_side_features:
             return None
-        sightings = sum(moved.values())
-        mean = sum(before.values()) / len(before)
-        familiar = sum(
-            c for f, c in moved.items() if before.get(f, 0) >= p.familiar_relative * mean
-        )
-        if familiar >= p.stay_share * sightings and self._known_area(moved)[1] < p.revisit_overlap:
-            return None
+        # Known before the window: the frames just before a boundary may stand past the door.
+        older = [seq for seq, _ in self.window.frames if seq < peak.boundary_seq]
+        recent: dict[int, int] = {}
+        for seq, frame in self.window.frames:
+            if seq >= older[-min(peak.width, len(older))]:
+                count(recent, frame)
+        area = self.areas[self.current]
+        known = sum(1 for f in moved if area.get(f, 0) > recent.get(f, 0))
+        if known >= p.known_share * len(moved):
+            return None  # the area had seen nearly all of it before: the same place again
         return self._change(peak, moved, before)
 
     def _known_area(self, moved: dict[int, int]) -> tuple[int | None, float]:

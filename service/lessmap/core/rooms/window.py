@@ -25,7 +25,8 @@ class Cut:
 
     boundary_seq: int  # first frame of the newer half
     score: float  # within-half minus across-half mean similarity (rule 2)
-    width: int  # frames in each half
+    width: int  # frames in the older half
+    ahead: int  # frames in the newer half (the decision's lag)
 
 
 def covrate(a: frozenset[int], b: frozenset[int]) -> float:
@@ -39,13 +40,13 @@ class FrameWindow:
     def __init__(self, params: RoomParams) -> None:
         """An empty window."""
         self.params = params
-        capacity = 2 * params.window_max_frames
+        capacity = 3 * params.window_max_frames
         self.frames: deque[Frame] = deque(maxlen=capacity)
         # rows[i][d - 1]: similarity of frames[i] to the frame d places before it (0 if none)
         self.rows: deque[NDArray[np.float64]] = deque(maxlen=capacity)
         # mean similarity of frames d apart (index d - 1) and how many pairs it has seen
-        self.lag_mean = np.zeros(params.window_max_frames, dtype=np.float64)
-        self.lag_seen = np.zeros(params.window_max_frames, dtype=np.int64)
+        self.lag_mean = np.zeros(capacity - 1, dtype=np.float64)
+        self.lag_seen = np.zeros(capacity - 1, dtype=np.int64)
 
     def add(self, seq: int, features: frozenset[int]) -> None:
         """Take one non-empty frame: its row of similarities and the lag profile."""
@@ -57,7 +58,7 @@ class FrameWindow:
             row[d - 1] = covrate(features, earlier)
         self.frames.append((seq, features))
         self.rows.append(row)
-        lags = min(len(self.frames) - 1, self.params.window_max_frames)
+        lags = len(self.frames) - 1
         if lags:
             seen = self.lag_seen[:lags] + 1
             # a running mean at first, then an exponential one: early frames teach fast
@@ -72,7 +73,7 @@ class FrameWindow:
         or it has seen every lag up to the maximum.
         """
         p = self.params
-        known = int(np.count_nonzero(self.lag_seen))
+        known = min(int(np.count_nonzero(self.lag_seen)), p.window_max_frames)
         for d in range(p.window_min_frames, known + 1):
             if self.lag_mean[d - 1] <= p.window_similarity:
                 return d
@@ -86,16 +87,31 @@ class FrameWindow:
         m[i, j] = rows[i, i - j - 1]
         return m + m.T
 
-    def cut(self) -> Cut | None:
-        """The cut between the last ``width`` frames and the ``width`` before them (rule 2)."""
+    def cut(self, since_seq: int | None = None) -> Cut | None:
+        """The cut between the newest frames and the frames before them (rule 2).
+
+        The newer half holds ``ahead_share`` of a half's frames: a change is told after
+        that many frames past its boundary. The older half holds ``width`` frames, or those
+        of the open segment (from ``since_seq``) if fewer, but at least the minimum: a cut
+        compares the segment's own frames with the newest, never frames across a change.
+        """
         w = self.width()
-        if w is None or len(self.frames) < 2 * w:
+        if w is None:
             return None
-        m = self.matrix(2 * w)
-        pairs = w * (w - 1)
-        within = (m[:w, :w].sum() / pairs + m[w:, w:].sum() / pairs) / 2.0
+        least = self.params.window_min_frames
+        r = max(least, round(w * self.params.ahead_share))
+        if len(self.frames) < r + least:
+            return None
+        if since_seq is not None:
+            own = sum(1 for seq, _ in self.frames if seq >= since_seq) - r
+            w = min(w, own)
+        w = min(w, len(self.frames) - r)
+        if w < least:
+            return None
+        m = self.matrix(w + r)
+        within = (m[:w, :w].sum() / (w * (w - 1)) + m[w:, w:].sum() / (r * (r - 1))) / 2.0
         across = m[:w, w:].mean()
-        return Cut(boundary_seq=self.frames[-w][0], score=float(within - across), width=w)
+        return Cut(boundary_seq=self.frames[-r][0], score=float(within - across), width=w, ahead=r)
 
     def figures(self, boundary_seq: int) -> tuple[float, float]:
         """Ncut and λ2 of the window's frame graph split at ``boundary_seq`` (for reports).

@@ -1,21 +1,15 @@
 """Load a data set for evaluation: frames plus the 2-D SLAM problem of its companion files.
 
-Rules of this file (see ``../shared/datasets/README.md`` for the formats):
+Rules of this file (formats: ``../shared/datasets/README.md``; in full:
+``docs/design/evaluation.md``):
 
-1. The frames file is ``<name>.frames.jsonl``; its companions are found next to it by name:
-   ``<name>.edges.jsonl`` (pose–landmark measurements) and ``<name>.odometry.jsonl``
-   (pose–pose constraints). A missing companion is a ``DatasetError`` that names the path.
-2. One robot at a time: the odometry lines carry no robot, so a file with several robots
-   needs ``robot=`` to choose one.
-3. Pose IDs (``pose_id``, ``from_pose_id``, ``to_pose_id``) are the data set's vertex IDs.
-   Sorted ascending they enumerate the frames in file order (dlr: "ordered by vertex id");
-   every edge's (seq, pose_id) pair is checked against that rule.
-4. A landmark measurement is the landmark's [x, y] in the robot frame (g2o EDGE_SE2_XY); an
-   odometry measurement is [dx, dy, dθ] of the second pose in the first pose's frame (g2o
-   EDGE_SE2). Information is the upper triangle, row-major: [xx, xy, yy] and
-   [xx, xy, xθ, yy, yθ, θθ]. Where it is null, unit information is used and counted.
-5. The linearization point is each frame's ``pose``; each landmark starts at its first
-   sighting, pose ⊕ measurement.
+1. Companions are found next to ``<name>.frames.jsonl`` by name (``.edges.jsonl``,
+   ``.odometry.jsonl``); a missing one is a ``DatasetError`` that names the path.
+2. One robot at a time: a file with several robots needs ``robot=``.
+3. Pose IDs sorted ascending enumerate the frames in file order; every edge is checked.
+4. Measurements are g2o's EDGE_SE2_XY and EDGE_SE2, information as the upper triangle,
+   row-major; where it is null, unit information is used and counted.
+5. The linearization point is each frame's ``pose``; a landmark starts at its first sighting.
 """
 
 from __future__ import annotations

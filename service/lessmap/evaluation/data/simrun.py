@@ -1,18 +1,14 @@
 """A simulated run as a data set: ground truth, and a SLAM problem to measure e.
 
-The simulator (``lessmap.sim.simulator.write_run``, formats in its docstring) writes
-``<name>.frames.jsonl``, ``<name>.truth.jsonl`` and ``<name>.building.json`` side by side,
-and ``lessmap.sim.simulator.read_truth`` reads the last two back; this module adds what
-the evaluation needs on top. Rules:
+Rules of this file (the simulator's formats: ``lessmap.sim.simulator.write_run``):
 
 1. A frames file is a simulated run when ``<name>.truth.jsonl`` lies next to it.
-2. The truth (rows, doors, room changes, landmarks) is the simulator's ``SimTruth``; a
-   missing or malformed file is a ``DatasetError``.
+2. The truth is the simulator's ``SimTruth``; a missing or malformed file is a
+   ``DatasetError``.
 3. The simulator writes no edges or odometry: ``sim_problem`` builds them from the true
-   poses and the building's landmark positions, with the fixed information below (a 2-D
-   laser scanner at ~5 cm, wheel odometry at ~1 cm and ~1° per 0.25 m step; the ratio of
-   odometry to landmark information is close to DLR's). e depends on that ratio, so the
-   report says when H was synthesized this way.
+   poses and landmarks with fixed information (a laser at ~5 cm, odometry at ~1 cm and ~1°
+   per 0.25 m step, a ratio close to DLR's); e depends on that ratio, so the report says
+   when H was synthesized this way.
 """
 
 from __future__ import annotations

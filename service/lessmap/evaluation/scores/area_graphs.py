@@ -1,20 +1,11 @@
 """Area graphs against the truth: ``python -m lessmap.evaluation.scores.area_graphs``.
 
-On simulated buildings (``simulate(seed, rooms=8, robots=3, frames_per_robot=1000)``; 270°
-and 360° sensors, dense and sparse wall landmarks as in ``areabench``; feature ids are global
-in a building, so the fleet merge with shared features applies), seeds 0..N-1 (the
-``min_containment`` sweep the default was chosen on) and held-out seeds N..2N-1:
-
-- each robot area's *room* is the true room of most of its frames (frames labelled by the
-  area of the last change whose ``boundary_seq`` is at or before them, merges resolved);
-- an edge is *adjacent* when its two areas' rooms share a door, *same room* when both areas
-  have one room (a room split in two), else *not adjacent*; adjacencies *found* are door
-  pairs some edge maps to, over the door pairs the robot crossed (and over all doors);
-- fleet merge: over pairs of areas of different robots, precision and recall of "same fleet
-  area" for "same room", for each ``min_containment`` of ``--containment``.
-
-Then the fleet areas of ``--datasets``/mrclam6.frames.jsonl, without and with shared
-features (MRCLAM: 5 robots in one arena, 15 global landmarks: one area is right).
+On simulated buildings (8 rooms, 3 robots; 270° and 360° sensors, dense and sparse wall
+landmarks), seeds 0..N-1 (the ``min_containment`` sweep the default was chosen on) and
+held-out seeds N..2N-1, it scores each robot area's room, each edge's adjacency (door pairs
+found, over those crossed and over all), and the fleet merge's precision and recall of
+"same fleet area" for "same room" per ``--containment``; then the fleet areas of mrclam6
+without and with shared features. Definitions in full: ``docs/design/evaluation.md``.
 """
 
 from __future__ import annotations

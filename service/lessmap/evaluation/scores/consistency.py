@@ -1,19 +1,12 @@
 """Consistency of transitions with a simulated building's ground truth (paper Figs. 5, 8, 11).
 
-What is specific to the evaluation: the detections of each method over a run's frames,
-and the door spreads. The figures recall, recall_boundary, recall_any, precision,
-precision_boundary, precision_door and latency are those of ``lessmap.sim.groundtruth``
-(the scorer the demo uses too; definitions in its docstring), with ``tolerance_frames``
-and ``door_distance_m`` passed explicitly; precision_door is None in a building without
-doors. On top of them:
-
-- revisit spread: each true change is matched to its first detection before the robot's
-  next room change (the one its latency measures). For every door
-  crossed several times with a match, the true positions at the matches' ``boundary_seq``
-  (and at their ``seq``) are compared pairwise: the spread of a door is the mean pairwise
-  distance, its max the largest. Grouped by door (either direction) and by passage (door
-  and direction: the same traversal repeated). "Revisits give matching partitions" means a
-  small spread.
+The detections of each method over a run's frames and the door spreads. Recall, precision,
+latency and their variants are ``lessmap.sim.groundtruth``'s (the demo's scorer too), with
+``tolerance_frames`` and ``door_distance_m`` passed explicitly. On top of them, the revisit
+spread: each true change is matched to its first detection before the robot's next room
+change; for every door crossed several times, the true positions at the matches are
+compared pairwise, grouped by door and by passage (door and direction). A small spread
+means revisits give matching partitions (in full: ``docs/design/evaluation.md``).
 """
 
 from __future__ import annotations

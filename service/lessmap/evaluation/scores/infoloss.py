@@ -2,24 +2,15 @@
 
     e = Σ_{(i,j): C(i) ∩ C(j) = ∅} |H(i,j)| / Σ_{(a,b)} |H(a,b)|
 
-H is the landmark information matrix of the 2-D SLAM problem: the Gauss–Newton Hessian
-Jᵀ Ω J linearized at the data set's poses, with the poses marginalized out by a Schur
-complement. Choices made here (the paper leaves them open):
+H is the landmark information matrix of the 2-D SLAM problem (Jᵀ Ω J at the data set's
+poses, poses marginalized out by a sparse Schur complement). Choices the paper leaves open
+(in full: ``docs/design/evaluation.md``):
 
-- **Gauge.** Pose–landmark and odometry constraints are relative, so Jᵀ Ω J is singular
-  along a global rigid motion. The first pose gets a prior ``anchor_information · I₃``
-  (default 1e9, far above any data set's information, so the result is that of a fixed
-  first pose). The landmark marginal depends on this choice of gauge.
-- **Entries.** H(i,j) is the 2×2 block of landmarks i and j; every entry counts by its
-  absolute value. The diagonal blocks (i, i) are part of "all (a, b)" in the denominator and
-  never of the numerator, so one submap gives e = 0.
-- **Membership.** A landmark belongs to every submap in which it was observed (a frame of
-  that submap saw it). A pair (i, j) is inside when the two share at least one submap, and
-  lost (numerator) when they share none. ``landmark_submaps(..., exclusive=True)`` gives the
-  literal one-cluster reading instead: each landmark in the submap that saw it most often.
-- **Sparsity.** H is assembled sparse; the Schur complement H_ll - H_lp H_pp⁻¹ H_pl factors
-  the sparse H_pp once (SuperLU) and solves it for H_pl a block of columns at a time. The
-  result is dense: the odometry chain couples every landmark with every other.
+1. Gauge: the first pose gets a prior ``anchor_information · I₃``, far above any data set's.
+2. Entries: every entry of a 2×2 landmark block counts by its absolute value; diagonal
+   blocks count in the denominator only, so one submap gives e = 0.
+3. Membership: a landmark belongs to every submap that observed it; a pair is lost when the
+   two share none (``exclusive=True``: the submap that saw it most often only).
 """
 
 from __future__ import annotations

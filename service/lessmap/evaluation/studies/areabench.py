@@ -1,19 +1,12 @@
 """Paper vs areas on every criterion: ``python -m lessmap.evaluation.studies.areabench``.
 
-Prints one table per criterion, each method side by side:
-
-- simulated buildings (``simulate(seed, rooms=8, robots=3, frames_per_robot=1000)``,
-  seeds S..S+N-1, S = ``--first-seed`` (0; 5 gives held-out seeds to check a tuning on);
-  270° and 360° sensors; dense and sparse wall landmarks): recall and
-  precision of the detection frame within ±8 frames (``lessmap.sim.groundtruth``),
-  latency, revisits recognised and false (``lessmap.evaluation.methods.revisit_score``);
-- one open area (``rooms=1``: a 12-16 m room, no doors) and the MRCLAM sets (one lab
-  room): transitions per robot per 10 minutes of its stamps;
-- closed submaps below 5 features (every data set);
-- dlr: e (Eq. 5) of the segmentation against fixed frames cut to the same count.
-
-The data sets are read from ``--datasets`` (default ``../shared/datasets``); a missing one
-is reported and skipped.
+Prints one table per criterion, each method side by side: simulated buildings (seeds from
+``--first-seed``; 5 gives held-out seeds to check a tuning on) for recall, precision,
+latency and revisits; one open area and the MRCLAM sets for transitions per robot per 10
+minutes; closed submaps below 5 features; dlr's e against fixed frames. The data sets are
+read from ``--datasets`` (default ``../shared/datasets``); a missing one is reported and
+skipped. Details: ``docs/design/evaluation.md``; the tuning it measured:
+``docs/tuning/areas.md``.
 """
 
 from __future__ import annotations
@@ -285,7 +278,7 @@ def report(seeds: int, datasets: Path, first_seed: int = 0) -> str:
             f"{_pct(row.e_exclusive, 1)} | {_pct(row.e_exclusive_fixed, 1)} |"
             for row in losses
         ]
-    lines += ["", "targets of issue 18, method areas:", ""]
+    lines += ["", "targets of the areas method:", ""]
     lines += verdicts(buildings, areas, losses)
     return "\n".join(lines) + "\n"
 
@@ -295,7 +288,7 @@ def _mark(ok: bool) -> str:
 
 
 def revisits_met(score: RevisitScore) -> bool:
-    """The issue's revisit target: ≥ 90% recognised, ≤ 2% false names (a 0% counts)."""
+    """The revisit target: ≥ 90% recognised, ≤ 2% false names (a 0% counts)."""
     recognised, false = score.recognised_share, score.false_share
     return recognised is not None and recognised >= 0.9 and false is not None and false <= 0.02
 
@@ -305,7 +298,7 @@ def verdicts(
     areas: dict[str, dict[str, Tally]],
     losses: list[LossRow],
 ) -> list[str]:
-    """Return one line per target of the issue: met or missed, with the measured figures."""
+    """Return one line per target: met or missed, with the measured figures."""
     out = []
     for case, results in buildings.items():
         s, r = results["areas"].score, results["areas"].revisits
