@@ -74,6 +74,14 @@ def test_each_wheel_holds_its_package_typed_and_licensed(
     assert not {n.partition("/")[0] for n in names} & others  # every package in its own wheel
 
 
+def test_the_service_wheel_ships_the_example_floor_plan(
+    wheels: dict[str, zipfile.ZipFile],
+) -> None:
+    names = set(wheels["lessmap"].namelist())
+    for file in ("example.png", "example_gt_segmentation.png", "example.yaml"):
+        assert f"lessmap/floorplan/data/{file}" in names
+
+
 def test_one_version_for_all(wheels: dict[str, zipfile.ZipFile]) -> None:
     expected = (ROOT / "VERSION").read_text(encoding="utf-8").strip()
     assert {metadata(w)["Version"][0] for w in wheels.values()} == {expected}

@@ -64,7 +64,7 @@ def test_served_changes_and_area_graph_equal_the_segmenter_offline(
         got = drain(client)
         graph = client.area_graph("amr")
     assert [(t.seq, t.reason, t.area, t.left_area, t.revisit) for t in got] == expected
-    assert (state.method, state.current_area) == (method.value, offline.current_area)
+    assert (state.method, state.current_area) == (method.wire, offline.current_area)
     if method is Method.AREAS:
         assert any(t.revisit for t in got)  # the walk comes back to a room
     assert graph is not None
@@ -73,7 +73,7 @@ def test_served_changes_and_area_graph_equal_the_segmenter_offline(
         "amr",
         state.session,
         offline.area_graph(),
-        method=method.value,
+        method=method.wire,
         instance=service.instance,
         epoch=graph.epoch,
     )

@@ -157,7 +157,11 @@ def test_coalesced_batches_decide_once_as_the_segmenter_does(method: Method) -> 
     found = essentials(feed(table, frames, at=16))
     assert found == reference(method, frames, every=16)
     assert found  # the test can fail
-    assert found != reference(method, frames)  # and coalescing did decide differently
+    if method is Method.ROOMS:
+        # rooms tests every frame as it is applied: a batch changes when changes are told
+        assert found == reference(method, frames)
+    else:
+        assert found != reference(method, frames)  # and coalescing did decide differently
     if method is Method.PAPER:
         assert all(area == closed + 1 for _s, closed, area, *_ in found)
 
@@ -183,7 +187,7 @@ def test_a_session_resumes_from_its_checkpoint_exactly(method: Method, tmp_path:
     assert [e for e in after if e in redone] == redone
     state = second.state(FLEET, ROBOT)
     assert state is not None
-    assert state.method == method.value
+    assert state.method == method.wire
     store.close()
 
 

@@ -24,7 +24,7 @@ class RoomParams:
     lag_smoothing: float = 0.02  # weight of a new frame in the learnt lag profile
     ahead_share: float = 0.5  # the newer half's frames, as a share of the older half's
     # Rule 2: the cut of a window, (within-side similarity) - (across-side similarity).
-    cut_min: float = 0.15
+    cut_min: float = 0.1
     # A peak must stay the highest over this share of a newer half's cuts after it: a door
     # looked at from the room shows first, the door passed shows more.
     settle_share: float = 0.0

@@ -111,7 +111,24 @@ class FrameWindow:
         m = self.matrix(w + r)
         within = (m[:w, :w].sum() / (w * (w - 1)) + m[w:, w:].sum() / (r * (r - 1))) / 2.0
         across = m[:w, w:].mean()
-        return Cut(boundary_seq=self.frames[-r][0], score=float(within - across), width=w, ahead=r)
+        score = float(within - across) - self.walking(w, r)
+        return Cut(boundary_seq=self.frames[-r][0], score=score, width=w, ahead=r)
+
+    def walking(self, w: int, r: int) -> float:
+        """The cut a steady walk makes: across-half pairs lie further apart than within-half ones.
+
+        From the lag profile: the mean similarity of the pairs of each kind at their lags.
+        A cut counts only what the view changed beyond that.
+        """
+        lag = self.lag_mean
+        within = 0.0
+        for n in (w, r):
+            d = np.arange(1, n)
+            within += float(np.dot(n - d, lag[d - 1])) / (n * (n - 1) / 2) / 2.0
+        d = np.arange(1, w + r)
+        pairs = np.minimum(np.minimum(d, w), np.minimum(r, w + r - d))
+        across = float(np.dot(pairs, lag[d - 1])) / (w * r)
+        return within - across
 
     def figures(self, boundary_seq: int) -> tuple[float, float]:
         """Ncut and λ2 of the window's frame graph split at ``boundary_seq`` (for reports).
