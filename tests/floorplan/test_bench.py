@@ -11,9 +11,11 @@ import pytest
 from PIL import Image
 
 from lessmap.floorplan.bench import main, markdown, run_bench, summarise
+from lessmap.floorplan.example import EXAMPLE_DIR
 from lessmap.floorplan.grid import FloorplanError, room_labels
 from lessmap.floorplan.simcases import (
     BenchCase,
+    FloorplanSimulator,
     SimulatedRun,
     benchmark_map,
     building_run,
@@ -74,6 +76,18 @@ def test_the_benchmark_maps_are_found_by_name(tmp_path: Path) -> None:
         benchmark_map("office_z", folder)
 
 
+def test_the_floorplan_simulator_runs_a_case_on_the_example_map(tmp_path: Path) -> None:
+    simulator = FloorplanSimulator(EXAMPLE_DIR)
+    case = BenchCase(map="example", sensor="laser270", seed=0, rate_hz=2.0)
+    [result] = run_bench(simulator, [case], methods=("areas",), work_dir=tmp_path)
+    areas = {item.method: item for item in result.results}["areas"]
+    assert areas.stream is not None
+    assert areas.stream.changes > 0
+    assert areas.fleet_map.rooms == 7  # the example's seven rooms
+    with pytest.raises(FloorplanError, match="unknown sensor"):
+        simulator(BenchCase(map="example", sensor="sonar", seed=0, rate_hz=2.0), tmp_path)
+
+
 def simulator_that_fails(case: BenchCase, folder: Path) -> SimulatedRun:
     return building_run(BenchCase(map="nowhere", sensor=case.sensor, seed=0, rate_hz=1.0), folder)
 
@@ -113,7 +127,7 @@ def test_the_script_runs_cases_in_worker_processes(tmp_path: Path) -> None:
 
 def test_a_bad_simulator_is_reported_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     for spec, message in [
-        ("nowhere", "give building or MODULE:FUNCTION"),
+        ("nowhere", "give building, floorplan or MODULE:FUNCTION"),
         ("lessmap.floorplan.bench:nothing", "has no attribute"),
         (f"{__name__}:simulator_that_fails", "unknown layout"),
     ]:

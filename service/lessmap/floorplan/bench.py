@@ -10,8 +10,8 @@ robot's frames / (its true changes + 1): it is told the true count. References w
 stream: ``truth`` labels the walk with the true rooms (the best room map this walk gives),
 ``geometry`` is the doorway regions alone (the map without any segmentation).
 
-Cases run in ``--jobs`` processes; ``--simulator MODULE:FUNCTION`` names a ``Simulator``
-(``lessmap.floorplan.simcases``), ``building`` by default.
+Cases run in ``--jobs`` processes; the simulator is ``building`` (default), ``floorplan``
+(the benchmark's maps) or ``MODULE:FUNCTION``, a ``Simulator`` (``.simcases``).
 """
 
 from __future__ import annotations
@@ -41,7 +41,13 @@ from lessmap.floorplan.roommap import (
     nearest_samples,
     room_map,
 )
-from lessmap.floorplan.simcases import BenchCase, SimulatedRun, Simulator, building_run
+from lessmap.floorplan.simcases import (
+    BenchCase,
+    FloorplanSimulator,
+    SimulatedRun,
+    Simulator,
+    building_run,
+)
 from lessmap.floorplan.streams import (
     fixed_cuts,
     frame_areas,
@@ -276,12 +282,14 @@ def markdown(results: Sequence[CaseResult], tolerance_m: float, by: str = "map")
     return header + "\n\n" + "\n".join(lines) + "\n"
 
 
-def _simulator(spec: str) -> Simulator:
+def _simulator(spec: str, floorplans: Path, furnished: bool) -> Simulator:
+    if spec == "floorplan":
+        return FloorplanSimulator(floorplans, furnished)
     if spec in SIMULATORS:
         return SIMULATORS[spec]
     module, sep, name = spec.partition(":")
     if not sep:
-        msg = f"--simulator {spec}: give {' or '.join(SIMULATORS)} or MODULE:FUNCTION"
+        msg = f"--simulator {spec}: give {', '.join([*SIMULATORS, 'floorplan'])} or MODULE:FUNCTION"
         raise FloorplanError(msg)
     try:
         found: Simulator = getattr(importlib.import_module(module), name)
@@ -299,7 +307,19 @@ def build_parser() -> argparse.ArgumentParser:
         description="Room segmentation on floor plans: stream scores and the room-map "
         "benchmark (Bormann et al., ICRA 2016) for each method over simulated runs.",
     )
-    parser.add_argument("--simulator", default="building", help="building or MODULE:FUNCTION")
+    parser.add_argument(
+        "--simulator",
+        default="building",
+        help="building (generated buildings; maps: grid, corridor), floorplan (the benchmark's "
+        "maps in --floorplans; sensors: laser270, laser360, sparse, camera) or MODULE:FUNCTION",
+    )
+    parser.add_argument(
+        "--floorplans",
+        type=Path,
+        default=Path("..") / "shared" / "floorplans",
+        help="folder of the benchmark's maps (default ../shared/floorplans)",
+    )
+    parser.add_argument("--furnished", action="store_true", help="floorplan: maps with furniture")
     parser.add_argument("--maps", nargs="+", default=["grid", "corridor"], help="map names")
     parser.add_argument("--sensors", nargs="+", default=["laser270"], help="sensor names")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
@@ -330,7 +350,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         except ValueError as exc:
             raise FloorplanError(str(exc)) from None
-        simulator = _simulator(args.simulator)
+        simulator = _simulator(args.simulator, args.floorplans, args.furnished)
         cases = [
             BenchCase(map=m, sensor=s, seed=seed, rate_hz=rate)
             for m, s, seed, rate in product(args.maps, args.sensors, args.seeds, args.rates)

@@ -5,7 +5,9 @@ function) so that cases run in worker processes: it writes ``<name>.frames.jsonl
 poses) and ``<name>.truth.jsonl`` (``TruthRow`` lines) into ``folder`` and names the
 occupancy map and the ground-truth room image the run is scored on.
 
-``building_run`` is the generated-building simulator of ``lessmap.sim`` seen as a floor
+``FloorplanSimulator`` tours a benchmark floor plan (``lessmap.floorplan.simulation``):
+``case.map`` names the map, ``case.sensor`` a sensor profile. ``building_run`` is the
+generated-building simulator of ``lessmap.sim`` seen as a floor
 plan: ``case.map`` is its layout (``grid`` or ``corridor``), and its building is drawn into
 an occupancy image with its map_server YAML (walls black, two cells thick; doors open) and a
 ground-truth image (the same with every doorway closed), at ``RESOLUTION_M``.
@@ -26,6 +28,7 @@ if TYPE_CHECKING:
 __all__ = [
     "SENSORS",
     "BenchCase",
+    "FloorplanSimulator",
     "SimulatedRun",
     "Simulator",
     "benchmark_map",
@@ -178,3 +181,43 @@ def building_run(case: BenchCase, folder: Path) -> SimulatedRun:
         encoding="utf-8",
     )
     return SimulatedRun(frames=paths.frames, truth=paths.truth, grid_map=grid_map, labels=labels)
+
+
+#: Walking speed of the floor-plan robots, whatever the frame rate.
+FLOORPLAN_SPEED_MPS = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class FloorplanSimulator:
+    """Tour a benchmark map of ``folder`` (``benchmark_map``) with the floor-plan simulator.
+
+    Every room is toured by ``robots`` robots at ``FLOORPLAN_SPEED_MPS``; the sensor is
+    ``case.sensor``, a profile of ``lessmap.floorplan.options.PROFILES``.
+    """
+
+    folder: Path
+    furnished: bool = False
+    robots: int = ROBOTS
+
+    def __call__(self, case: BenchCase, folder: Path) -> SimulatedRun:
+        """Simulate ``case`` and write its files into ``folder``."""
+        from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
+        from lessmap.floorplan.options import PROFILES, FloorplanOptions, TourOptions
+        from lessmap.floorplan.runfiles import write_floorplan_run
+        from lessmap.floorplan.simulation import simulate_floorplan
+
+        if case.sensor not in PROFILES:
+            msg = f"unknown sensor {case.sensor!r}; floor plans know {', '.join(PROFILES)}"
+            raise FloorplanError(msg)
+        image, labels = benchmark_map(case.map, self.folder, furnished=self.furnished)
+        grid = load_grid(image)
+        tour = TourOptions(
+            rate_hz=case.rate_hz, speed_m_per_frame=FLOORPLAN_SPEED_MPS / case.rate_hz
+        )
+        options = FloorplanOptions(
+            sensor=PROFILES[case.sensor], robots=self.robots, seed=case.seed, tour=tour
+        )
+        run = simulate_floorplan(grid, room_labels(labels, grid.resolution_m), options)
+        sources = {"map": str(image), "labels": str(labels)}
+        paths = write_floorplan_run(run, grid, folder, case.name, sources)
+        return SimulatedRun(frames=paths.frames, truth=paths.truth, grid_map=image, labels=labels)
