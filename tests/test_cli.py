@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -116,5 +117,61 @@ def test_a_missing_optional_extra_is_one_line(tmp_path: Path) -> None:
     )
     assert result.returncode == 1, result.stderr
     assert result.stderr.strip().splitlines() == [
-        "lessmap plot: this needs matplotlib, from the optional extra: pip install 'lessmap[eval]'"
+        "lessmap plot: this needs matplotlib, from lessmap's optional extra eval: "
+        "pip install '.[eval]' in the repository (README, Install)"
     ]
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_help_shows_the_defaults(name: str) -> None:
+    parser, _ = command_parser(name)
+    text = " ".join(parser.format_help().split())
+    for action in parser._actions:
+        default = action.default
+        empty = isinstance(default, list | tuple) and not default
+        unset = default is None or default is False or default is argparse.SUPPRESS or empty
+        if unset or not action.option_strings or action.help == argparse.SUPPRESS:
+            continue
+        help_text = " ".join((action.help or "").split())
+        assert "default" in help_text or f"(default: {action.default})" in text, (
+            action.option_strings
+        )
+
+
+NETWORKED = ("serve", "status", "replay", "watch", "areas", "sim", "ros", "view", "record")
+
+
+@pytest.mark.parametrize("name", NETWORKED)
+def test_networked_commands_share_one_zenoh_grammar(name: str) -> None:
+    from lessmap_client.cli_options import (
+        CONNECT_HELP,
+        DEFAULT_CONNECT_TIMEOUT_S,
+        LISTEN_HELP,
+        TIMEOUT_HELP,
+        ZENOH_CONFIG_HELP,
+    )
+
+    parser, _ = command_parser(name)
+    options = {o: a for a in parser._actions for o in a.option_strings}
+    for short, long, help_text in (
+        ("-e", "--connect", CONNECT_HELP),
+        ("-l", "--listen", LISTEN_HELP),
+        ("-c", "--zenoh-config", ZENOH_CONFIG_HELP),
+    ):
+        assert options[short] is options[long], (name, short)
+        assert (options[long].help or "").startswith(help_text)
+    assert options["-m"] is options["--mode"]
+    assert "client = through a router" in (options["-m"].help or "")
+    timeout = options["--connect-timeout"]
+    assert (timeout.help or "").startswith(TIMEOUT_HELP)
+    if name != "serve":  # serve's default is its settings' (the same value)
+        assert timeout.default == DEFAULT_CONNECT_TIMEOUT_S
+    args = parser.parse_args(
+        [
+            *(["FILE"] if name == "replay" else []),
+            *(["--fleet", "f"] if name in ("areas", "view") else []),
+        ]
+        + (["--mcap", "x.mcap", "--fleet", "f"] if name == "record" else [])
+        + ["-v", "--log-format", "json"]
+    )
+    assert (args.verbose, args.log_format) == (1, "json")  # global options after the command

@@ -35,8 +35,18 @@ def test_a_router_on_the_endpoint_is_joined_as_a_client(router: str) -> None:
 def test_a_free_endpoint_or_a_zenoh_option_changes_nothing(router: str) -> None:
     settings = load_settings()
     assert join_existing_router(settings, f"tcp/127.0.0.1:{free_port()}") is settings
-    chosen = load_settings(mode="router", listen=[router])
+    chosen = load_settings(mode="client", connect=[router])
     assert join_existing_router(chosen, router) is chosen  # the user chose: never overridden
+
+
+def test_a_taken_listen_port_or_an_absent_router_is_one_line_before_start(router: str) -> None:
+    taken = load_settings(mode="router", listen=[router])
+    with pytest.raises(ConfigError, match=r"cannot listen on .* -l/--listen"):
+        join_existing_router(taken, router)
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    alone = load_settings(mode="client", connect=[nobody], connect_timeout=0.5)
+    with pytest.raises(ConfigError, match=f"no Zenoh router answered at {nobody}"):
+        join_existing_router(alone)
 
 
 @pytest.fixture

@@ -70,7 +70,7 @@ def test_the_two_routers_connect_to_each_other_on_named_addresses() -> None:
         assert "[::]" not in code
     assert get(a, "connect/endpoints") == get(b, "listen/endpoints")
     assert get(b, "connect/endpoints") == get(a, "listen/endpoints")
-    # And `lessmap router --config` keeps them as they are.
+    # And `lessmap router -c` keeps them as they are.
     for name, conf in (("a", a), ("b", b)):
         built = router_config(DEPLOY / f"zenoh-router-{name}.json5")
         assert get(built, "listen/endpoints") == get(conf, "listen/endpoints")
@@ -95,7 +95,7 @@ def test_the_units_run_commands_the_cli_accepts(unit: str) -> None:
         assert (parsed.mode, len(parsed.connect)) == ("client", 2)
         assert not getattr(parsed, "listen", None)  # a client listens nowhere
     if unit == "lessmap-router@.service":
-        assert str(parsed.config).endswith("zenoh-router-a.json5")
+        assert str(parsed.zenoh_config).endswith("zenoh-router-a.json5")
 
 
 def test_each_templated_instance_has_its_own_name_and_state_directory() -> None:

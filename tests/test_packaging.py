@@ -124,3 +124,12 @@ def test_the_service_wheel_carries_no_benchmark_or_test_code(
     plain = [r for r in requirements if "extra ==" not in r]
     assert not [r for r in plain if r.startswith("matplotlib")]  # plots are the [eval] extra
     assert any(r.startswith("matplotlib") and "extra == 'eval'" in r for r in requirements)
+
+
+def test_the_siblings_are_pinned_to_the_same_version(wheels: dict[str, zipfile.ZipFile]) -> None:
+    expected = (ROOT / "VERSION").read_text(encoding="utf-8").strip()
+    needs = {name: metadata(wheel)["Requires-Dist"] for name, wheel in wheels.items()}
+    assert f"lessmap-schemas=={expected}" in needs["lessmap-client"]
+    assert {f"lessmap-schemas=={expected}", f"lessmap-client=={expected}"} <= set(needs["lessmap"])
+    siblings = [r for rs in needs.values() for r in rs if r.startswith("lessmap")]
+    assert all(r.endswith(f"=={expected}") for r in siblings), siblings

@@ -148,7 +148,9 @@ def test_a_taken_port_is_one_line_and_exit_1(router: Callable[..., RouterProcess
     lines = proc.log().strip().splitlines()
     assert len(lines) == 1, lines
     assert lines[0].startswith("lessmap router: "), lines
-    assert "Address already in use" in lines[0]
+    assert f"tcp/127.0.0.1:{port}" in lines[0]
+    assert "already in use" in lines[0]
+    assert "-l/--listen" in lines[0]  # which flag to change
 
 
 def test_a_bad_config_is_one_line_and_exit_1(
@@ -156,12 +158,24 @@ def test_a_bad_config_is_one_line_and_exit_1(
 ) -> None:
     bad = tmp_path / "bad.json5"
     bad.write_text("{ mode: 'router', listen: { endpoints: 5 } }")
-    for args in (["--config", str(bad)], ["--config", str(tmp_path / "missing.json5")]):
+    for args in (["-c", str(bad)], ["--zenoh-config", str(tmp_path / "missing.json5")]):
         proc = router(*args)
         assert proc.process.wait(30) == 1, proc.log()
         lines = proc.log().strip().splitlines()
         assert len(lines) == 1, lines
         assert lines[0].startswith("lessmap router: "), lines
+        assert ".rs:" not in lines[0]
+
+
+def test_the_old_config_spelling_still_works_and_says_so(
+    router: Callable[..., RouterProcess], tmp_path: Path
+) -> None:
+    proc = router("--config", str(tmp_path / "missing.json5"))
+    assert proc.process.wait(30) == 1, proc.log()
+    assert proc.log().strip().splitlines() == [
+        "lessmap router: --config is deprecated; use -c/--zenoh-config",
+        f"lessmap router: Zenoh config {tmp_path / 'missing.json5'}: no such file",
+    ]
 
 
 def test_a_config_file_keeps_its_endpoints_and_scouting_stays_off(tmp_path: Path) -> None:

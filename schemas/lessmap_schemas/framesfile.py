@@ -136,3 +136,23 @@ def _is_int(value: object) -> bool:
 
 def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+#: Covisibility needs two features in one frame: below this average, frames barely link.
+MIN_MEAN_FEATURES = 2.0
+
+
+def sparse_frames_warning(source: str, frames: int, features: int) -> str | None:
+    """Return a one-line warning when frames hold too few features to be covisible.
+
+    Two features seen in one frame are what links them (a CovGraph edge); with fewer than
+    ``MIN_MEAN_FEATURES`` a frame on average, a segmentation is one area or hundreds,
+    decided by noise. ``features`` counts every frame's features (repeats included).
+    """
+    if frames == 0 or features >= MIN_MEAN_FEATURES * frames:
+        return None
+    return (
+        f"warning: {source}: its {frames} frames hold {features / frames:.2f} features on "
+        f"average, fewer than {MIN_MEAN_FEATURES:g}: only features seen in one frame are "
+        f"linked, so few links decide the areas"
+    )

@@ -132,11 +132,23 @@ def test_replay_through_a_service_reports_applied_equals_offered(
     path = write_frames(tmp_path / "ok.frames.jsonl", walk_rows(("a", "b"), list(range(60))))
     service = serve("--max-batch-frames", "1")
     done = run_replay(
-        str(path), "--fleet", fleet_name, "--fast", "--wait-service", "20", "-e", service.endpoint
+        str(path),
+        "--fleet",
+        fleet_name,
+        "--fast",
+        "--connect-timeout",
+        "20",
+        "-e",
+        service.endpoint,
     )
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout.strip().splitlines()[-1])
     assert summary["ok"] is True
+    # One decision per frame (--max-batch-frames 1): nothing was coalesced, and it says so.
+    transitions = sum(r["transitions"] for r in summary["per_robot"].values())
+    assert transitions > 0
+    assert summary["coalesced"] == {"transitions": 0, "of": transitions, "largest_batch_frames": 1}
+    assert "batches of frames" not in done.stderr
     assert (summary["frames"], summary["robots"], summary["applied"]) == (120, 2, 120)
     for name in ("a", "b"):
         robot = summary["per_robot"][name]
@@ -163,7 +175,7 @@ def test_replay_exits_1_naming_the_robot_with_missing_frames(
         "--fleet",
         fleet_name,
         "--fast",
-        "--wait-service",
+        "--connect-timeout",
         "20",
         "--progress",
         "0.2",
@@ -209,6 +221,8 @@ def test_replay_without_a_service_exits_1(fleet_name: str, tmp_path: Path) -> No
         router.terminate()
         router.wait(10)
     assert done.returncode == 1, done.stderr
+    # The old spelling of --connect-timeout still works, and says which one to use.
+    assert "lessmap replay: --wait-service is deprecated; use --connect-timeout" in done.stderr
     assert "no lessmap service answered" in done.stderr
     assert "a (no final state from the service)" in done.stderr
     summary = json.loads(done.stdout.strip().splitlines()[-1])

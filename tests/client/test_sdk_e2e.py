@@ -270,7 +270,7 @@ def test_watch_command_shows_transitions(
         if watch.poll() is None:
             watch.kill()
     assert watch.returncode == 0, err
-    assert out.count(f"{fleet_name}/seen: frame") == 2, out
+    assert out.count(f"{fleet_name}/seen: area ") == 2, out
     assert "SPECTRAL" in out
     table = out.splitlines()[-3:]  # header, rule, one row
     assert table[0].startswith("robot")

@@ -19,10 +19,14 @@ def test_a_revisit_is_named_in_the_line_and_the_row_follows_the_area() -> None:
             "revisit": True,
         }
     )
-    assert view.add_transition(first).endswith("-> submap 1, area 1")
+    assert view.add_transition(first).startswith("f/r: area 0 -> area 1 at frame")
     line = view.add_transition(back)
-    assert "RECOGNISED recognised" in line
-    assert line.endswith("-> submap 2, area 0 again")
+    assert line.startswith("f/r: area 1 -> area 0 again at frame")
+    assert "RECOGNISED: its last frames fit an area it mapped before" in line
+    assert "recognised" not in line.lower().replace("recognised:", "")  # said once, in words
+    assert line.endswith("-> submap 2")
+    coalesced = view.add_transition(back.model_copy(update={"batch_frames": 12}))
+    assert coalesced.endswith("; decided over 12 coalesced frames")
     row = view.rows["f", "r"]
     assert (row.submap, row.area) == (2, 0)
     header, _rule, cells = view.table().splitlines()

@@ -106,8 +106,8 @@ def test_a_missing_cryptography_names_the_extra(tmp_path: Path) -> None:
     assert len(lines) == 1, lines
     # (the blocked submodule is named here; a real missing install names `cryptography`)
     assert re.fullmatch(
-        r"lessmap certs: this needs cryptography[.\w]*, from the optional extra: "
-        r"pip install 'lessmap\[security\]'",
+        r"lessmap certs: this needs cryptography[.\w]*, from lessmap's optional extra "
+        r"security: pip install '\.\[security\]' in the repository \(README, Install\)",
         lines[0],
     ), lines
     assert not (tmp_path / "ca.key").exists()

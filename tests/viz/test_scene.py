@@ -17,6 +17,7 @@ from lessmap.viz.scene import (
     label_color,
     map_transform,
     track_entities,
+    transition_log,
 )
 from lessmap_schemas.messages import Frame
 from tests.viz.conftest import decode
@@ -107,3 +108,21 @@ def test_the_whole_scene_has_every_robot_and_the_doorways() -> None:
     cross(model, "amr2", (5.0, 6.0), 1)
     ids = [decode(e)["id"] for e in fleet_entities(model)]
     assert ids == ["amr1/trajectory", "amr2/trajectory", "doorways"]
+
+
+def test_the_log_names_the_areas_and_says_why_in_words() -> None:
+    model = FleetModel("f")
+    cross(model, "amr1", (1.0, 0.0), 1)
+    [first] = model.tracks["amr1"].marks
+    assert b"amr1: area 0 -> area 1 from seq" in transition_log("amr1", first).encode()
+    back = transition("amr1", "s", 6, 2).model_copy(
+        update={"reason": "RECOGNISED", "area": 0, "left_area": 1, "revisit": True}
+    )
+    back = back.model_copy(update={"batch_frames": 5})
+    mark = model.on_transition(back)
+    assert mark is not None
+    text = transition_log("amr1", mark).encode().decode("utf-8", errors="replace")  # protobuf
+    assert "amr1: area 1 -> area 0 again from seq 6" in text
+    assert "RECOGNISED, its last frames fit an area it mapped before" in text
+    assert "fell apart" not in text
+    assert "; decided over 5 coalesced frames" in text

@@ -6,35 +6,25 @@ import argparse
 import json
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lessmap_client.session import DEFAULT_ENDPOINT
+from lessmap_client.cli_options import (
+    add_deprecated_alias,
+    add_zenoh_options,
+    non_negative_float,
+    positive_float,
+    zenoh_options,
+)
 
 if TYPE_CHECKING:
     from lessmap_client.adapters.replay import ReplayStats
     from lessmap_client.fleet import FleetClient
     from lessmap_client.subscription import Subscription
     from lessmap_client.watch import FleetView
-    from lessmap_schemas.messages import Error, Health, SessionState
-
-
-def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``-e/--connect`` (repeatable) and ``-m/--mode``."""
-    parser.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        metavar="ENDPOINT",
-        help=f"lessmap router endpoint (repeatable; default {DEFAULT_ENDPOINT})",
-    )
-    parser.add_argument("-m", "--mode", choices=["client", "peer"], default="client")
-
-
-def endpoints(args: argparse.Namespace) -> list[str]:
-    """Return the endpoints to connect to."""
-    return list(args.connect) if args.connect else [DEFAULT_ENDPOINT]
+    from lessmap_schemas.messages import Error, Health, SessionState, Transition
 
 
 def configure_replay(rep: argparse.ArgumentParser) -> None:
@@ -51,38 +41,45 @@ def configure_replay(rep: argparse.ArgumentParser) -> None:
     rep.add_argument("--fleet", default="replay", help="fleet name (default: replay)")
     rep.add_argument("--robot-prefix", default="", help="prefix for the file's robot ids")
     pace = rep.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=float, default=1.0, help="playback rate (default 1.0)")
+    pace.add_argument("--speed", type=positive_float, default=1.0, help="playback rate")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     rep.add_argument(
-        "--wait-service",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="seconds to wait for a service instance first (default 10)",
-    )
-    rep.add_argument(
         "--settle",
-        type=float,
+        type=positive_float,
         default=10.0,
         metavar="S",
         help="after publishing, wait for the service's final counts until they have not "
-        "changed for S seconds (default 10)",
+        "changed for S seconds",
     )
     rep.add_argument(
         "--progress",
-        type=float,
+        type=non_negative_float,
         default=5.0,
         metavar="S",
-        help="a progress line on stderr every S seconds (default 5; 0: none)",
+        help="a progress line on stderr every S seconds (0: none)",
     )
-    add_zenoh_options(rep)
+    group = add_zenoh_options(rep)
+    add_deprecated_alias(
+        group,
+        "--wait-service",
+        use="--connect-timeout",
+        dest="connect_timeout",
+        type=positive_float,
+    )
 
 
 def configure_watch(watch: argparse.ArgumentParser) -> None:
     """Define ``lessmap watch`` (run by ``run_watch``)."""
     watch.add_argument("--fleet", default="*", help="fleet to follow (default: all)")
-    watch.add_argument("--duration", type=float, help="stop after this many seconds")
-    watch.add_argument("--interval", type=float, default=1.0, help="refresh period, seconds")
+    watch.add_argument(
+        "--duration",
+        type=non_negative_float,
+        metavar="S",
+        help="stop after S seconds, the wait for a router included (default: until Ctrl-C)",
+    )
+    watch.add_argument(
+        "--interval", type=positive_float, default=1.0, metavar="S", help="refresh period"
+    )
     watch.add_argument(
         "--shared-features",
         action="store_true",
@@ -92,10 +89,10 @@ def configure_watch(watch: argparse.ArgumentParser) -> None:
     )
     watch.add_argument(
         "--places-interval",
-        type=float,
+        type=positive_float,
         default=5.0,
         metavar="S",
-        help="seconds between two fleet area queries (default 5)",
+        help="seconds between two fleet area queries",
     )
     add_zenoh_options(watch)
 
@@ -109,19 +106,26 @@ def run_replay(args: argparse.Namespace) -> int:
         replay,
         settled_states,
     )
-    from lessmap_client.connection import connect
+    from lessmap_schemas.framesfile import sparse_frames_warning
 
-    if not args.fast and args.speed <= 0:
-        sys.stderr.write(f"lessmap replay: --speed must be positive, got {args.speed:g}\n")
-        return 1
+    net = zenoh_options(args)
     # Every line is checked before the first frame goes out.
     frames = list(read_recorded(args.file, robot_prefix=args.robot_prefix))
+    if not frames:
+        sys.stderr.write(f"lessmap replay: {args.file}: no frames to publish\n")
+        return 1
+    features = sum(len(frame.features) for frame in frames)
+    warning = sparse_frames_warning(str(args.file), len(frames), features)
+    if warning is not None:
+        sys.stderr.write(f"lessmap replay: {warning}\n")
     stats = ReplayStats()
-    with connect(endpoints(args), mode=args.mode) as conn:
-        served = conn.wait_for_service(args.wait_service)
+    batches = Batches()
+    with net.connection() as conn:
+        served = conn.wait_for_service(net.connect_timeout_s)
         if not served:
             sys.stderr.write("lessmap replay: no lessmap service answered; publishing anyway\n")
         reports = conn.subscribe_errors(args.fleet)
+        decisions = conn.subscribe_transitions(args.fleet, history=False, handler=batches.add)
 
         def sessions() -> set[tuple[str, str]]:
             return {(name, r.session_id) for name, r in dict(stats.per_robot).items()}
@@ -147,7 +151,7 @@ def run_replay(args: argparse.Namespace) -> int:
                 robot_prefix=args.robot_prefix,
                 stats=stats,
                 # Each robot's first frame waits until its partition's owner can hear it.
-                wait_service_s=args.wait_service if served else 0.0,
+                wait_service_s=net.connect_timeout_s if served else 0.0,
             )
             final = settled_states(
                 lambda: conn.states(args.fleet, timeout_s=1.0), stats, quiet_s=args.settle
@@ -155,8 +159,12 @@ def run_replay(args: argparse.Namespace) -> int:
         finally:
             reporter.stop()
         counted = _count_reports(reports, sessions())
+        decisions.close()
     summary, problems = replay_summary(stats, final, counted)
+    summary["coalesced"] = batches.coalesced(sessions())
     sys.stdout.write(json.dumps(summary) + "\n")
+    if summary["coalesced"]["transitions"]:
+        sys.stderr.write(f"lessmap replay: {coalescing_note(summary['coalesced'])}\n")
     if problems:
         sys.stderr.write(
             "lessmap replay: the service did not apply every frame offered: "
@@ -165,6 +173,41 @@ def run_replay(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+class Batches:
+    """The frames each transition's decision covered, as the service reports them."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._seen: list[tuple[str, str, int]] = []  # robot, session, batch_frames
+
+    def add(self, transition: Transition) -> None:
+        """Note one transition (called on the subscription's thread)."""
+        with self._lock:
+            self._seen.append((transition.robot, transition.session, transition.batch_frames))
+
+    def coalesced(self, sessions: set[tuple[str, str]]) -> dict[str, int]:
+        """Return how many of the sessions' transitions were decided over several frames."""
+        with self._lock:
+            batches = [b for robot, session, b in self._seen if (robot, session) in sessions]
+        over = [b for b in batches if b > 1]
+        return {
+            "transitions": len(over),
+            "of": len(batches),
+            "largest_batch_frames": max(over, default=1),
+        }
+
+
+def coalescing_note(coalesced: dict[str, int]) -> str:
+    """Say that the service decided over batches of frames, and what that changes."""
+    return (
+        f"the service was behind and decided over batches of frames (up to "
+        f"{coalesced['largest_batch_frames']} a decision; {coalesced['transitions']} of the "
+        f"{coalesced['of']} transitions seen): fewer decisions find fewer transitions than "
+        "lessmap segment does on the same file; replay at a --speed the service keeps up with "
+        "to compare"
+    )
 
 
 def _count_reports(
@@ -236,21 +279,27 @@ def replay_summary(
 def run_watch(args: argparse.Namespace) -> int:
     """Run ``lessmap watch``."""
     from lessmap_client.fleet import FleetClient
-    from lessmap_client.session import open_session
     from lessmap_client.watch import FleetView
 
     if args.shared_features and "*" in args.fleet:
         sys.stderr.write("lessmap watch: --shared-features follows one fleet: give --fleet\n")
         return 1
     view = FleetView()
+    net = zenoh_options(args)
+    started = time.monotonic()
+    # --duration bounds the whole run, the wait for a router included.
+    wait_s = net.connect_timeout_s
+    if args.duration is not None:
+        wait_s = min(wait_s, args.duration)
     with (
-        open_session(endpoints(args), args.mode) as session,
+        net.open_session(timeout_s=wait_s) as session,
         FleetClient(args.fleet, session=session) as client,
     ):
+        left_s = None if args.duration is None else args.duration - (time.monotonic() - started)
         follow(
             client,
             view,
-            args.duration,
+            None if left_s is None else max(0.0, left_s),
             args.interval,
             title=f"lessmap watch {args.fleet}",
             places_every_s=args.places_interval if args.shared_features else None,
@@ -326,36 +375,23 @@ def configure_status(status: argparse.ArgumentParser) -> None:
     status.add_argument("--json", action="store_true", help="print one JSON object")
     status.add_argument(
         "--timeout",
-        type=float,
+        type=positive_float,
         default=2.0,
         metavar="S",
-        help="seconds to wait for liveliness and Health replies (default 2)",
-    )
-    status.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=5.0,
-        metavar="S",
-        help="seconds to wait for the router (default 5)",
+        help="seconds to wait for liveliness and Health replies",
     )
     add_zenoh_options(status)
 
 
 def run_status(args: argparse.Namespace) -> int:
     """Run ``lessmap status``."""
-    from lessmap_client.connection import connect
-
-    for flag, value in (("--timeout", args.timeout), ("--connect-timeout", args.connect_timeout)):
-        if not value > 0 or value == float("inf"):
-            sys.stderr.write(f"lessmap status: {flag} must be a positive number of seconds\n")
-            return 1
-    targets = endpoints(args)
-    with connect(targets, mode=args.mode, timeout_s=args.connect_timeout) as conn:
+    net = zenoh_options(args)
+    with net.connection() as conn:
         live = conn.instances(args.timeout)
         healths = conn.health(args.timeout)
     if not live and not healths:
         sys.stderr.write(
-            f"lessmap status: no lessmap instance answered at {', '.join(targets)} "
+            f"lessmap status: no lessmap instance answered at {net.where} "
             f"within {args.timeout:g} s\n"
         )
         return 1

@@ -46,6 +46,7 @@ def connect(
     mode: str = "client",
     timeout_s: float = 10.0,
     config_file: str | None = None,
+    listen: Sequence[str] = (),
 ) -> Connection:
     """Open a connection to a lessmap network (use it as a context manager).
 
@@ -54,16 +55,19 @@ def connect(
             ``lessmap serve`` on this machine (``tcp/127.0.0.1:7447``).
         mode: Zenoh mode, ``"client"`` (through the router) or ``"peer"``.
         timeout_s: how long to retry while no router answers.
-        config_file: a Zenoh JSON5 config to start from (TLS, credentials, ...).
+        config_file: a Zenoh JSON5 config to start from (TLS, credentials, ...); its
+            endpoints are used when ``endpoints`` is empty.
+        listen: endpoints to listen on (peer mode).
 
     Multicast scouting is always off: the endpoints are explicit.
 
     Raises:
         ConnectionError: no router could be reached within ``timeout_s``.
+        ZenohConfigError: the configuration is invalid, or a listen port is taken.
     """
     targets = [endpoints] if isinstance(endpoints, str) else list(endpoints)
-    session = open_session(targets, mode, timeout_s, config_file)
-    log.info("connected to %s (%s mode)", ", ".join(targets), mode)
+    session = open_session(targets, mode, timeout_s, config_file, listen=listen)
+    log.info("connected to %s (%s mode)", ", ".join(targets) or config_file, mode)
     return Connection(ZenohTransport(session, owned=True))
 
 

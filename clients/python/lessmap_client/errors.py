@@ -45,3 +45,7 @@ class SessionClosedError(RuntimeError):
         else:
             text += "; call new_session() to continue (or use auto_new_session=True)"
         super().__init__(text)
+
+
+class ZenohConfigError(ValueError):
+    """The Zenoh configuration is invalid (a file, an endpoint) or a listen port is taken."""

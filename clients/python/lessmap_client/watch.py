@@ -14,6 +14,27 @@ if TYPE_CHECKING:
 _KEEP = 100_000  # transitions remembered by a view
 
 
+def why(reason: str, ncut: float | None, lambda2: float | None) -> str:
+    """Say, in words, what made the service decide a transition (its ``reason``)."""
+    if reason == "SPECTRAL" and ncut is not None and lambda2 is not None:
+        return f"a weak cut of the CovGraph (Ncut {ncut:.3f}, λ2 {lambda2:.3f})"
+    if reason == "DISCONNECTED":
+        return "the CovGraph fell apart (no feature seen on both sides)"
+    if reason == "RECOGNISED":
+        return "its last frames fit an area it mapped before"
+    return reason
+
+
+def areas_crossed(left_area: int, area: int, *, revisit: bool) -> str:
+    """``area 2 -> area 5`` (``again`` when the robot had mapped area 5 before)."""
+    return f"area {left_area} -> area {area}" + (" again" if revisit else "")
+
+
+def coalesced(batch_frames: int) -> str:
+    """Empty, or that the decision covered several frames (the service was behind)."""
+    return f"; decided over {batch_frames} coalesced frames" if batch_frames > 1 else ""
+
+
 @dataclass(slots=True)
 class RobotRow:
     """What the view knows of one robot."""
@@ -57,18 +78,12 @@ class FleetView:
         row.submap, row.area = t.opened.id, t.area
         row.transitions += 1
         row.last_seq, row.last_reason, row.ncut, row.lambda2 = t.seq, t.reason, t.ncut, t.lambda2
-        figures = (
-            f"Ncut {t.ncut:.3f} λ2 {t.lambda2:.3f}"
-            if t.ncut is not None and t.lambda2 is not None
-            else "recognised"
-            if t.reason == "RECOGNISED"
-            else "graph fell apart"
-        )
-        entered = f"area {t.area} again" if t.revisit else f"area {t.area}"
         line = (
-            f"{t.fleet}/{t.robot}: frame {t.seq} (boundary {t.boundary_seq}) {t.reason} "
-            f"{figures}; closed submap {t.closed.id} ({len(t.closed.features)} features, "
-            f"{t.closed.frame_count} frames) -> submap {t.opened.id}, {entered}"
+            f"{t.fleet}/{t.robot}: {areas_crossed(t.left_area, t.area, revisit=t.revisit)} "
+            f"at frame {t.boundary_seq} (detected at {t.seq}), {t.reason}: "
+            f"{why(t.reason, t.ncut, t.lambda2)}; submap {t.closed.id} "
+            f"({len(t.closed.features)} features, {t.closed.frame_count} frames) -> "
+            f"submap {t.opened.id}{coalesced(t.batch_frames)}"
         )
         self.log.append(line)
         del self.log[:-200]

@@ -4,6 +4,10 @@ Each subcommand lives in its own module, named in ``COMMANDS`` and imported only
 command runs: ``lessmap --version`` and ``lessmap --help`` load neither numpy nor zenoh. A
 command module defines ``configure(parser)`` (its arguments) and ``run(args) -> int``
 (spelled otherwise when one module holds several commands).
+
+Exit codes: 0 done; 1 the command ran and failed (a missing or malformed file, no router,
+a port taken); 2 the command line itself is wrong (an unknown option, a value of the wrong
+kind or out of range). Either way one line on stderr, ``lessmap COMMAND: what to do``.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ import argparse
 import importlib
 import logging
 import sys
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, NoReturn
 
 from lessmap import __version__
 from lessmap.cli.logfmt import configure as configure_logging
@@ -36,7 +40,7 @@ COMMANDS: dict[str, Command] = {
         "lessmap.runtime.daemon", "run the partition service (a Zenoh daemon for many robots)"
     ),
     "router": Command(
-        "lessmap.runtime.router",
+        "lessmap.cli.router",
         "run a plain Zenoh router for several service instances (no lessmap service in it)",
     ),
     "status": Command(
@@ -127,6 +131,8 @@ KNOWN_EXCEPTIONS: tuple[tuple[str, str], ...] = (
     ("lessmap.floorplan.grid", "FloorplanError"),  # a map, label image or truth file
     ("lessmap_schemas.errors", "WireError"),  # a frame breaks the wire contract (replay)
     ("lessmap_client.adapters.replay", "ReplayError"),  # a malformed file given to replay
+    ("lessmap_client.errors", "ZenohConfigError"),  # a Zenoh config or endpoint, a port taken
+    ("zenoh", "ZError"),  # any other refusal of Zenoh's (its text is cleaned)
     ("builtins", "FileNotFoundError"),
     ("builtins", "IsADirectoryError"),
     ("builtins", "NotADirectoryError"),
@@ -154,46 +160,98 @@ def is_known(exc: BaseException) -> bool:
     return False
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line: what is wrong, where to look."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``PROG: MESSAGE (PROG --help)`` on stderr and exit 2."""
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's default in its help, unless the text already says it or it is unset."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if _unset(action.default) or not action.option_strings or "default" in text:
+            return text
+        return f"{text} (default: %(default)s)" if text else "default: %(default)s"
+
+
+def _unset(default: object) -> bool:
+    """Whether an option's default means "not given" (None, off, empty), not a value like 0."""
+    empty = isinstance(default, list | tuple) and not default
+    return default is None or default is False or default is argparse.SUPPRESS or empty
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the top-level parser: global options, then COMMAND and its arguments."""
     width = max(map(len, COMMANDS)) + 2
     listing = "\n".join(f"  {name:<{width}}{c.help}" for name, c in COMMANDS.items())
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="lessmap",
         description="Online environment segmentation for robot fleets "
         "(LESS-mapping spectral covisibility partitioning) over Eclipse Zenoh.",
-        epilog=f"commands:\n{listing}\n\n'lessmap COMMAND --help' describes one command.",
+        epilog=f"commands:\n{listing}\n\n'lessmap COMMAND --help' describes one command. "
+        "Exit codes: 0 done, 1 failed (one line on stderr says why), 2 a wrong command line.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"lessmap {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
-    parser.add_argument(
-        "--log-format",
-        choices=["text", "json"],
-        default="text",
-        help="stderr log lines as text or one JSON object per line (default: text)",
-    )
+    add_global_options(parser, defaults=True)
     parser.add_argument("command", metavar="COMMAND", choices=COMMANDS, help="see below")
     parser.add_argument("arguments", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     return parser
+
+
+def add_global_options(parser: argparse.ArgumentParser, *, defaults: bool) -> None:
+    """Add ``-v`` and ``--log-format``, accepted before the command name and after it."""
+    group = parser.add_argument_group("global options (before or after COMMAND)")
+    group.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0 if defaults else argparse.SUPPRESS,
+        help="more logging (repeat for more)",
+    )
+    group.add_argument(
+        "--log-format",
+        choices=["text", "json"],
+        default="text" if defaults else argparse.SUPPRESS,
+        help="stderr log lines as text or one JSON object per line (default: text)",
+    )
 
 
 def command_parser(name: str) -> tuple[argparse.ArgumentParser, Callable[..., int]]:
     """Import the module of command ``name``; return its parser and its run function."""
     command = COMMANDS[name]
     module = importlib.import_module(command.module)
-    parser = argparse.ArgumentParser(prog=f"lessmap {name}", description=command.help)
+    parser = Parser(prog=f"lessmap {name}", description=command.help, formatter_class=HelpFormatter)
     getattr(module, command.configure)(parser)
+    add_global_options(parser, defaults=False)
     run: Callable[..., int] = getattr(module, command.run)
     return parser, run
 
 
+def short_usage() -> str:
+    """What bare ``lessmap`` prints: the grammar and the commands, in three lines."""
+    return (
+        "usage: lessmap [-v] [--log-format text|json] COMMAND [ARGUMENTS]\n"
+        f"commands: {', '.join(COMMANDS)}\n"
+        "'lessmap --help' says what each does; 'lessmap COMMAND --help' how to run it.\n"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the process exit code."""
+    if not (sys.argv[1:] if argv is None else argv):
+        sys.stderr.write(short_usage())
+        return 2
     top = build_parser().parse_args(argv)
     parser, run = command_parser(top.command)
     args = parser.parse_args(top.arguments)
-    args.command, args.verbose, args.log_format = top.command, top.verbose, top.log_format
+    args.command = top.command
+    args.verbose = top.verbose + getattr(args, "verbose", 0)
+    args.log_format = getattr(args, "log_format", top.log_format)
     # The command line of this process (not a call from Python code, e.g. a test): a daemon
     # may then restart itself with other allocator settings (``serve``).
     args.own_process = argv is None
@@ -206,22 +264,47 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, while we can still handle it
     except BrokenPipeError:
         return _closed_pipe()
+    except KeyboardInterrupt:
+        return 130  # Ctrl-C: the shell's code for SIGINT, and no traceback
     except ModuleNotFoundError as exc:
         if exc.name is None or exc.name.partition(".")[0] not in OPTIONAL_MODULES:
             raise
         extra = OPTIONAL_MODULES[exc.name.partition(".")[0]]
         print(
-            f"lessmap {args.command}: this needs {exc.name}, from the optional extra: "
-            f"pip install 'lessmap[{extra}]'",
+            f"lessmap {args.command}: this needs {exc.name}, from lessmap's optional extra "
+            f"{extra}: pip install '.[{extra}]' in the repository (README, Install)",
             file=sys.stderr,
         )
         return 1
     except Exception as exc:
         if not is_known(exc):
             raise
-        print(f"lessmap {args.command}: {exc}", file=sys.stderr)
-        return 1
+        print(f"lessmap {args.command}: {one_line(exc)}", file=sys.stderr)
+        usage = getattr(sys.modules.get("lessmap.errors"), "UsageError", None)
+        return 2 if usage is not None and isinstance(exc, usage) else 1
     return code
+
+
+#: How an operating-system error about a file reads, by its kind.
+_FILE_ERRORS = (
+    (FileNotFoundError, "no such file"),
+    (IsADirectoryError, "is a folder, not a file"),
+    (NotADirectoryError, "a folder on its path is a file"),
+    (PermissionError, "permission denied"),
+)
+
+
+def one_line(exc: BaseException) -> str:
+    """Return a user's error as one line: files named plainly, Zenoh's texts explained."""
+    for kind, text in _FILE_ERRORS:
+        if isinstance(exc, kind) and exc.filename is not None:
+            return f"{exc.filename}: {text}"
+    message = str(exc)
+    if ".rs:" in message or "Address already in use" in message or "Unable to connect" in message:
+        from lessmap_client.zenoh_errors import explain
+
+        message = explain(message)
+    return " ".join(message.split())
 
 
 def _closed_pipe() -> int:

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lessmap_client.cli_client import add_zenoh_options, endpoints
+from lessmap_client.cli_options import add_zenoh_options, positive_float, zenoh_options
 from lessmap_client.fleet_areas import FleetGraph, FleetParams, fleet_graph
 
 if TYPE_CHECKING:
@@ -42,21 +42,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="feature ids are global across the fleet's robots",
     )
-    parser.add_argument("--out", type=Path, metavar="G.json", help="write the area-graph file")
+    parser.add_argument(
+        "-o", "--out", type=Path, metavar="G.json", help="write the area-graph file (G.json)"
+    )
     parser.add_argument("--json", action="store_true", help="print the file's JSON object")
     parser.add_argument(
         "--timeout",
-        type=float,
+        type=positive_float,
         default=2.0,
         metavar="S",
-        help="seconds to wait for the instances' answers (default 2)",
-    )
-    parser.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="seconds to wait for the lessmap router (default 10)",
+        help="seconds to wait for the instances' answers",
     )
     add_zenoh_options(parser)
 
@@ -64,22 +59,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap areas``."""
     from lessmap.files.area_graph import area_graph_from_wire, graph_document, write_graph_file
-    from lessmap_client.connection import connect
 
-    for flag, value in (("--timeout", args.timeout), ("--connect-timeout", args.connect_timeout)):
-        if not value > 0 or value == float("inf"):
-            sys.stderr.write(f"lessmap areas: {flag} must be a positive number of seconds\n")
-            return 1
     if "*" in args.fleet:
         sys.stderr.write(f"lessmap areas: --fleet names one fleet, not {args.fleet!r}\n")
         return 1
-    targets = endpoints(args)
-    with connect(targets, mode=args.mode, timeout_s=args.connect_timeout) as conn:
+    net = zenoh_options(args)
+    with net.connection() as conn:
         replies = conn.area_graphs(args.fleet, "*", args.timeout)
     if not replies:
         sys.stderr.write(
             f"lessmap areas: no robot of fleet {args.fleet!r} answered at "
-            f"{', '.join(targets)} within {args.timeout:g} s\n"
+            f"{net.where} within {args.timeout:g} s\n"
         )
         return 1
     robots = {reply.robot: area_graph_from_wire(reply) for reply in replies}

@@ -18,6 +18,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from lessmap.config.settings import EMBEDDED_ENDPOINT, load_settings
+from lessmap_client.cli_options import (
+    add_zenoh_options,
+    positive_float,
+    positive_int,
+)
 
 if TYPE_CHECKING:
     from lessmap.sim.simulator import SimRun
@@ -33,22 +38,26 @@ def configure(demo: argparse.ArgumentParser) -> None:
         "(rooms, doors, a 270° laser) through Zenoh, show the live view, then print a "
         "summary scored against the simulator's ground truth."
     )
-    demo.add_argument("--duration", type=float, default=30.0, help="seconds (default 30)")
-    demo.add_argument("--robots", type=int, default=3, help="robots (default 3)")
-    demo.add_argument("--rooms", type=int, default=8, help="rooms (default 8)")
+    demo.add_argument("--duration", type=positive_float, default=30.0, help="seconds")
+    demo.add_argument("--robots", type=positive_int, default=3, help="robots")
+    demo.add_argument("--rooms", type=positive_int, default=8, help="rooms")
     demo.add_argument("--seed", type=int, default=0, help="building and routes seed")
     demo.add_argument(
         "--speed",
-        type=float,
+        type=positive_float,
         default=10.0,
-        help="simulated time per real second (default 10: 20 frames/s/robot)",
-    )
-    demo.add_argument(
-        "--listen",
-        default=EMBEDDED_ENDPOINT,
-        help=f"endpoint of the embedded router (default {EMBEDDED_ENDPOINT})",
+        help="simulated time per real second (10: 20 frames/s/robot)",
     )
     demo.add_argument("--json", action="store_true", help="print the summary as JSON")
+    # The demo is its own router: it only listens.
+    add_zenoh_options(
+        demo,
+        modes=None,
+        connect=False,
+        zenoh_config=False,
+        connect_timeout=False,
+        notes={"listen": f"the demo's router; default: {EMBEDDED_ENDPOINT}"},
+    )
 
 
 @dataclass(slots=True)
@@ -73,8 +82,9 @@ def run_demo(args: argparse.Namespace) -> int:
     )
     # The demo's simulated robots are gone when it ends: nothing to keep for a restart, so
     # it leaves no session store behind in the user's state directory.
+    args.listen = args.listen or [EMBEDDED_ENDPOINT]
     settings = load_settings(
-        mode="router", listen=(args.listen,), instance="lessmap-demo", memory_only=True
+        mode="router", listen=tuple(args.listen), instance="lessmap-demo", memory_only=True
     )
     service = Service(settings, ("scouting/multicast/enabled:false",))
     service.start()
@@ -103,7 +113,7 @@ def _stream_and_watch(run: SimRun, args: argparse.Namespace) -> DemoResult:
         )
         for f in run.frames
     ]
-    with open_session([args.listen]) as session, FleetClient(fleet, session=session) as client:
+    with open_session(args.listen[:1]) as session, FleetClient(fleet, session=session) as client:
         view = FleetView()
         publisher = threading.Thread(
             target=lambda: setattr(

@@ -9,6 +9,8 @@ import time
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
+from lessmap_client.cli_options import non_negative_float
+
 if TYPE_CHECKING:
     import argparse
     from collections.abc import Iterator
@@ -60,24 +62,12 @@ def stop_signals() -> Iterator[StopSignal]:
             signal.signal(sig, handler)
 
 
-def add_run_options(
-    parser: argparse.ArgumentParser,
-    *,
-    connect_timeout_s: float = 10.0,
-    connect_help: str = "how long to retry while no router answers",
-) -> None:
-    """Add ``--duration`` and ``--connect-timeout``, the options every foreground command has."""
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--duration``, the option every foreground command has."""
     parser.add_argument(
         "--duration",
-        type=float,
+        type=non_negative_float,
         default=None,
         metavar="S",
         help="stop after S seconds (default: run until SIGINT/SIGTERM)",
-    )
-    parser.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=connect_timeout_s,
-        metavar="S",
-        help=f"{connect_help} (default {connect_timeout_s:g})",
     )

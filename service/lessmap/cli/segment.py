@@ -22,7 +22,7 @@ from lessmap_client.fleet_areas import MIN_CONTAINMENT, MIN_SHARED
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Callable, Iterable
+    from collections.abc import Callable, Iterable, Iterator
 
     from lessmap.core import PartitionParams
     from lessmap.core.areas.tracker import AreaParams
@@ -230,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
     from lessmap.config.partitioning import area_params, partition_settings
     from lessmap.config.settings import LimitSettings
     from lessmap.errors import ConfigError
-    from lessmap.files.frames import read_frames
+    from lessmap.files.frames import read_frames, sparse_frames_warning
 
     if args.area_graph is not None and args.method == "paper":
         msg = "--area-graph needs --method areas or rooms (the paper names no areas)"
@@ -252,10 +252,19 @@ def run(args: argparse.Namespace) -> int:
         msg = f"invalid --max-features-per-frame: {exc.errors()[0]['msg']}"
         raise ConfigError(msg) from None
     path = Path(args.file)
+    tally = [0, 0]  # frames, features: an empty run is an error, a sparse one a warning
+
+    def counted(rows: Iterable[FrameRow]) -> Iterator[FrameRow]:
+        for row in rows:
+            tally[0] += 1
+            tally[1] += len(row.features)
+            yield row
+
     frames: Iterable[FrameRow] = read_frames(path, limits)
     if args.robot:
         robots = set(args.robot)
         frames = (f for f in frames if f.robot in robots)
+    frames = counted(frames)
     out = sys.stdout
 
     def emit(robot: str, transition: Transition) -> None:
@@ -276,6 +285,13 @@ def run(args: argparse.Namespace) -> int:
         summary, graphs = segment_area_graphs(frames, rooms, on_change=emit_area)
     else:
         summary = segment(frames, params, on_transition=emit)
+    if tally[0] == 0:
+        which = f" of robot {', '.join(sorted(args.robot))}" if args.robot else ""
+        msg = f"{path}: no frames{which} to segment"
+        raise DatasetError(msg)
+    warning = sparse_frames_warning(str(path), tally[0], tally[1])
+    if warning is not None:
+        sys.stderr.write(f"lessmap segment: {warning}\n")
     record = summary.as_dict()
     record["file"] = path.name
     if args.area_graph is not None:

@@ -7,6 +7,10 @@ disables peer brokering, so a client is the mode that reaches every participant.
 keys all start with ``lessmap/`` and ROS 2's with a domain id or ``@ros2_lv``, so the two
 never meet on one router. A port taken by something that is not a Zenoh router is an error
 that says what to do.
+
+Before the service starts, its endpoints are checked too: a listen port already taken, or
+(client mode) a router that does not answer within ``connect_timeout``, is one line that
+says which flag to change, before the service has opened anything.
 """
 
 from __future__ import annotations
@@ -35,22 +39,25 @@ def listening(endpoint: str, timeout_s: float = 0.5) -> bool:
 
 
 def join_existing_router(
-    settings: ServiceSettings, endpoint: str = EMBEDDED_ENDPOINT, timeout_s: float = 3.0
+    settings: ServiceSettings, endpoint: str = EMBEDDED_ENDPOINT, timeout_s: float = 1.0
 ) -> ServiceSettings:
     """Return the settings to start with: a client of the router at ``endpoint`` if one is there.
 
     Only when no Zenoh option was given (``settings.embedded``) and ``endpoint`` is taken;
-    otherwise ``settings`` unchanged.
+    otherwise ``settings`` unchanged, once its endpoints are checked (``check_endpoints``).
 
     Raises:
         ConfigError: the endpoint is taken by something that is not a Zenoh router.
     """
-    if not settings.embedded or not listening(endpoint):
+    if not settings.embedded:
+        check_endpoints(settings)
+        return settings
+    if not listening(endpoint):
         return settings
     from lessmap_client.session import open_session
 
     try:
-        open_session([endpoint], timeout_s=timeout_s).close()
+        open_session([endpoint], timeout_s=timeout_s, open_timeout_s=timeout_s).close()
     except ConnectionError:
         msg = (
             f"{endpoint} is taken by a program that is not a Zenoh router: stop it, or give "
@@ -65,3 +72,35 @@ def join_existing_router(
         endpoint,
     )
     return settings.model_copy(update={"mode": "client", "connect": (endpoint,)})
+
+
+def check_endpoints(settings: ServiceSettings) -> None:
+    """Check the Zenoh endpoints the flags name, before the service opens anything.
+
+    The Zenoh config file must exist. A TCP listen port that something already accepts on
+    is taken. In client mode the service needs a router: wait for one up to
+    ``connect_timeout`` seconds.
+
+    Raises:
+        ConfigError: the file is missing, a listen port is taken, or no router answered.
+    """
+    if settings.zenoh_config is not None and not settings.zenoh_config.is_file():
+        msg = f"-c/--zenoh-config {settings.zenoh_config}: no such file"
+        raise ConfigError(msg)
+    for endpoint in settings.listen:
+        if endpoint.startswith("tcp/") and listening(endpoint):
+            msg = (
+                f"cannot listen on {endpoint}: the port is already in use; stop the program "
+                "that holds it or choose another port with -l/--listen"
+            )
+            raise ConfigError(msg)
+    if settings.mode == "client" and (settings.connect or settings.zenoh_config is not None):
+        from lessmap_client.session import open_session
+
+        config = None if settings.zenoh_config is None else str(settings.zenoh_config)
+        try:
+            open_session(
+                settings.connect, timeout_s=settings.connect_timeout, config_file=config
+            ).close()
+        except (ConnectionError, ValueError) as exc:
+            raise ConfigError(str(exc)) from None

@@ -15,7 +15,7 @@ from lessmap.cli.flags import add_flags, flag_specs, given
 from lessmap.core import PROFILES, PartitionParams, SeedMode
 from lessmap.core.areas.tracker import AreaParams
 from lessmap.core.segmenter import DEFAULT_METHOD as _DEFAULT_METHOD
-from lessmap.errors import ConfigError
+from lessmap.errors import setting_error
 
 if TYPE_CHECKING:
     import argparse
@@ -84,7 +84,7 @@ def partition_settings(args: argparse.Namespace) -> PartitionSettings:
         where = ".".join(str(p) for p in error["loc"])
         msg = f"invalid setting {where} = {error.get('input')!r} from flag "
         msg += f"{origin.get(where, '?')}: {error['msg']}"
-        raise ConfigError(msg) from None
+        raise setting_error(msg, error["type"], from_flag=True) from None
 
 
 def partition_params(args: argparse.Namespace) -> PartitionParams:

@@ -28,13 +28,30 @@ from pydantic_settings import (
 )
 from pydantic_settings.sources import InitSettingsSource
 
-from lessmap.cli.flags import Flag, FlagSpec, add_flags, describe_path, given, lookup
+from lessmap.cli.flags import (
+    Flag,
+    FlagSpec,
+    add_flags,
+    describe_path,
+    flag_specs,
+    given,
+    lookup,
+)
 from lessmap.config.partitioning import (
     DEFAULT_METHOD,
     TITLE as PARTITION_TITLE,
     PartitionSettings,
 )
-from lessmap.errors import ConfigError
+from lessmap.errors import ConfigError, setting_error
+from lessmap_client.cli_options import (
+    CONNECT_HELP,
+    DEFAULT_CONNECT_TIMEOUT_S,
+    LISTEN_HELP,
+    TIMEOUT_HELP,
+    ZENOH_CONFIG_HELP,
+    add_zenoh_options,
+    mode_help,
+)
 from lessmap_schemas.keys import validate_name
 from lessmap_schemas.limits import (
     MAX_DETAIL_LEN,
@@ -53,7 +70,9 @@ EMBEDDED_ENDPOINT = "tcp/127.0.0.1:7447"
 #: Prefix of every environment variable of the service.
 ENV_PREFIX = "LESSMAP_"
 
-_ZENOH = "Zenoh (as in zenoh-python's examples)"
+_MODES = ("client", "peer", "router")
+#: The settings that are Zenoh options: their flags are the shared grammar's.
+ZENOH_FIELDS = frozenset({"zenoh_config", "mode", "connect", "listen", "connect_timeout"})
 
 
 class LimitSettings(BaseModel):
@@ -272,18 +291,13 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     )
     metrics_addr: str = Field("127.0.0.1", description="address of /metrics")
 
-    # -- zenoh --
-    zenoh_config: Annotated[Path | None, Flag(group=_ZENOH, metavar="FILE.json5")] = Field(
-        None, description="Zenoh config file (JSON5)"
-    )
-    mode: Annotated[Literal["peer", "client", "router"] | None, Flag("-m", group=_ZENOH)] = Field(
-        None, description="Zenoh mode"
-    )
-    connect: Annotated[tuple[str, ...], Flag("-e", group=_ZENOH, metavar="ENDPOINT")] = Field(
-        (), description="endpoint to connect to, e.g. tcp/10.0.0.5:7447"
-    )
-    listen: Annotated[tuple[str, ...], Flag("-l", group=_ZENOH, metavar="ENDPOINT")] = Field(
-        (), description="endpoint to listen on"
+    # -- zenoh: flags of the shared grammar (``lessmap_client.cli_options``), not derived --
+    zenoh_config: Path | None = Field(None, description=ZENOH_CONFIG_HELP)
+    mode: Literal["peer", "client", "router"] | None = Field(None, description=mode_help(_MODES))
+    connect: tuple[str, ...] = Field((), description=CONNECT_HELP)
+    listen: tuple[str, ...] = Field((), description=LISTEN_HELP)
+    connect_timeout: float = Field(
+        DEFAULT_CONNECT_TIMEOUT_S, gt=0.0, allow_inf_nan=False, description=TIMEOUT_HELP
     )
 
     limits: LimitSettings = LimitSettings()
@@ -408,8 +422,9 @@ def build_settings(values: Mapping[str, Any], flags: Mapping[str, str]) -> Servi
         path = tuple(error["loc"])
         where = describe_path(path) or "settings"
         msg = f"invalid setting {where} = {error.get('input')!r} from "
-        msg += f"{_source_of(path, values, flags)}: {error['msg']}"
-        raise ConfigError(msg) from None
+        source = _source_of(path, values, flags)
+        msg += f"{source}: {error['msg'].removeprefix('Value error, ')}"
+        raise setting_error(msg, error["type"], from_flag=source.startswith("flag ")) from None
     except SettingsError as exc:
         # The environment holds a value that is not JSON where a list or object is expected.
         match = re.search(r'field "(\w+)"', str(exc))
@@ -448,7 +463,10 @@ def _environ() -> dict[str, str]:
 
 
 def add_settings_flags(parser: argparse.ArgumentParser) -> list[FlagSpec]:
-    """Add one ``serve`` flag per settings field (nested limits too); return their specs."""
+    """Add one ``serve`` flag per settings field (nested limits too); return their specs.
+
+    The Zenoh fields take the flags every networked command has (``add_zenoh_options``).
+    """
     specs = add_flags(parser, PartitionSettings, title=PARTITION_TITLE, env_prefix=ENV_PREFIX)
     partition = {spec.dest for spec in specs}
     specs += add_flags(
@@ -456,8 +474,20 @@ def add_settings_flags(parser: argparse.ArgumentParser) -> list[FlagSpec]:
         ServiceSettings,
         title="service (flags beat LESSMAP_* environment beats --config FILE)",
         env_prefix=ENV_PREFIX,
-        exclude=frozenset(partition),
+        exclude=frozenset(partition | ZENOH_FIELDS),
     )
+    embedded = f"default: none, an embedded router on {EMBEDDED_ENDPOINT}"
+    notes = {
+        "connect": f"{embedded}; env {ENV_PREFIX}CONNECT",
+        "listen": f"{embedded}; env {ENV_PREFIX}LISTEN",
+        "mode": f"default: router when no Zenoh option is given, else Zenoh's peer; "
+        f"env {ENV_PREFIX}MODE",
+        "zenoh_config": f"env {ENV_PREFIX}ZENOH_CONFIG",
+        "connect_timeout": f"client mode; default: {DEFAULT_CONNECT_TIMEOUT_S:g}; "
+        f"env {ENV_PREFIX}CONNECT_TIMEOUT",
+    }
+    add_zenoh_options(parser, modes=_MODES, notes=notes, suppress_defaults=True)
+    specs += [s for s in flag_specs(ServiceSettings) if s.dest in ZENOH_FIELDS]
     return specs
 
 

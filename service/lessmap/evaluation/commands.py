@@ -19,11 +19,15 @@ from lessmap.core import PartitionParams
 from lessmap.errors import ConfigError
 from lessmap.evaluation.scores.consistency import DEFAULT_DOOR_DISTANCE_M, DEFAULT_TOLERANCE_FRAMES
 from lessmap.evaluation.scores.infoloss import DEFAULT_ANCHOR_INFORMATION
+from lessmap_client.cli_options import positive_int
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from lessmap.core.areas.graph import AreaGraph
     from lessmap.evaluation.data.dataset import Dataset
     from lessmap.evaluation.scores.consistency import Consistency, Detection
+    from lessmap.files.frames import FrameRow
     from lessmap.sim.simulator import SimTruth
     from lessmap_client.fleet_areas import FleetGraph
 
@@ -60,14 +64,23 @@ def _add_common(parser: argparse.ArgumentParser, *, file_optional: bool = False)
         help="λ2_min values (default 0.1..0.5)",
     )
     sweep.add_argument("--no-sweep", action="store_true", help="skip the sweep")
-    sweep.add_argument("--jobs", type=int, default=1, help="worker processes for the sweep")
+    sweep.add_argument(
+        "--jobs", type=positive_int, default=1, help="worker processes for the sweep"
+    )
 
 
 def _params(args: argparse.Namespace) -> PartitionParams:
-    if args.jobs < 1:
-        msg = f"--jobs must be at least 1, got {args.jobs}"
-        raise ConfigError(msg)
     return partition_params(args)
+
+
+def _warn_if_sparse(command: str, path: Path, frames: Sequence[FrameRow]) -> None:
+    """One line on stderr when the frames hold too few features to be covisible."""
+    from lessmap.files.frames import sparse_frames_warning
+
+    features = sum(len(frame.features) for frame in frames)
+    warning = sparse_frames_warning(str(path), len(frames), features)
+    if warning is not None:
+        sys.stderr.write(f"lessmap {command}: {warning}\n")
 
 
 def _grid(args: argparse.Namespace) -> tuple[list[float], list[float]]:
@@ -101,6 +114,7 @@ def run_eval(args: argparse.Namespace) -> int:
         msg = f"--odometry-scale must be positive, got {args.odometry_scale}"
         raise ConfigError(msg)
     dataset = scale_odometry(load_for_eval(args.file, args.robot), args.odometry_scale)
+    _warn_if_sparse("eval", args.file, dataset.frames)
     ncuts, lams = _grid(args)
     report = evaluate(
         dataset,
@@ -197,7 +211,7 @@ def run_plot(args: argparse.Namespace) -> int:
             raise ConfigError(msg)
         return _plot_area_graph(args.area_graph, args.robot, args.out)
     if args.file is None:
-        msg = "give FILE (frames) or --area-graph OUT.json"
+        msg = "give FILE (frames) or --area-graph G.json"
         raise ConfigError(msg)
     from lessmap.evaluation.data.dataset import load_frames
     from lessmap.evaluation.data.segmentation import run_lessmap
@@ -218,6 +232,7 @@ def run_plot(args: argparse.Namespace) -> int:
     else:
         frames = load_frames(args.file, choose_robot(args.file, args.robot))[1]
         run, rows = run_lessmap(frames, params), []
+    _warn_if_sparse("plot", args.file, frames)
     written = write_plots(args.out, frames, run, rows)
     sys.stdout.write("".join(f"wrote {path}\n" for path in written))
     return 0
@@ -255,7 +270,9 @@ def configure_eval(ev: argparse.ArgumentParser) -> None:
         "<name>.odometry.jsonl next to the frames file."
     )
     _add_common(ev)
-    ev.add_argument("--out", type=Path, metavar="DIR", help="also write DIR/eval.json, eval.md")
+    ev.add_argument(
+        "-o", "--out", type=Path, metavar="DIR", help="also write DIR/eval.json, eval.md"
+    )
     ev.add_argument("--plots", action="store_true", help="also write the PNGs into --out DIR")
     ev.add_argument(
         "--fixed-features",
@@ -314,6 +331,7 @@ def configure_plot(plot: argparse.ArgumentParser) -> None:
     )
     _add_common(plot, file_optional=True)
     plot.add_argument(
+        "-o",
         "--out",
         type=Path,
         metavar="DIR",
@@ -323,6 +341,7 @@ def configure_plot(plot: argparse.ArgumentParser) -> None:
     plot.add_argument(
         "--area-graph",
         type=Path,
-        metavar="OUT.json",
-        help="draw this area-graph file (lessmap segment --area-graph) instead of FILE",
+        metavar="G.json",
+        help="draw this area-graph file (written by lessmap segment --area-graph or lessmap "
+        "areas --out) instead of FILE",
     )

@@ -105,9 +105,13 @@ def read_graph_file(path: Path) -> tuple[dict[str, AreaGraph], FleetGraph]:
 
     Raises:
         FileNotFoundError: no such file.
-        DatasetError: not JSON, or not this layout (one line naming the file and the fault).
+        DatasetError: not UTF-8 JSON, or not this layout (one line naming the file and fault).
     """
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        msg = f"{path}: not UTF-8 (byte 0x{exc.object[exc.start]:02x} at offset {exc.start})"
+        raise DatasetError(msg) from None
     try:
         document = json.loads(text)
     except json.JSONDecodeError as exc:

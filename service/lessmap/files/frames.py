@@ -13,6 +13,9 @@ from typing import TYPE_CHECKING, Any
 from lessmap.errors import DatasetError
 from lessmap_schemas import framesfile
 from lessmap_schemas.errors import FramesFileError
+from lessmap_schemas.framesfile import (
+    sparse_frames_warning as sparse_frames_warning,  # re-exported: the offline tools' warning
+)
 from lessmap_schemas.limits import DEFAULT_LIMITS, WireLimits
 
 if TYPE_CHECKING:

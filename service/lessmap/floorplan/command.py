@@ -35,7 +35,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="metres per pixel of an image map (default 0.05; a YAML names its own)",
     )
-    parser.add_argument("--method", choices=("areas", "paper"), default="areas")
+    parser.add_argument(
+        "--method",
+        choices=("areas", "paper"),
+        default="areas",
+        help="segmentation method when no --transitions are given (default %(default)s)",
+    )
     parser.add_argument(
         "--transitions",
         type=Path,

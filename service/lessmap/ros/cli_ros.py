@@ -9,11 +9,13 @@ from __future__ import annotations
 import json
 import logging
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.cli.foreground import StopSignal, add_run_options, stop_signals
 from lessmap.errors import ConfigError
+from lessmap_client.cli_options import add_zenoh_options, positive_int, zenoh_options
 
 if TYPE_CHECKING:
     import argparse
@@ -22,8 +24,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: rmw_zenohd's (and lessmap's embedded router's) endpoint on this machine.
-ROS_ENDPOINT = "tcp/127.0.0.1:7447"
+#: What to check when the ROS 2 router does not answer.
+ROS_ROUTER_HINT = "is rmw_zenohd running there? (ros2 run rmw_zenoh_cpp rmw_zenohd)"
 
 
 def add_message_options(parser: argparse.ArgumentParser) -> None:
@@ -47,11 +49,10 @@ def add_message_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-features-per-frame",
-        type=int,
+        type=positive_int,
         default=4096,
         metavar="N",
-        help="the service's limit: a message with more features is counted and skipped "
-        "(default 4096)",
+        help="the service's limit: a message with more features is counted and skipped",
     )
 
 
@@ -60,16 +61,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Bridge ROS 2 landmark detections to lessmap, live: subscribe to rmw_zenoh topics "
         "(AprilTag detections, ArUco markers, MarkerArray, or any type given --ids) and "
-        "publish one lessmap frame per message, one robot per ROS namespace. Needs "
-        "pip install 'lessmap[ros]'; no ROS installation."
+        "publish one lessmap frame per message, one robot per ROS namespace. -e/--connect "
+        "names the ROS 2 router (rmw_zenohd). Needs pip install 'lessmap[ros]'; no ROS "
+        "installation."
     )
-    parser.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        metavar="ENDPOINT",
-        help=f"the ROS 2 Zenoh router, rmw_zenohd (default {ROS_ENDPOINT}); repeatable",
-    )
+    add_zenoh_options(parser)
     parser.add_argument(
         "--lessmap-connect",
         action="append",
@@ -119,9 +115,6 @@ def converter_from_args(args: argparse.Namespace) -> Converter:
     from lessmap.ros.extract import parse_id_options
     from lessmap.ros.msgtypes import read_definitions, typestore
 
-    if args.max_features_per_frame < 1:
-        msg = "--max-features-per-frame must be at least 1"
-        raise ConfigError(msg)
     id_paths = parse_id_options(args.ids)
     store = typestore(read_definitions(args.msg_def))
     return Converter(store, id_paths, max_features=args.max_features_per_frame)
@@ -138,7 +131,6 @@ def _run(args: argparse.Namespace, stop: StopSignal) -> int:
 
     from lessmap.ros.bridge import RosBridge, topic_specs
     from lessmap_client.connection import Connection
-    from lessmap_client.session import open_session
 
     converter = converter_from_args(args)
     domain = args.domain if args.domain is not None else _env_domain()
@@ -150,11 +142,13 @@ def _run(args: argparse.Namespace, stop: StopSignal) -> int:
         # MarkerArray is too common (every RViz overlay) to be taken as landmarks unasked.
         specs = [s for s in specs if "visualization_msgs" not in s.key]
     zenoh.init_log_from_env_or("error")
-    ros_session = open_session(args.connect or [ROS_ENDPOINT], timeout_s=args.connect_timeout)
+    net = zenoh_options(args)
+    ros_session = net.open_session(hint=ROS_ROUTER_HINT)
     lessmap_session = ros_session
     try:
         if args.lessmap_connect:
-            lessmap_session = open_session(args.lessmap_connect, timeout_s=args.connect_timeout)
+            lessmap = replace(net, connect=tuple(args.lessmap_connect), listen=())
+            lessmap_session = lessmap.open_session()
         with Connection.from_session(lessmap_session) as conn:
             bridge = RosBridge(
                 ros_session,
@@ -199,9 +193,11 @@ def configure_import(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bag(s) to read")
     parser.add_argument(
+        "-o",
         "--out",
         type=Path,
         default=None,
+        metavar="FILE",
         help="frames file to write (default: BAG's name + .frames.jsonl, here)",
     )
     parser.add_argument(
@@ -234,8 +230,15 @@ def run_import(args: argparse.Namespace) -> int:
     from lessmap.ros.bags import import_bags
 
     converter = converter_from_args(args)
+    missing = [str(bag) for bag in args.bags if not bag.exists()]
+    if missing:
+        msg = f"{', '.join(missing)}: no such file or folder"
+        raise ConfigError(msg)
     first: Path = args.bags[0]
     out: Path = args.out or Path(f"{first.stem or first.name}.frames.jsonl")
+    if not out.resolve().parent.is_dir():  # before reading the bags, not after
+        msg = f"-o/--out {out}: no folder {out.parent}"
+        raise ConfigError(msg)
     stats = import_bags(
         args.bags,
         out,

@@ -114,5 +114,9 @@ def read_definitions(items: list[str]) -> dict[str, str]:
         if not sep or not file:
             msg = f"--msg-def expects TYPE=FILE.msg, got {item!r}"
             raise ConfigError(msg)
-        found[check_type_name(name)] = Path(file).read_text(encoding="utf-8")
+        try:
+            found[check_type_name(name)] = Path(file).read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            msg = f"--msg-def {file}: not UTF-8 text"
+            raise ConfigError(msg) from None
     return found

@@ -266,10 +266,12 @@ class Service:
             self._declare_token()
         self._control_thread.start()
         log.info(
-            "lessmap %s serving as %s (%s, %d shard(s), profile %s, %d of %d partitions)%s",
+            "lessmap %s serving as %s (%s, method %s, %d shard(s), profile %s, %d of %d "
+            "partitions)%s",
             __version__,
             s.instance,
             "embedded router on tcp/127.0.0.1:7447" if s.embedded else "joined Zenoh network",
+            s.method,
             s.workers,
             s.profile,
             len(self.ownership.owned()),

@@ -399,7 +399,7 @@ def templates() -> dict[str, str]:
             mesh_router_config(d, name, TEMPLATE_MESH, [fleet], [service]),
             f"Zenoh router {name} of a lessmap mesh: TLS, certificates required on every link\n"
             "(clients and the other router), deny-by-default access control by certificate CN.\n"
-            f"Run: lessmap router --config zenoh-router-{name}-mtls.json5 (or zenohd -c ...).\n"
+            f"Run: lessmap router -c zenoh-router-{name}-mtls.json5 (or zenohd -c ...).\n"
             + MESH_NOTE.format(
                 name=name,
                 other=other,
@@ -469,7 +469,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "mTLS and deny-by-default access control. "
         "Keys are written mode 0600. See docs/SECURITY.md."
     )
-    parser.add_argument("--out", type=Path, required=True, help="folder to write to")
+    parser.add_argument(
+        "-o", "--out", type=Path, required=True, metavar="DIR", help="folder to write to"
+    )
     parser.add_argument(
         "--fleet", action="append", default=[], help="a fleet name (repeat for more fleets)"
     )

@@ -10,11 +10,20 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lessmap.floorplan.sim_command import add_floorplan_arguments, simulate_floorplan_files
 from lessmap.sim.simulator import simulate, write_run
-from lessmap_client.cli_client import add_zenoh_options, endpoints
+from lessmap_client.cli_options import (
+    add_zenoh_options,
+    float_up_to,
+    positive_float,
+    positive_int,
+    zenoh_options,
+)
+
+if TYPE_CHECKING:
+    from lessmap_client.cli_options import ZenohOptions
 
 
 def configure(sim: argparse.ArgumentParser) -> None:
@@ -25,18 +34,25 @@ def configure(sim: argparse.ArgumentParser) -> None:
         "<name>.truth.jsonl and <name>.building.json; --publish streams the frames live. "
         "With --floorplan MAP, robots tour a real floor plan instead (options below)."
     )
-    sim.add_argument("--seed", type=int, default=0, help="seeds everything (default: 0)")
-    sim.add_argument("--rooms", type=int, default=8)
-    sim.add_argument("--robots", type=int, help="robots (default: 3; 2 with --floorplan)")
-    sim.add_argument("--frames", type=int, default=600, help="frames per robot (2 Hz)")
-    sim.add_argument("--fov", type=float, default=None, help="sensor field of view, degrees")
-    sim.add_argument("--out", type=Path, help="write the run to this folder")
+    sim.add_argument("--seed", type=int, default=0, help="seeds everything")
+    sim.add_argument("--rooms", type=positive_int, default=8, help="rooms of the building")
+    sim.add_argument("--robots", type=positive_int, help="robots (default: 3; 2 with --floorplan)")
+    sim.add_argument("--frames", type=positive_int, default=600, help="frames per robot (2 Hz)")
+    sim.add_argument(
+        "--fov",
+        type=float_up_to(360.0),
+        default=None,
+        help="sensor field of view, degrees (default: 270)",
+    )
+    sim.add_argument("-o", "--out", type=Path, metavar="DIR", help="write the run to this folder")
     sim.add_argument(
         "--name", help="file name stem (default: sim; the map's name with --floorplan)"
     )
     sim.add_argument("--publish", action="store_true", help="publish the frames live")
-    sim.add_argument("--fleet", default="sim")
-    sim.add_argument("--speed", type=float, default=1.0, help="playback rate with --publish")
+    sim.add_argument("--fleet", default="sim", help="fleet of the published robots")
+    sim.add_argument(
+        "--speed", type=positive_float, default=1.0, help="playback rate with --publish"
+    )
     add_zenoh_options(sim)
     add_floorplan_arguments(sim)
 
@@ -46,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.out and not args.publish:
         sys.stderr.write("lessmap sim: nothing to do; give --out DIR and/or --publish\n")
         return 1
+    net = zenoh_options(args)
     if args.floorplan is not None:
         frames = simulate_floorplan_files(args)
     else:
@@ -59,13 +76,12 @@ def run(args: argparse.Namespace) -> int:
             sys.stdout.write(json.dumps({k: str(v) for k, v in paths._asdict().items()}) + "\n")
         frames = run.frames
     if args.publish:
-        _publish(frames, args)
+        _publish(frames, args, net)
     return 0
 
 
-def _publish(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
+def _publish(rows: list[dict[str, Any]], args: argparse.Namespace, net: ZenohOptions) -> None:
     from lessmap_client.adapters.replay import RecordedFrame, replay
-    from lessmap_client.session import open_session
 
     frames = [
         RecordedFrame(
@@ -77,6 +93,9 @@ def _publish(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
         )
         for f in rows
     ]
-    with open_session(endpoints(args), args.mode) as session:
-        stats = replay(frames, session, args.fleet, speed=args.speed)
+    with net.open_session() as session:
+        # Each robot's first frame waits for its partition's owner, as replay's does.
+        stats = replay(
+            frames, session, args.fleet, speed=args.speed, wait_service_s=net.connect_timeout_s
+        )
     sys.stdout.write(json.dumps({"published": stats.frames, "robots": stats.robots}) + "\n")

@@ -8,27 +8,27 @@ from __future__ import annotations
 
 import json
 import logging
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lessmap.cli.foreground import StopSignal, add_run_options, stop_signals
 from lessmap.errors import ConfigError
+from lessmap_client.cli_options import add_zenoh_options, non_negative_int, zenoh_options
 
 if TYPE_CHECKING:
     import argparse
 
     import foxglove
+    import zenoh
     from foxglove.mcap import MCAPWriter
 
     from lessmap.viz.feed import Channels, LateJoiners
 
 log = logging.getLogger(__name__)
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-#: How long view and record wait for the lessmap router by default: they are often started
-#: together with ``lessmap serve``, which can take tens of seconds to listen on a loaded
-#: machine (the other foreground commands keep ``lessmap.cli.foreground``'s default).
-CONNECT_TIMEOUT_S = 60.0
+#: A wait for the router longer than this is announced (once) on stderr.
+ANNOUNCE_WAIT_S = 2.0
 #: Seconds between two fleet area queries with --shared-features (each asks every robot's
 #: area graph: less often than the state table's once a second).
 PLACES_PERIOD_S = 5.0
@@ -36,22 +36,6 @@ PLACES_PERIOD_S = 5.0
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fleet", required=True, help="the fleet to show")
-    parser.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        metavar="ENDPOINT",
-        help=f"the lessmap router (default {DEFAULT_ENDPOINT}); repeatable",
-    )
-    parser.add_argument(
-        "--zenoh-config",
-        metavar="FILE",
-        help=(
-            "a Zenoh client config (JSON5), e.g. a secured site's zenoh-viewer-FLEET-mtls.json5 "
-            "from lessmap certs: the viewer.FLEET identity may read the robots' frames (their "
-            "poses), app.FLEET may not; its endpoints are used unless -e is given"
-        ),
-    )
     parser.add_argument(
         "--covgraph",
         metavar="ROBOT",
@@ -64,11 +48,8 @@ def _common(parser: argparse.ArgumentParser) -> None:
         "robot's fleet area, robot:area of its first member), from the fleet's area graphs "
         "every 5 s",
     )
-    add_run_options(
-        parser,
-        connect_timeout_s=CONNECT_TIMEOUT_S,
-        connect_help="how long to wait for the lessmap router, saying so once while waiting",
-    )
+    add_run_options(parser)
+    add_zenoh_options(parser)
 
 
 def configure_view(parser: argparse.ArgumentParser) -> None:
@@ -77,16 +58,19 @@ def configure_view(parser: argparse.ArgumentParser) -> None:
         "Show a fleet in Foxglove or Lichtblick: a Foxglove WebSocket server with each "
         "robot's trajectory coloured by submap (where frames carry poses), transitions as "
         "log entries and markers, the per-robot state table and optionally a robot's "
-        "CovGraph. Open ws://HOST:PORT in the app. Needs pip install 'lessmap[viz]'."
+        "CovGraph. Open ws://HOST:PORT in the app. On a secured site, -c takes the "
+        "zenoh-viewer-FLEET-mtls.json5 of lessmap certs: the viewer.FLEET identity may read "
+        "the robots' frames (their poses), app.FLEET may not. Needs pip install "
+        "'lessmap[viz]'."
     )
     _common(parser)
+    parser.add_argument("--host", default="127.0.0.1", help="address to serve on")
     parser.add_argument(
-        "--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)"
+        "--port", type=non_negative_int, default=8765, help="port (0: any free one)"
     )
     parser.add_argument(
-        "--port", type=int, default=8765, help="port (default 8765; 0: any free one)"
+        "--mcap", type=Path, default=None, metavar="FILE", help="also record the channels to FILE"
     )
-    parser.add_argument("--mcap", type=Path, default=None, help="also record the channels to FILE")
 
 
 def configure_record(parser: argparse.ArgumentParser) -> None:
@@ -96,7 +80,9 @@ def configure_record(parser: argparse.ArgumentParser) -> None:
         "Lichtblick or any MCAP reader later. Needs pip install 'lessmap[viz]'."
     )
     _common(parser)
-    parser.add_argument("--mcap", type=Path, required=True, help="the MCAP file to write")
+    parser.add_argument(
+        "--mcap", type=Path, required=True, metavar="FILE", help="the MCAP file to write"
+    )
     parser.add_argument(
         "--overwrite", action="store_true", help="replace FILE if it exists (default: refuse)"
     )
@@ -118,31 +104,35 @@ def _run_view(args: argparse.Namespace, stop: StopSignal) -> int:
     with_graph = args.covgraph is not None
     live = Channels(foxglove.Context(), covgraph=with_graph)
     joiners = LateJoiners()
-    try:
-        server = foxglove.start_server(
-            name=f"lessmap {args.fleet}",
-            host=args.host,
-            port=args.port,
-            context=live.context,
-            server_listener=joiners,
-        )
-    except Exception as exc:  # foxglove raises its own error kinds for a taken port
-        msg = f"cannot serve on {args.host}:{args.port}: {exc}"
-        raise ConfigError(msg) from exc
-    port = server.port  # 0 once stopped
-    log.info(
-        "Foxglove WebSocket server on ws://%s:%d (open it in Foxglove or Lichtblick)",
-        args.host,
-        port,
-    )
     record = Channels(foxglove.Context(), covgraph=with_graph) if args.mcap else None
-    writer = None if record is None else _open_mcap(args.mcap, record.context, overwrite=False)
-    try:
-        counts = _follow(args, stop, live=live, record=record, joiners=joiners)
-    finally:
-        if writer is not None:
-            writer.close()
-        server.stop()
+    if args.mcap is not None and args.mcap.exists():
+        msg = f"{args.mcap} exists (lessmap record --overwrite replaces a file)"
+        raise ConfigError(msg)
+    # Each step undoes itself when a later one fails: nothing is left listening or open.
+    with ExitStack() as undo:
+        session = _open_session(args)
+        undo.callback(session.close)
+        try:
+            server = foxglove.start_server(
+                name=f"lessmap {args.fleet}",
+                host=args.host,
+                port=args.port,
+                context=live.context,
+                server_listener=joiners,
+            )
+        except Exception as exc:  # foxglove raises its own error kinds for a taken port
+            msg = f"cannot serve on {args.host}:{args.port} (choose another with --port): {exc}"
+            raise ConfigError(msg) from exc
+        undo.callback(server.stop)
+        port = server.port  # 0 once stopped
+        log.info(
+            "Foxglove WebSocket server on ws://%s:%d (open it in Foxglove or Lichtblick)",
+            args.host,
+            port,
+        )
+        if record is not None:
+            undo.callback(_open_mcap(args.mcap, record.context, overwrite=False).close)
+        counts = _follow(args, stop, session, live=live, record=record, joiners=joiners)
     print(json.dumps({"fleet": args.fleet, "port": port, **counts}))
     return 0
 
@@ -159,11 +149,14 @@ def _run_record(args: argparse.Namespace, stop: StopSignal) -> int:
     from lessmap.viz.feed import Channels
 
     record = Channels(foxglove.Context(), covgraph=args.covgraph is not None)
-    writer = _open_mcap(args.mcap, record.context, overwrite=args.overwrite)
-    try:
-        counts = _follow(args, stop, record=record)
-    finally:
-        writer.close()
+    if args.mcap.exists() and not args.overwrite:
+        msg = f"{args.mcap} exists (give --overwrite to replace it)"
+        raise ConfigError(msg)
+    with ExitStack() as undo:
+        session = _open_session(args)
+        undo.callback(session.close)
+        undo.callback(_open_mcap(args.mcap, record.context, overwrite=args.overwrite).close)
+        counts = _follow(args, stop, session, record=record)
     print(json.dumps({"fleet": args.fleet, "mcap": str(args.mcap), **counts}))
     return 0
 
@@ -181,48 +174,48 @@ def _open_mcap(path: Path, context: foxglove.Context, *, overwrite: bool) -> MCA
         raise ConfigError(msg) from exc
 
 
+def _open_session(args: argparse.Namespace) -> zenoh.Session:
+    """Open the session of view or record, saying so once if the router keeps it waiting."""
+    net = zenoh_options(args)
+    try:
+        return net.open_session(timeout_s=min(ANNOUNCE_WAIT_S, net.connect_timeout_s))
+    except ConnectionError:
+        if net.connect_timeout_s <= ANNOUNCE_WAIT_S:
+            raise
+    log.info(
+        "waiting for the lessmap service on %s (up to %g s, --connect-timeout)",
+        net.where,
+        net.connect_timeout_s,
+    )
+    return net.open_session(timeout_s=net.connect_timeout_s - ANNOUNCE_WAIT_S)
+
+
 def _follow(
     args: argparse.Namespace,
     stop: StopSignal,
+    session: zenoh.Session,
     *,
     live: Channels | None = None,
     record: Channels | None = None,
     joiners: LateJoiners | None = None,
 ) -> dict[str, int]:
+    """Feed the channels from the fleet until a signal or --duration (the caller closes)."""
     from lessmap.viz.feed import FleetFeed
     from lessmap_client.connection import Connection
-    from lessmap_client.session import open_session
 
-    config = args.zenoh_config
-    if config is not None and not Path(config).is_file():
-        msg = f"--zenoh-config {config}: no such file"
-        raise ConfigError(msg)
-    endpoints = args.connect or ([] if config else [DEFAULT_ENDPOINT])
-    try:
-        session = open_session(endpoints, timeout_s=0, config_file=config)  # one attempt
-    except ConnectionError:
-        log.info(
-            "waiting for the lessmap service on %s (up to %g s, --connect-timeout)",
-            ", ".join(endpoints) or f"the endpoints of {config}",
-            args.connect_timeout,
-        )
-        session = open_session(endpoints, timeout_s=args.connect_timeout, config_file=config)
-    try:
-        with Connection.from_session(session) as conn:
-            feed = FleetFeed(
-                session,
-                conn,
-                args.fleet,
-                live=live,
-                record=record,
-                joiners=joiners,
-                covgraph=args.covgraph,
-                places_period_s=PLACES_PERIOD_S if args.shared_features else None,
-            ).start()
-            try:
-                stop.wait(args.duration)
-            finally:
-                feed.stop()
-            return dict(sorted(feed.counts.items()))
-    finally:
-        session.close()
+    with Connection.from_session(session) as conn:
+        feed = FleetFeed(
+            session,
+            conn,
+            args.fleet,
+            live=live,
+            record=record,
+            joiners=joiners,
+            covgraph=args.covgraph,
+            places_period_s=PLACES_PERIOD_S if args.shared_features else None,
+        ).start()
+        try:
+            stop.wait(args.duration)
+        finally:
+            feed.stop()
+        return dict(sorted(feed.counts.items()))

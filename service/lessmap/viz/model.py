@@ -55,6 +55,10 @@ class Mark:
     lambda2: float | None
     at: Point | None
     order: int  # arrival order among the fleet's marks (robots' clocks are not comparable)
+    left_area: int = 0
+    area: int = 0
+    revisit: bool = False
+    batch_frames: int = 1
 
 
 @dataclass
@@ -157,6 +161,10 @@ class FleetModel:
             lambda2=t.lambda2,
             at=track.pose_at(t.boundary_seq),
             order=self._marks_seen,
+            left_area=t.left_area,
+            area=t.area,
+            revisit=t.revisit,
+            batch_frames=t.batch_frames,
         )
         track.marks.append(mark)
         track.marks.sort(key=lambda m: m.boundary_seq)

@@ -5,8 +5,8 @@
   the session it had before, dimmed; for the fleet, one sphere and one label per doorway
   (transitions within ``DOORWAY_RADIUS_M`` of each other, any robot: the latest one, and how
   many others happened there), so that robots crossing one door many times share one label.
-- ``/lessmap/transitions`` (``foxglove.Log``): one entry per transition: robot, submaps, seq,
-  reason, Ncut, λ2.
+- ``/lessmap/transitions`` (``foxglove.Log``): one entry per transition: robot, the areas
+  it crossed, seq, the reason in words, the submaps.
 - ``/lessmap/state`` (JSON): the per-robot state table: session, frames applied / missing /
   rejected, transitions, current submap, CovGraph size, instance.
 - ``/lessmap/covgraph`` (``foxglove.SceneUpdate``, optional): the CovGraph of one robot's
@@ -42,6 +42,8 @@ from foxglove.messages import (
     Timestamp,
     Vector3,
 )
+
+from lessmap_client.watch import areas_crossed, coalesced, why
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -333,19 +335,16 @@ def map_transform() -> FrameTransform:
 
 
 def transition_log(robot: str, mark: Mark) -> Log:
-    """Return the log entry of one transition."""
-    detail = (
-        f"Ncut {mark.ncut:.3f}, λ2 {mark.lambda2:.3f}"
-        if mark.ncut is not None and mark.lambda2 is not None
-        else "the CovGraph fell apart"
-    )
+    """Return the log entry of one transition: the areas crossed, where, and why."""
     where = f" at ({mark.at.x:.1f}, {mark.at.y:.1f})" if mark.at is not None else ""
+    crossed = areas_crossed(mark.left_area, mark.area, revisit=mark.revisit)
     return Log(
         timestamp=stamp(mark.stamp_s),
         level=LogLevel.Info,
         message=(
-            f"{robot}: submap {mark.closed} → {mark.opened} from seq {mark.boundary_seq} "
-            f"(detected at {mark.seq}){where}: {mark.reason}, {detail}"
+            f"{robot}: {crossed} from seq {mark.boundary_seq} (detected at {mark.seq})"
+            f"{where}: {mark.reason}, {why(mark.reason, mark.ncut, mark.lambda2)}; "
+            f"submap {mark.closed} → {mark.opened}{coalesced(mark.batch_frames)}"
         ),
         name=robot,
         file="lessmap",

@@ -100,6 +100,9 @@ def load_frames(frames_path: Path, robot: str | None = None) -> tuple[str, tuple
     """Read the frames of one robot (rule 2); return the robot and its frames in order."""
     rows = list(read_frames(frames_path))
     robots = sorted({row.robot for row in rows})
+    if not rows:
+        msg = f"{frames_path}: holds no frames"
+        raise DatasetError(msg)
     if robot is None:
         if len(robots) > 1:
             msg = f"{frames_path.name} holds robots {', '.join(robots)}; choose one"
@@ -107,7 +110,7 @@ def load_frames(frames_path: Path, robot: str | None = None) -> tuple[str, tuple
         robot = robots[0] if robots else ""
     frames = tuple(row for row in rows if row.robot == robot)
     if not frames:
-        msg = f"{frames_path.name}: no frames of robot {robot!r}"
+        msg = f"{frames_path.name}: no frames of robot {robot!r}; it has {', '.join(robots)}"
         raise DatasetError(msg)
     return robot, frames
 
