@@ -23,7 +23,14 @@ from typing import TYPE_CHECKING
 from lessmap.core import PartitionParams
 from lessmap.core.segmenter import Method
 from lessmap.files.frames import read_frames
-from lessmap.runtime.sessions import SessionTable, commit_checkpoints
+from lessmap.runtime.sessions import (
+    DurabilityPolicy,
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+    commit_checkpoints,
+)
 from lessmap.runtime.store import CheckpointStore
 from lessmap_schemas.messages import Frame
 
@@ -37,17 +44,14 @@ def run(frames: list[tuple[str, Frame]], every: int | None) -> tuple[float, floa
         store = CheckpointStore(None if every is None else Path(folder))
         store.open()
         table = SessionTable(
-            PartitionParams.from_profile("laser"),
-            method=Method.PAPER,  # the method of the figures in docs/BENCHMARKS.md
-            max_sessions=1000,
-            max_nodes=20_000,
-            max_batch_frames=1,
-            idle_timeout_s=3600.0,
-            instance="bench",
-            clock=time.perf_counter,
+            # The paper: the method of the figures in docs/BENCHMARKS.md.
+            Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+            SessionLimits(
+                max_sessions=1000, max_nodes=20_000, max_batch_frames=1, idle_timeout_s=3600.0
+            ),
+            identity=Identity(instance="bench"),
             store=store,
-            checkpoint_every_frames=every or 1,
-            checkpoint_interval_s=5.0,
+            durability=DurabilityPolicy(every_frames=every or 1, interval_s=5.0),
         )
         started = time.thread_time()
         for robot, frame in frames:

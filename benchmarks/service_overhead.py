@@ -45,10 +45,16 @@ from lessmap.config.settings import ServiceSettings
 from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
-from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.receiver import Receiver
-from lessmap.runtime.sessions import SessionTable
-from lessmap.runtime.shard import Inbound, Shard
+from lessmap.runtime.sessions import (
+    DurabilityPolicy,
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+)
+from lessmap.runtime.shard import Inbound, Shard, ShardPolicy
 from lessmap.runtime.store import CheckpointStore
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
@@ -109,29 +115,35 @@ def time_worker(
             session,
             metrics,
             instance="bench",
-            transition_cache=16,
-            max_publishers=robots,
-            error_rate_per_s=10.0,
-            error_burst=10,
+            policy=EgressPolicy(
+                transition_cache=16,
+                max_publishers=robots,
+                error_rate_per_s=10.0,
+                error_burst=10,
+            ),
             store=store,
         )
         table = SessionTable(
-            PartitionParams.from_profile("laser"),
-            method=Method.PAPER,  # the method of the core it is compared with
-            max_sessions=robots,
-            max_nodes=100_000,
-            max_batch_frames=256,
-            idle_timeout_s=3600.0,
-            instance="bench",
-            clock=time.perf_counter,
+            # The paper: the method of the core it is compared with.
+            Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+            SessionLimits(
+                max_sessions=robots,
+                max_nodes=100_000,
+                max_batch_frames=256,
+                idle_timeout_s=3600.0,
+                max_pairs_per_frame=max_pairs,
+                max_edges_per_session=max_edges,
+            ),
+            identity=Identity(instance="bench"),
             store=None if memory_only else store,
-            checkpoint_every_frames=every,
-            checkpoint_interval_s=interval,
-            max_pairs_per_frame=max_pairs,
-            max_edges=max_edges,
+            durability=DurabilityPolicy(every_frames=every, interval_s=interval),
         )
         shard = Shard(
-            0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30
+            0,
+            table,
+            outbox,
+            limits=DEFAULT_LIMITS,
+            policy=ShardPolicy(queue_depth=1 << 20, queue_bytes=1 << 30),
         )
         started = time.process_time()
         for at in range(0, len(items), per_sweep):
@@ -152,25 +164,28 @@ def time_receive(session: zenoh.Session, items: Sequence[Inbound], per_sweep: in
     """Thread CPU seconds of the receiver's sweeps over real channels, per sample batch."""
     metrics = ServiceMetrics()
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        method=Method.PAPER,
-        max_sessions=1,
-        max_nodes=10,
-        max_batch_frames=1,
-        idle_timeout_s=60.0,
-        instance="bench",
-        clock=time.perf_counter,
+        Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+        SessionLimits(max_sessions=1, max_nodes=10, max_batch_frames=1, idle_timeout_s=60.0),
+        identity=Identity(instance="bench"),
     )
     outbox = Outbox(
         session,
         metrics,
         instance="bench",
-        transition_cache=1,
-        max_publishers=1,
-        error_rate_per_s=1.0,
-        error_burst=1,
+        policy=EgressPolicy(
+            transition_cache=1,
+            max_publishers=1,
+            error_rate_per_s=1.0,
+            error_burst=1,
+        ),
     )
-    shard = Shard(0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=1 << 20, queue_bytes=1 << 30)
+    shard = Shard(
+        0,
+        table,
+        outbox,
+        limits=DEFAULT_LIMITS,
+        policy=ShardPolicy(queue_depth=1 << 20, queue_bytes=1 << 30),
+    )
     receiver = Receiver(
         [shard], metrics, max_payload_bytes=1 << 20, queue_depth=1 << 20, owned=lambda _p: True
     )

@@ -3,7 +3,6 @@ its areas and area graph, and an areas session resumes from its checkpoint exact
 
 from __future__ import annotations
 
-import time
 from functools import cache
 from typing import TYPE_CHECKING
 
@@ -12,8 +11,15 @@ import pytest
 from lessmap.core import PartitionParams
 from lessmap.core.areas.graph import MAX_BOUNDARY_FEATURES
 from lessmap.core.segmenter import Method, make_segmenter
-from lessmap.runtime.outbox import wire_transition
-from lessmap.runtime.sessions import SessionTable, wire_area_graph
+from lessmap.runtime.sessions import (
+    DurabilityPolicy,
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+    wire_area_graph,
+    wire_transition,
+)
 from lessmap.runtime.store import CheckpointStore
 from lessmap.sim.simulator import simulate
 from lessmap_schemas.messages import Frame, SessionEnd
@@ -43,17 +49,12 @@ def make_table(
 ) -> SessionTable:
     return CommittingTable(
         store,
-        params=LASER,
-        method=method,
-        max_sessions=8,
-        max_nodes=20_000,
-        max_batch_frames=batch,
-        idle_timeout_s=10.0,
-        instance="test",
-        clock=time.perf_counter,
-        checkpoint_every_frames=25,
-        checkpoint_interval_s=3600.0,
-        checkpoint_phase=False,
+        Segmenting(params=LASER, method=method),
+        SessionLimits(
+            max_sessions=8, max_nodes=20_000, max_batch_frames=batch, idle_timeout_s=10.0
+        ),
+        identity=Identity(instance="test"),
+        durability=DurabilityPolicy(every_frames=25, interval_s=3600.0, phased=False),
     )
 
 

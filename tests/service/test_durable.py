@@ -16,7 +16,16 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from lessmap.core import PartitionParams
-from lessmap.runtime.sessions import Outcome, SessionTable, commit_checkpoints
+from lessmap.runtime.sessions import (
+    CatchupPolicy,
+    DurabilityPolicy,
+    Identity,
+    Outcome,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+    commit_checkpoints,
+)
 from lessmap.runtime.store import STORE_FILE, CheckpointStore, SessionRecord
 from lessmap.sim.simulator import simulate
 from lessmap_schemas.errors import ErrorCode
@@ -46,8 +55,14 @@ FRAMES = walk()
 class CommittingTable(SessionTable):
     """A session table whose outcomes' checkpoints are saved as soon as they are returned."""
 
-    def __init__(self, store: CheckpointStore | None, **settings: Any) -> None:
-        super().__init__(store=store, **settings)
+    def __init__(
+        self,
+        store: CheckpointStore | None,
+        segmenting: Segmenting,
+        limits: SessionLimits,
+        **policies: Any,
+    ) -> None:
+        super().__init__(segmenting, limits, store=store, **policies)
         self.committed_to = store
 
     def _committed(self, out: Outcome) -> Outcome:
@@ -85,18 +100,11 @@ def make_table(
     # phase=False: checkpoints at exact multiples of ``every``, which the tests below pin.
     return CommittingTable(
         store,
-        params=LASER,
-        max_sessions=8,
-        max_nodes=20_000,
-        max_batch_frames=1,
-        idle_timeout_s=10.0,
-        instance="test",
-        clock=time.perf_counter,
-        checkpoint_every_frames=every,
-        checkpoint_interval_s=3600.0,
-        checkpoint_phase=phase,
-        catchup_max_frames=catchup_max_frames,
-        catchup_wait_s=catchup_wait_s,
+        Segmenting(params=LASER),
+        SessionLimits(max_sessions=8, max_nodes=20_000, max_batch_frames=1, idle_timeout_s=10.0),
+        identity=Identity(instance="test"),
+        durability=DurabilityPolicy(every_frames=every, interval_s=3600.0, phased=phase),
+        catchup=CatchupPolicy(max_frames=catchup_max_frames, wait_s=catchup_wait_s),
     )
 
 
@@ -303,8 +311,8 @@ def test_a_record_being_written_is_what_load_returns(tmp_path: Path) -> None:
     store.close()
 
 
-def test_robots_where_reads_only_the_named_fleet_and_robot(tmp_path: Path) -> None:
-    from lessmap.runtime.service import _named_fleet_and_robot
+def test_robots_where_reads_only_thenamed_fleet_and_robot(tmp_path: Path) -> None:
+    from lessmap.runtime.queries import named_fleet_and_robot
 
     store = open_store(tmp_path)
     for fleet, robot in [("f1", "a"), ("f1", "b"), ("f2", "a")]:
@@ -328,10 +336,10 @@ def test_robots_where_reads_only_the_named_fleet_and_robot(tmp_path: Path) -> No
     assert store.robots_where(lambda _f, r: r == "a", fleet="f1") == [("f1", "a")]
     store.close()
     # A query's selector names a fleet and a robot only where it holds no wildcard.
-    assert _named_fleet_and_robot("lessmap/v3/f1/b/state") == ("f1", "b")
-    assert _named_fleet_and_robot("lessmap/v3/f1/*/areas") == ("f1", None)
-    assert _named_fleet_and_robot("lessmap/v3/*/b/state") == (None, None)
-    assert _named_fleet_and_robot("lessmap/v3/**") == (None, None)
+    assert named_fleet_and_robot("lessmap/v3/f1/b/state") == ("f1", "b")
+    assert named_fleet_and_robot("lessmap/v3/f1/*/areas") == ("f1", None)
+    assert named_fleet_and_robot("lessmap/v3/*/b/state") == (None, None)
+    assert named_fleet_and_robot("lessmap/v3/**") == (None, None)
 
 
 def test_a_corrupt_store_file_is_moved_aside(tmp_path: Path) -> None:
@@ -453,7 +461,7 @@ def test_checkpoint_frequency_never_changes_decisions(
     store.close()
 
 
-# -- catch-up from the robot's publication cache (rule 6 of sessions.py) ---------------------
+# -- catch-up from the robot's publication cache (sessions/catchup.py) ----------------------
 
 
 def catchup_table(store: CheckpointStore | None, *, every: int = 25) -> SessionTable:

@@ -13,8 +13,14 @@ from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
 from lessmap.runtime.metrics import ServiceMetrics
-from lessmap.runtime.outbox import Outbox
-from lessmap.runtime.sessions import SessionTable
+from lessmap.runtime.outbox import EgressPolicy, Outbox
+from lessmap.runtime.sessions import (
+    DurabilityPolicy,
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+)
 from lessmap.runtime.store import CheckpointStore
 from lessmap.sim.simulator import simulate
 from lessmap_schemas import keys
@@ -49,24 +55,22 @@ def test_checkpoints_follow_their_transitions_and_stop_at_a_fenced_one(
         client_session(router),
         metrics,
         instance="inst",
-        transition_cache=16,
-        max_publishers=8,
-        error_rate_per_s=10.0,
-        error_burst=10,
+        policy=EgressPolicy(
+            transition_cache=16,
+            max_publishers=8,
+            error_rate_per_s=10.0,
+            error_burst=10,
+        ),
         epoch_for=lambda _fleet, _robot: 3 if fence_open[0] else None,
         store=store,
     )
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        max_sessions=8,
-        max_nodes=20_000,
-        max_batch_frames=1,
-        idle_timeout_s=3600.0,
-        instance="inst",
-        clock=time.perf_counter,
+        Segmenting(params=PartitionParams.from_profile("laser")),
+        SessionLimits(max_sessions=8, max_nodes=20_000, max_batch_frames=1, idle_timeout_s=3600.0),
+        identity=Identity(instance="inst"),
         store=store,
-        checkpoint_every_frames=1,  # a checkpoint with every frame, transitions included
-        checkpoint_phase=False,
+        # A checkpoint with every frame, transitions included.
+        durability=DurabilityPolicy(every_frames=1, phased=False),
     )
     got: queue.SimpleQueue[Transition] = queue.SimpleQueue()
     app = client_session(router)

@@ -6,7 +6,6 @@ to it, real shards (their workers not started, so the test reads what was queued
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING, Any
 
 import pytest
@@ -14,10 +13,10 @@ from prometheus_client import CollectorRegistry, Histogram, generate_latest
 
 from lessmap.core import PartitionParams
 from lessmap.runtime.metrics import BatchHistogram, ServiceMetrics
-from lessmap.runtime.outbox import Outbox
+from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.receiver import EVERY_PARTITION, Receiver
-from lessmap.runtime.sessions import SessionTable
-from lessmap.runtime.shard import CATCHUP_DONE, PROBE, Inbound, Shard
+from lessmap.runtime.sessions import Identity, Segmenting, SessionLimits, SessionTable
+from lessmap.runtime.shard import CATCHUP_DONE, PROBE, Inbound, Shard, ShardPolicy
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.errors import ErrorCode
@@ -62,22 +61,24 @@ def make_shard(session: zenoh.Session, metrics: ServiceMetrics, queue_depth: int
         session,
         metrics,
         instance="inst",
-        transition_cache=4,
-        max_publishers=8,
-        error_rate_per_s=10.0,
-        error_burst=10,
+        policy=EgressPolicy(
+            transition_cache=4,
+            max_publishers=8,
+            error_rate_per_s=10.0,
+            error_burst=10,
+        ),
     )
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        max_sessions=8,
-        max_nodes=1000,
-        max_batch_frames=8,
-        idle_timeout_s=60.0,
-        instance="inst",
-        clock=time.perf_counter,
+        Segmenting(params=PartitionParams.from_profile("laser")),
+        SessionLimits(max_sessions=8, max_nodes=1000, max_batch_frames=8, idle_timeout_s=60.0),
+        identity=Identity(instance="inst"),
     )
     return Shard(
-        0, table, outbox, limits=DEFAULT_LIMITS, queue_depth=queue_depth, queue_bytes=1 << 20
+        0,
+        table,
+        outbox,
+        limits=DEFAULT_LIMITS,
+        policy=ShardPolicy(queue_depth=queue_depth, queue_bytes=1 << 20),
     )
 
 
@@ -102,7 +103,7 @@ def test_offer_many_keeps_the_bounds_of_offer(
     done = Inbound(0.0, keys.frames(FLEET, "a"), b"s", CATCHUP_DONE)
     assert shard.offer_many([done]) == []
     assert shard.offer(item("g", 0)) is False
-    assert list(shard._queue)[:4] == [batch[0], batch[1], batch[2], batch[4]]
+    assert list(shard._inbound.queue)[:4] == [batch[0], batch[1], batch[2], batch[4]]
 
 
 def wait_matched(publisher: zenoh.Publisher) -> None:
@@ -170,7 +171,7 @@ def test_receiver_sweeps_samples_into_the_shard_and_reports_what_it_refuses(
         receiver.stop()
     # A robot may hold 8 / 4 = 2 messages: 2 queued, 3 refused as queue full.
     assert shard.depth() == 2
-    notes = list(shard._notes)
+    notes = list(shard._inbound.notes)
     assert [code for _key, code, _detail in notes] == [ErrorCode.LIMIT_EXCEEDED] * 4
     assert sum("exceeds limit=1000" in detail for _k, _c, detail in notes) == 1
     assert sum("queue full" in detail for _k, _c, detail in notes) == 3
@@ -202,7 +203,7 @@ def test_the_last_sweep_takes_what_an_undeclared_channel_holds(
     sub.undeclare()
     receiver.stop()
     assert shard.depth() == 4
-    assert [i.payload for i in shard._queue] == [item("mine", s).payload for s in range(4)]
+    assert [i.payload for i in shard._inbound.queue] == [item("mine", s).payload for s in range(4)]
 
 
 @pytest.mark.parametrize("subscription", ["partitions", "all"])
@@ -248,7 +249,7 @@ def test_frames_of_a_partition_on_its_way_are_held_then_handed_on_first_as_probe
     assert owned == {coming}
     publisher.put(item("coming", 3).payload)  # live from now on, after the held ones
     wait_until(lambda: (receiver.sweep(), shard.depth())[1] == 4, 20.0, "the live frame")
-    queued = list(shard._queue)
+    queued = list(shard._inbound.queue)
     assert [i.payload for i in queued] == [item("coming", s).payload for s in range(4)]
     assert [i.kind for i in queued] == [PROBE, PROBE, PROBE, 0]
     assert metric_value(text(), "lessmap_frames_received_total") == 4
@@ -292,7 +293,7 @@ def test_a_probe_reply_goes_behind_the_live_frames_already_received(
     receiver.probe(item("mine", 1, PROBE))
     assert shard.depth() == 0  # the reply waits for the sweep
     wait_until(lambda: (receiver.sweep(), shard.depth())[1] == 3, 20.0, "the frames and the copy")
-    queued = list(shard._queue)
+    queued = list(shard._inbound.queue)
     assert [i.payload for i in queued] == [item("mine", s).payload for s in (0, 1, 1)]
     assert [i.kind for i in queued] == [0, 0, PROBE]
     witness.undeclare()

@@ -7,7 +7,6 @@ No mocks and no Zenoh: the table is sans-IO, so these tests feed it real ``Frame
 from __future__ import annotations
 
 import itertools
-import time
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -15,7 +14,7 @@ import pytest
 
 from lessmap.core import Partitioner, PartitionParams, Reason, Transition
 from lessmap.core.segmenter import Method
-from lessmap.runtime.sessions import Outcome, SessionTable
+from lessmap.runtime.sessions import Identity, Outcome, Segmenting, SessionLimits, SessionTable
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame, SessionEnd
 
@@ -44,14 +43,14 @@ def make_table(
     # The paper, as the offline `Partitioner` these tests compare with (areas sessions:
     # test_areas_sessions.py).
     return SessionTable(
-        params,
-        method=Method.PAPER,
-        max_sessions=max_sessions,
-        max_nodes=max_nodes,
-        max_batch_frames=max_batch_frames,
-        idle_timeout_s=idle_timeout_s,
-        instance=INSTANCE,
-        clock=time.perf_counter,
+        Segmenting(params=params, method=Method.PAPER),
+        SessionLimits(
+            max_sessions=max_sessions,
+            max_nodes=max_nodes,
+            max_batch_frames=max_batch_frames,
+            idle_timeout_s=idle_timeout_s,
+        ),
+        identity=Identity(instance=INSTANCE),
     )
 
 

@@ -7,6 +7,7 @@ so the test knows exactly which frames one round saw.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import TYPE_CHECKING
 
@@ -16,9 +17,9 @@ from prometheus_client import generate_latest
 from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.segmenter import Method
 from lessmap.runtime.metrics import ServiceMetrics
-from lessmap.runtime.outbox import Outbox
-from lessmap.runtime.sessions import Outcome, SessionTable
-from lessmap.runtime.shard import PROBE, Inbound, Shard
+from lessmap.runtime.outbox import EgressPolicy, Outbox
+from lessmap.runtime.sessions import Identity, Outcome, Segmenting, SessionLimits, SessionTable
+from lessmap.runtime.shard import PROBE, Inbound, Shard, ShardPolicy
 from lessmap.sim.simulator import simulate
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
@@ -59,31 +60,35 @@ def make_shard(
         session,
         metrics,
         instance="inst",
-        transition_cache=4,
-        max_publishers=8,
-        error_rate_per_s=10.0,
-        error_burst=10,
+        policy=EgressPolicy(
+            transition_cache=4,
+            max_publishers=8,
+            error_rate_per_s=10.0,
+            error_burst=10,
+        ),
     )
     table = SessionTable(
-        PartitionParams.from_profile("laser"),
-        method=Method.PAPER,  # the tests count the paper's decisions
-        max_sessions=8,
-        max_nodes=10_000,
-        max_batch_frames=256,
-        idle_timeout_s=60.0,
-        instance="inst",
-        clock=time.perf_counter,
-        max_pairs_per_frame=200_000,  # the service's default budgets: edges are counted
-        max_edges=1_000_000,
+        # The paper: the tests count its decisions.
+        Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+        SessionLimits(
+            max_sessions=8,
+            max_nodes=10_000,
+            max_batch_frames=256,
+            idle_timeout_s=60.0,
+            # The service's default budgets: edges are counted.
+            max_pairs_per_frame=200_000,
+            max_edges_per_session=1_000_000,
+        ),
+        identity=Identity(instance="inst"),
     )
     return Shard(
         0,
         table,
         outbox,
         limits=DEFAULT_LIMITS,
-        queue_depth=1 << 16,
-        queue_bytes=1 << 26,
-        coalesce_after_s=coalesce_after_s,
+        policy=ShardPolicy(
+            queue_depth=1 << 16, queue_bytes=1 << 26, coalesce_after_s=coalesce_after_s
+        ),
         owns=owns,
     )
 
@@ -214,13 +219,13 @@ def test_a_robot_handed_over_between_its_turn_and_the_chunk_is_not_applied(
 
     def owns(_fleet: str, robot: str) -> bool:
         # r1's partition leaves after its first turn was planned (asked at the turn, then
-        # again under the lock when the chunk is handed to the table).
+        # again when the chunk is handed to the table).
         asked[robot] = asked.get(robot, 0) + 1
         return robot != "r1" or asked[robot] < 2
 
     shard = make_shard(client_session(router), coalesce_after_s=10.0, owns=owns)
     run_rounds(shard, streams(), per_round=FRAMES, age_s=0.0)
-    assert (FLEET, "r1") not in shard.table._open
+    assert (FLEET, "r1") not in shard._table._open
     assert counted(shard, "lessmap_frames_foreign_total") == FRAMES
     assert counted(shard, "lessmap_frames_applied_total") == FRAMES * (len(ROBOTS) - 1)
     assert shard.depth() == 0  # every bound was given back
@@ -245,7 +250,7 @@ def test_held_frames_and_the_end_of_a_session_new_here_close_it(
     shard._collect()
     while shard._lanes:
         shard._round()
-    state = shard.table.state(FLEET, "r0")
+    state = shard._table.state(FLEET, "r0")
     assert state is not None
     assert (state.session, state.open, state.frames_applied) == ("new", False, 3)
 
@@ -272,10 +277,84 @@ def test_a_probe_behind_the_live_end_of_its_session_is_no_news(
     shard._collect()
     while shard._lanes:
         shard._round()
-    state = shard.table.state(FLEET, "r0")
+    state = shard._table.state(FLEET, "r0")
     assert state is not None
     assert (state.open, state.frames_applied) == (False, 3)
     assert (state.frames_rejected, state.frames_duplicate, state.frames_missing) == (0, 0, 0)
     codes = [r.code for outcome in outbox_of(shard).published for r in outcome.rejections]
     assert codes == []
     assert shard.depth() == 0
+
+
+# -- the worker is the table's only owner: commands and their futures ------------------------
+
+
+def live_frames(robot: str, seqs: range) -> list[Inbound]:
+    return [
+        Inbound(
+            time.monotonic(),
+            keys.frames(FLEET, robot),
+            encode(Frame(session="s", seq=seq, stamp_s=float(seq), features=[1, 2, 3])),
+        )
+        for seq in seqs
+    ]
+
+
+def test_a_read_runs_on_the_worker_and_answers_through_its_future(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    shard.start()
+    try:
+        assert shard.offer_many(live_frames("r0", range(5))) == []
+        threads: list[str] = []
+
+        def read(table: SessionTable) -> int | None:
+            threads.append(threading.current_thread().name)
+            state = table.state(FLEET, "r0")
+            return None if state is None else state.last_seq
+
+        # Reads queue behind nothing: poll until the worker applied the five frames.
+        deadline = time.monotonic() + 5.0
+        while shard.read(read).result(timeout=5.0) != 4:
+            assert time.monotonic() < deadline, "frames never applied"
+            time.sleep(0.01)
+        assert set(threads) == {"lessmap-shard-0"}
+    finally:
+        shard.stop(5.0)
+
+
+def test_a_drain_applies_what_was_queued_before_it_and_nothing_else(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    assert shard.offer_many(live_frames("r0", range(40)) + live_frames("r1", range(40))) == []
+    drained = shard.drain(lambda _fleet, robot: robot == "r0")
+    assert not drained.done()
+    shard._commands.run_pending()  # the worker's step between chunks, driven here
+    assert drained.result(timeout=0) is None
+    state = shard._table.state(FLEET, "r0")
+    assert state is not None
+    assert state.last_seq == 39  # every queued frame of r0, whatever its deficit
+    assert shard._table.state(FLEET, "r1") is None  # left to the rounds
+    assert len(shard._lanes[(FLEET, "r1")].items) == 40
+    assert shard.depth() == 40
+
+
+def test_hand_over_and_stop_are_commands_and_a_stopped_shard_still_answers(
+    router: str, client_session: Callable[[str], zenoh.Session]
+) -> None:
+    shard = make_shard(client_session(router), coalesce_after_s=10.0)
+    shard.start()
+    assert shard.offer_many(live_frames("r0", range(3)) + live_frames("r1", range(3))) == []
+    assert shard.drain(lambda _f, _r: True).result(timeout=5.0) is None
+    handed = shard.hand_over_sessions(lambda _fleet, robot: robot == "r0", time.monotonic())
+    assert handed.result(timeout=5.0) == 1
+    assert shard.open_sessions == 1
+    shard.stop(5.0)  # the worker closes the rest (no store: closed, final state published)
+    closed = [state for outcome in outbox_of(shard).published for state, _ in outcome.closed]
+    assert [(state.robot, state.last_seq) for state in closed] == [("r1", 2)]
+    # The worker is gone: a read runs on the caller's thread, the table its only user now.
+    state = shard.read(lambda table: table.state(FLEET, "r1")).result(timeout=1.0)
+    assert state is not None
+    assert not state.open

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING
 
 from lessmap.core import PartitionParams
 from lessmap.core.areas.tracker import AreaParams
 from lessmap.core.segmenter import SIGHTING_EDGES, Method
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission, pairs_of
-from lessmap.runtime.sessions import SessionTable, commit_checkpoints
+from lessmap.runtime.sessions import (
+    Identity,
+    Segmenting,
+    SessionLimits,
+    SessionTable,
+    SharedBudgets,
+    commit_checkpoints,
+)
 from lessmap.runtime.store import CheckpointStore
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame
@@ -36,20 +42,18 @@ def make_table(
 ) -> SessionTable:
     # The paper by default: most tests here pin the CovGraph's own charge.
     return SessionTable(
-        LASER,
-        method=method,
-        area_params=area_params,
-        max_sessions=max_sessions,
-        max_nodes=20_000,
-        max_batch_frames=max_batch_frames,
-        idle_timeout_s=600.0,
-        instance="test",
-        clock=time.perf_counter,
+        Segmenting(params=LASER, method=method, area_params=area_params or AreaParams()),
+        SessionLimits(
+            max_sessions=max_sessions,
+            max_nodes=20_000,
+            max_batch_frames=max_batch_frames,
+            idle_timeout_s=600.0,
+            max_pairs_per_frame=max_pairs,
+            max_edges_per_session=max_edges,
+        ),
+        identity=Identity(instance="test"),
         store=store,
-        max_pairs_per_frame=max_pairs,
-        max_edges=max_edges,
-        ledger=ledger,
-        admission=admission,
+        budgets=SharedBudgets(ledger=ledger, admission=admission),
     )
 
 

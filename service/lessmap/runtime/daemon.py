@@ -85,7 +85,7 @@ def _serve(settings: ServiceSettings, zenoh_cfg: Sequence[str]) -> int:
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     service = Service(settings, zenoh_cfg)
     # The modules and objects of start-up live as long as the process: out of the collector's
-    # sight, a full collection walks only what sessions hold (one took 173 ms at 500 robots).
+    # sight, a full collection walks only what sessions hold (docs/tuning/memory.md).
     gc.collect()
     gc.freeze()
     try:

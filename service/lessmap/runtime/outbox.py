@@ -1,18 +1,17 @@
-"""Everything the service puts on Zenoh: transitions, errors, final states.
+"""Everything the service puts on Zenoh: transitions, errors, states, checkpoints, releases.
 
-Called from shard worker threads only (never from a Zenoh callback). Transitions go out
-through one ``AdvancedPublisher`` per robot with a cache, so a fleet app that joins late or
-misses samples recovers the recent ones; errors are rate-limited per robot.
+Invariants:
 
-The fence: nothing about a robot is published unless ``epoch_for(fleet, robot)`` gives the
-epoch of its partition, i.e. this instance owns the partition and was not frozen since
-(``ownership.py``). Every transition and error carries that epoch.
-
-Checkpoints come last: an outcome's records are saved (and from the store shipped to the
-standby or answered to a new owner) only after its transitions were put, and never for a
-session with a fenced transition (``sessions.py`` rule 5). Zenoh delivers one session's puts
-in order, so a checkpoint that reached another instance implies the transitions it covers
-reached the router; a fenced transition is decided again by the partition's next owner.
+1. All egress leaves here, from the shard workers (and the ownership thread's release
+   announcements), never from a Zenoh callback or the store's writer thread.
+2. The fence: nothing about a robot is published unless ``epoch_for(fleet, robot)`` gives
+   the epoch of its partition (owned, and not frozen since); every message carries it.
+3. Checkpoints come last: an outcome's records are saved, and shipped to the standby, only
+   after its transitions were put, and never for a session with a fenced transition. Zenoh
+   delivers one session's puts in order, so a checkpoint that reached another instance
+   implies the transitions it covers reached the router.
+4. Transitions go out through one ``AdvancedPublisher`` per robot with a cache, so a fleet
+   app that joins late or misses samples recovers them; errors are rate-limited per robot.
 """
 
 from __future__ import annotations
@@ -21,14 +20,17 @@ import logging
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import msgpack
 import zenoh
 from zenoh import ext
 
 from lessmap.runtime.memory import release_free_memory
 from lessmap.runtime.ratelimit import RateLimiter
-from lessmap.runtime.sessions import commit_checkpoints, summary_of
+from lessmap.runtime.sessions.durability import commit_checkpoints
+from lessmap.runtime.sessions.wire import wire_transition
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode, encoding
 from lessmap_schemas.errors import ErrorCode
@@ -40,8 +42,8 @@ if TYPE_CHECKING:
 
     from lessmap.core.segmenter import SegmentChange
     from lessmap.runtime.metrics import ServiceMetrics
-    from lessmap.runtime.sessions import Outcome, Rejection, RobotSession
-    from lessmap.runtime.store import CheckpointStore
+    from lessmap.runtime.sessions.model import Outcome, Rejection, RobotSession
+    from lessmap.runtime.store import CheckpointStore, SessionRecord
     from lessmap_schemas.errors import WireError
 
 log = logging.getLogger(__name__)
@@ -51,34 +53,22 @@ _DUPLICATES = {ErrorCode.DUPLICATE_SEQ}  # OUT_OF_ORDER counts as rejected, by r
 _TRANSITION_ENCODING = zenoh.Encoding(encoding(Transition))
 _ERROR_ENCODING = zenoh.Encoding(encoding(Error))
 _STATE_ENCODING = zenoh.Encoding(encoding(SessionState))
+_INTERNAL_ENCODING = zenoh.Encoding("application/octet-stream")  # checkpoints, releases
+RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.released``)
 
 
-def wire_transition(
-    session: RobotSession, change: SegmentChange, instance: str, epoch: int = 1
-) -> Transition:
-    """Convert a change of a session's segmenter to the wire message."""
-    transition = change.transition
-    return Transition(
-        fleet=session.fleet,
-        robot=session.robot,
-        session=session.session,
-        seq=transition.seq,
-        boundary_seq=transition.boundary_seq,
-        stamp_s=transition.stamp_s,
-        reason=change.reason,
-        ncut=transition.ncut,
-        lambda2=transition.lambda2,
-        closed=summary_of(transition.closed),
-        opened=summary_of(transition.opened),
-        boundary_features=list(transition.boundary_features),
-        area=change.area,
-        left_area=change.left_area,
-        revisit=change.revisit_of is not None,
-        batch_frames=transition.batch_frames,
-        instance=instance,
-        partition=partition_of(session.fleet, session.robot),
-        epoch=epoch,
-    )
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EgressPolicy:
+    """How much the outbox keeps and lets out: transition caches, publishers, error rate."""
+
+    transition_cache: int
+    max_publishers: int
+    error_rate_per_s: float
+    error_burst: int
+
+
+def _never(_fleet: str, _robot: str) -> bool:
+    return False
 
 
 class Outbox:
@@ -90,28 +80,29 @@ class Outbox:
         metrics: ServiceMetrics,
         *,
         instance: str,
-        transition_cache: int,
-        max_publishers: int,
-        error_rate_per_s: float,
-        error_burst: int,
+        policy: EgressPolicy,
         epoch_for: Callable[[str, str], int | None] | None = None,
-        release_memory: Callable[[], object] = release_free_memory,
+        replicate: Callable[[str, str], bool] = _never,
         store: CheckpointStore | None = None,
+        release_memory: Callable[[], object] = release_free_memory,
     ) -> None:
         self.metrics = metrics
         self._store = store  # where the outcomes' checkpoints go once published
+        # True for a robot whose checkpoints go to the standby too (its partition is owned
+        # here and another instance runs).
+        self._replicate = replicate
         # After sessions left memory (evicted, handed over): give their memory back. The
         # service passes the store's ``release_memory_soon`` (after their records are written).
         self._release_memory = release_memory
-        # The fence (module docstring); a lone instance without ownership owns everything.
+        # The fence (invariant 2); a lone instance without ownership owns everything.
         self._epoch_for = epoch_for if epoch_for is not None else (lambda _fleet, _robot: 1)
         self._session = session
         self._instance = instance
-        self._cache = transition_cache
-        self._max_publishers = max_publishers
+        self._cache = policy.transition_cache
+        self._max_publishers = policy.max_publishers
         self._publishers: OrderedDict[tuple[str, str], ext.AdvancedPublisher] = OrderedDict()
         self._publishers_lock = threading.Lock()
-        self._limiter = RateLimiter(error_rate_per_s, error_burst)
+        self._limiter = RateLimiter(policy.error_rate_per_s, policy.error_burst)
         self._limiter_lock = threading.Lock()
         self._service_errors_key = keys.service_errors(instance)
         self.frames_applied = 0  # for the health answer (prometheus counters are write-only)
@@ -198,11 +189,38 @@ class Outbox:
             )
             self._put_state(state)
         if self._store is not None and outcome.checkpoints:
+            shipped = [record for session, record in outcome.checkpoints if not session.fenced]
             withheld = commit_checkpoints(outcome, self._store)
             if withheld:
                 m.checkpoints_withheld.inc(withheld)
+            self._ship(shipped)
         if outcome.evicted:
             self._release_memory()  # evicted graphs are freed (and saved): let it shrink
+
+    def _ship(self, records: list[SessionRecord]) -> None:
+        """Put the checkpoints just saved for the standby (invariant 3)."""
+        for record in records:
+            if not self._replicate(record.fleet, record.robot):
+                continue  # alone, or not ours (handed over)
+            p = partition_of(record.fleet, record.robot)
+            try:
+                self._session.put(
+                    keys.checkpoints(p, record.fleet, record.robot),
+                    record.to_bytes(),
+                    encoding=_INTERNAL_ENCODING,
+                )
+                self.metrics.checkpoints_shipped.inc()
+            except zenoh.ZError as exc:
+                log.warning("could not ship the checkpoint of %s/%s: %s", *record.key, exc)
+
+    def announce_released(self, partition: int, epoch: int) -> None:
+        """Say that a partition was handed over, with the epoch it had (a joiner waits)."""
+        payload = msgpack.packb({"released": RELEASE_VERSION, "epoch": epoch})
+        try:
+            key = keys.released(partition, self._instance)
+            self._session.put(key, payload, encoding=_INTERNAL_ENCODING)
+        except zenoh.ZError as exc:
+            log.warning("could not announce the release of partition %d: %s", partition, exc)
 
     def _count_rejection(self, code: ErrorCode) -> None:
         if code in _NOT_REJECTIONS or code in _DUPLICATES:

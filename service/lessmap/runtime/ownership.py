@@ -1,23 +1,16 @@
 """Which partitions this instance owns, from the live instances it sees (no I/O here).
 
-The contract (``schemas/README.md`` section 2a) ranks the live instance names per partition by
-rendezvous hashing: the first owns the partition, the second is its standby. This module keeps
-the live set, computes what changes when it changes, hands out epochs, and is the fence the
-outbox asks before it publishes anything about a robot:
+Invariants (``schemas/README.md`` section 2a; ``docs/decisions/0007-fence-and-epochs.md``):
 
-- ``epoch_for(fleet, robot)`` is the epoch of the robot's partition while this instance owns
-  it and is sure of it, ``None`` otherwise. Nothing is published without an epoch.
-- *Sure of it*: a heartbeat (``tick``, every ``heartbeat_s`` from the service) proves the
-  process was not frozen. A frozen process (SIGSTOP, a stalled VM) may have lost its
-  liveliness token meanwhile and another instance taken its partitions over; after a gap of
-  ``freeze_s`` without a tick the fence closes at once (``epoch_for`` checks the gap itself,
-  so a worker that runs before the heartbeat thread after a freeze is fenced too), and
-  ``tick`` then drops every partition: the service re-reads the live tokens and takes back
-  what is still its own, under new epochs.
-- An epoch is at least the wall clock in milliseconds and above every epoch this instance
-  knows for the partition (its own earlier ones, those of checkpoints it took over), so a new
-  owner's epoch is above its predecessor's unless clocks disagree by more than the hand-over
-  time.
+1. The live instance names are ranked per partition by rendezvous hashing: the first owns
+   the partition, the second is its standby.
+2. The fence: ``epoch_for(fleet, robot)`` is the epoch of the robot's partition while this
+   instance owns it and is sure of it, ``None`` otherwise; nothing is published without one.
+3. Sure of it: a heartbeat (``tick``) proves the process was not frozen; after ``freeze_s``
+   without one the fence closes at once and every partition is dropped, to be taken back
+   under new epochs.
+4. An epoch is at least the wall clock in milliseconds and above every epoch known for the
+   partition, so a new owner's epoch is above its predecessor's.
 """
 
 from __future__ import annotations

@@ -1,41 +1,18 @@
 """The receive path: the frames subscribers' channels, swept in batches into the shards.
 
-By default one frames subscriber takes every partition's frames (``EVERY_PARTITION``) and
-the sweep keeps those of the partitions this instance owns; with ``frames_subscription =
-"partitions"`` each owned partition has a subscriber of its own. Zenoh's routing cost per
-sample grows with the subscriptions it matches: 256 of them cost ~10 x the Zenoh CPU of one
-(docs/BENCHMARKS.md). Each subscriber's handler is a Zenoh ``FifoChannel``: Zenoh's thread
-only pushes the sample into the channel, and no Python runs per sample on Zenoh's side.
-One thread, ``lessmap-receive``, sweeps every channel once per tick and hands what it found
-to the shards: one ``Shard.offer_many`` (one lock, one wake-up of the worker) per shard and
-sweep.
+Invariants (the why: ``docs/decisions/0006-receive-path.md``):
 
-Why not a Python callback per sample: zenoh-python runs such a callback on a thread of its
-own per subscriber, so every frame cost a thread wake-up and two GIL hand-offs (to the
-callback and back to the shard worker), and woke the worker once more. A tick trades at most
-``_TICK_S`` of latency for one wake-up per sweep, whatever the rate (docs/BENCHMARKS.md,
-"Receive path and decode").
-
-Never blocking Zenoh: a full ``FifoChannel`` blocks Zenoh's thread (as zenoh-python's own
-per-callback channel of 256 samples did), so the channels are deep (the shard queue depth)
-and the sweep only moves samples on: the bounded shard queues decide what is refused, and
-the worker reports it. A sample's size is checked before its bytes are copied. Samples of a
-partition no longer owned (in flight when it moved, or during a freeze) are counted as
-foreign and dropped. ``receipt`` in the latency histograms is the sweep that took the sample.
-
-Partitions being handed over to this instance (``hold``): their samples are kept aside
-(bounded) until the former owner has released them and their checkpoints are fetched;
-``admit`` then takes the partitions and hands the kept samples on first, as probes (applied
-only where the table does not know them yet), all under the sweep's lock so no live sample
-of the partition overtakes them. A frame that reached the former owner after it let the
-partition go is thus not lost between the two owners.
-
-The replies of a take-over's probe of the robots' caches (``probe``) take the same road: a
-sweep hands them on behind every sample the channels held when they came. A robot's cache
-answers with its newest frame, which the robot put before that: handed to the shard at once,
-the copy overtook the live frames still in a channel (up to a tick), was applied as news
-beyond a gap, and the frame before it, arriving live after the catch-up had given up on a
-cache already closed, was counted late (``OUT_OF_ORDER``) and never applied.
+1. No Python runs per sample on Zenoh's threads: each subscriber's handler is a Zenoh
+   ``FifoChannel``, and one thread, ``lessmap-receive``, sweeps every channel each tick and
+   hands what it found to each shard in one ``Shard.offer_many``.
+2. Never blocking Zenoh: the channels are as deep as a shard queue and the sweep only moves
+   samples on; the bounded shard queues decide what is refused. A sample's size is checked
+   before its bytes are copied.
+3. Samples of a partition not owned (in flight when it moved, or during a freeze) are
+   counted as foreign and dropped; those of a partition on its way here (``hold``) are kept
+   aside until ``admit`` hands them on first, as probes, under the sweep's lock.
+4. A take-over's probe replies (``probe``) follow every sample the channels held when they
+   came, so a cache's copy never overtakes the live frames its robot put before.
 """
 
 from __future__ import annotations
@@ -49,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from lessmap.runtime.shard import PROBE, Inbound
+from lessmap.runtime.inbound import PROBE, Inbound
 from lessmap_schemas.errors import ErrorCode
 
 if TYPE_CHECKING:
@@ -60,8 +37,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-# A sweep asks every channel (~0.2 us each, 256 channels for a lone instance): at 10 ms that
-# is ~0.5 % of a core, and a frame waits 5 ms more on average than with a callback.
+# The tick trades a few milliseconds of latency for one wake-up per sweep
+# (docs/tuning/receive.md).
 _TICK_S = 0.01  # sweep period while samples arrive
 _IDLE_TICK_S = 0.05  # sweep period once nothing arrived for _IDLE_AFTER_S
 _IDLE_AFTER_S = 1.0

@@ -1,23 +1,15 @@
 """Query replies every reader accepts: a state or an area graph over the limits is cut to fit.
 
 Readers refuse a payload over ``max_payload_bytes`` or a list over ``max_list_len``
-(schemas/README.md section 8), so a reply over them reaches an app as an error, or not at
-all. A long session can get there: its ``SessionState`` lists up to 1,000 closed submaps
-with their features, and its ``AreaGraph`` every area it opened with theirs; with feature
-ids hashed to 64 bits (9 bytes each in msgpack) a few hundred thousand ids are enough.
-
-Rules of this file:
+(schemas/README.md section 8); a long session's state or area graph can get there.
 
 1. A reply within the limits is sent as it is (one encode, the only cost on the usual path).
-2. A ``SessionState`` over them keeps its most recent closed submaps, as many as fit;
-   everything else in it is kept.
+2. A ``SessionState`` over them keeps its most recent closed submaps, as many as fit.
 3. An ``AreaGraph`` over them first empties the ``features`` of the areas visited longest
-   ago (by ``last_seq``), as many as needed; then, if that is not enough, leaves those areas
-   out with their passages. The area the robot is in (the latest ``last_seq``) goes last.
-4. The cut is the smallest that fits, found by bisection over whole encodes (a reply over
-   the limits is rare, and exactness beats estimating msgpack's sizes).
-
-Pure functions over the wire models: no I/O; the caller logs and counts what was cut.
+   ago, as many as needed; then leaves those areas out with their passages. The area the
+   robot is in goes last.
+4. The cut is the smallest that fits, found by bisection over whole encodes.
+5. Pure functions over the wire models: no I/O; the caller logs and counts what was cut.
 """
 
 from __future__ import annotations

@@ -3,15 +3,13 @@
 Rules of this file:
 
 1. One row per robot (fleet, robot): the checkpoint of its current session (``open``), of a
-   session evicted from memory while idle (``evicted``), or the final record of a closed one
+   session evicted while idle (``evicted``), or the final record of a closed one
    (``closed``, no partitioner state). A newer session of the robot replaces the row.
-2. ``save`` never blocks on the disk: it replaces the robot's pending record in a dict (the
-   latest checkpoint wins, so the pending set is bounded by the number of robots) and wakes
-   the writer thread, which commits everything pending in one transaction.
+2. ``save`` never blocks on the disk: it replaces the robot's pending record (the latest
+   wins) and wakes the writer thread, which commits everything pending in one transaction.
 3. ``load`` sees what ``save`` gave, written or not (the pending dict first, then the file).
-4. A store that cannot be opened or read is moved aside once (``<name>.corrupt-<stamp>``)
-   and a fresh one is created; a write that fails is logged and the store goes memory-only.
-   The service never dies because of its state directory.
+4. A store that cannot be opened or read is moved aside once and a fresh one is created; a
+   write that fails is logged and the store goes memory-only. The service never dies of it.
 5. Retention: rows not updated for ``retention_s`` are deleted, and while the file holds more
    than ``max_bytes`` the oldest rows of sessions no longer in memory go first.
 """
@@ -92,8 +90,7 @@ class SessionRecord:
                     "status": self.status,
                     "last_seq": self.last_seq,
                     "meta": json.dumps(self.meta),
-                    # zlib level 1: ~0.15 x the snapshot bytes for ~0.5 ms per 40 KiB (the
-                    # network carries a checkpoint per ~40 frames of each robot).
+                    # zlib level 1: most bytes gone for little CPU (docs/tuning/checkpoints.md).
                     "snapshot": None if self.snapshot is None else zlib.compress(self.snapshot, 1),
                     "updated_s": self.updated_s,
                 },
@@ -167,9 +164,6 @@ class CheckpointStore:
         self._stopping = False
         self._last_prune_s = 0.0
         self.problems: list[str] = []  # what went wrong on open, for the service to report
-        # Called by the writer thread with the records it just committed (shipping to the
-        # standby); it must not block for long.
-        self.on_written: Callable[[list[SessionRecord]], None] | None = None
         self.writes = 0  # records committed (metric)
         self.write_seconds = 0.0
 
@@ -448,11 +442,6 @@ class CheckpointStore:
                 stopping = self._stopping
             if batch:
                 self._write(batch)
-                if self.on_written is not None:
-                    try:
-                        self.on_written([r for r in batch.values() if r is not None])
-                    except Exception:  # shipping must never stop the writer
-                        log.exception("state store: shipping checkpoints failed")
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
             self._evicted_since_trim += sum(
