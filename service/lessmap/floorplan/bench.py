@@ -63,7 +63,7 @@ if TYPE_CHECKING:
 
     from lessmap.floorplan.metric import Cut, Track
 
-METHODS = ("areas", "paper", "fixed")
+METHODS = ("areas", "rooms", "paper", "fixed")
 SIMULATORS: dict[str, Simulator] = {"building": building_run}
 
 

@@ -37,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--method",
-        choices=("areas", "paper"),
+        choices=("areas", "rooms", "paper"),
         default="areas",
         help="segmentation method when no --transitions are given (default %(default)s)",
     )
