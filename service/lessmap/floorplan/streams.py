@@ -149,7 +149,7 @@ def read_transitions(path: Path) -> dict[str, list[Cut]]:
 
 
 def method_cuts(frames: Sequence[FrameRow], method: str) -> dict[str, list[Cut]]:
-    """Run ``paper``, ``areas`` or ``rooms`` (default parameters) over the frames, one robot at a time."""
+    """Run ``paper``, ``areas`` or ``rooms`` (default parameters) over the frames, per robot."""
     from lessmap.evaluation.methods import run_method
 
     if method not in METHODS:
