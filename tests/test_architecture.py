@@ -311,7 +311,7 @@ DOCSTRING_LIMIT_LINES = 15
 #: Packages whose module docstrings are held to the limit: what a module is for and its
 #: numbered rules; long explanations live in docs/design/, figures in docs/tuning/.
 SHORT_DOCSTRINGS = [
-    *(p for p in files("lessmap", "core") if "rooms" not in p.parts),  # rooms: in progress
+    *files("lessmap", "core"),
     *files("lessmap", "evaluation"),
     *files("lessmap", "config"),
     *files("lessmap", "files"),

@@ -47,6 +47,11 @@ CASES: dict[str, list[Case]] = {
         Case(("segment", "{frames}", "--robot", "nobody"), 1, "no frames of robot nobody"),
         Case(("segment", "{frames}", "--ncut-min", "x"), 2, "--ncut-min"),
     ],
+    "rooms": [
+        Case(("rooms", "{missing}", "--map", "{missing}", "-o", "{dir}/r"), 1, "no such file"),
+        Case(("rooms", "{frames}", "--map", "{missing}", "-o", "{dir}/r"), 1, "no such file"),
+        Case(("rooms", "{frames}", "-o", "{dir}/r"), 2, "required: --map"),
+    ],
     "eval": [
         Case(("eval", "{missing}"), 1, "{missing}: no such file"),
         Case(("eval", "{empty}"), 1, "holds no frames"),

@@ -102,7 +102,7 @@ def pocket_map(tmp_path: Path) -> tuple[str, str]:
         ("text", "not an image"),
         ("resolution", "--resolution must be above 0"),
         ("black", "no free cell"),
-        ("robots", "robots must be at least 1"),
+        ("robots", "--robots: must be at least 1"),
         ("rate", "rate must be above 0"),
         ("speed", "speed must be above 0"),
         ("labels", "gt.png: no such file"),
@@ -130,7 +130,13 @@ def test_bad_input_is_one_line(
         args[case] = ["sim", "--out", str(text), "--floorplan", str(EXAMPLE_MAP)]
     if case == "pocket":
         args[case] = [*base, *pocket_map(tmp_path)[:1], "--labels", pocket_map(tmp_path)[1]]
-    assert main(args[case]) == 1
+    # A value out of a flag's range is a usage error (exit 2); a bad map is a failed run (1).
+    if case == "robots":
+        with pytest.raises(SystemExit) as usage:
+            main(args[case])
+        assert usage.value.code == 2
+    else:
+        assert main(args[case]) == 1
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1, lines
     assert lines[0].startswith("lessmap sim: ")

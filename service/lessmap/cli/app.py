@@ -52,6 +52,10 @@ COMMANDS: dict[str, Command] = {
     "segment": Command(
         "lessmap.cli.segment", "segment a recorded frames file offline (one session per robot)"
     ),
+    "rooms": Command(
+        "lessmap.floorplan.command",
+        "a room map: every free cell of an occupancy map labelled by area (map_server files)",
+    ),
     "demo": Command(
         "lessmap.cli.demo",
         "run the service, a simulated fleet and the live view for a bounded time",
@@ -124,6 +128,7 @@ KNOWN_EXCEPTIONS: tuple[tuple[str, str], ...] = (
     ("lessmap.errors", "ConfigError"),
     ("lessmap.errors", "DatasetError"),
     ("lessmap.core.errors", "GraphError"),
+    ("lessmap.floorplan.grid", "FloorplanError"),  # a map, label image or truth file
     ("lessmap_schemas.errors", "WireError"),  # a frame breaks the wire contract (replay)
     ("lessmap_client.adapters.replay", "ReplayError"),  # a malformed file given to replay
     ("lessmap_client.errors", "ZenohConfigError"),  # a Zenoh config or endpoint, a port taken

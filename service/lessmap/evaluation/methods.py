@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING
 
 from lessmap.core import Partitioner, PartitionParams
 from lessmap.core.areas.tracker import AreaParams, AreaTracker
+from lessmap.core.rooms.params import RoomParams
+from lessmap.core.rooms.tracker import RoomTracker
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -26,7 +28,7 @@ if TYPE_CHECKING:
     from lessmap.files.frames import FrameRow
     from lessmap.sim.simulator import TruthRow
 
-METHODS = ("paper", "areas")
+METHODS = ("paper", "areas", "rooms")
 
 #: The shared data sets whose frames leave out the empty ones: MRCLAM's frames are a robot's
 #: sightings that share a stamp (its ``meta.json``), so a robot that sees nothing sends
@@ -91,14 +93,16 @@ def run_method(
     *,
     paper: PartitionParams | None = None,
     areas: AreaParams | None = None,
+    rooms: RoomParams | None = None,
 ) -> dict[str, list[AreaEvent]]:
     """Run one segmenter per robot over the frames (file order), deciding at every frame.
 
     Args:
         frames: the frames of one or several robots.
-        method: ``paper`` or ``areas``.
+        method: ``paper``, ``areas`` or ``rooms``.
         paper: the paper partitioner's parameters (default: the laser profile).
         areas: the area tracker's parameters (default: ``AreaParams()``).
+        rooms: the room tracker's parameters (default: ``RoomParams()``).
 
     Returns:
         Per robot (in order of first frame), its events in order.
@@ -108,7 +112,7 @@ def run_method(
         raise ValueError(msg)
     found: dict[str, list[AreaEvent]] = {}
     partitioners: dict[str, Partitioner] = {}
-    trackers: dict[str, AreaTracker] = {}
+    trackers: dict[str, AreaTracker | RoomTracker] = {}
     for frame in frames:
         mine = found.setdefault(frame.robot, [])
         if method == "paper":
@@ -133,7 +137,9 @@ def run_method(
             continue
         tracker = trackers.get(frame.robot)
         if tracker is None:
-            tracker = trackers[frame.robot] = AreaTracker(areas)
+            tracker = trackers[frame.robot] = (
+                RoomTracker(rooms) if method == "rooms" else AreaTracker(areas)
+            )
         change = tracker.observe(frame.seq, frame.stamp_s, frame.features)
         if change is not None:
             t = change.transition

@@ -1,6 +1,6 @@
 """Deficit round robin over the robots of one shard: lanes, the coalescing level, turns.
 
-Invariants (the why: ``docs/decisions/0002-fair-scheduling.md``):
+Invariants (the why: ``docs/decisions/0004-fair-scheduling.md``):
 
 1. Every round, each robot with pending messages gets a quantum of cost units (roughly pair
    updates: a frame costs its k(k-1)/2 pairs plus ``FRAME_COST``, a decision an estimate

@@ -1,6 +1,6 @@
 """Membership: joining the instances, taking and handing over partitions, freezes.
 
-Invariants (schemas/README.md section 2a; ``docs/decisions/0001-shard-actor.md``):
+Invariants (schemas/README.md section 2a; ``docs/decisions/0003-shard-actor.md``):
 
 1. One thread, ``lessmap-ownership``, carries out every change of ownership; Zenoh's
    callbacks only enqueue for it.

@@ -1,6 +1,6 @@
 """Which partitions this instance owns, from the live instances it sees (no I/O here).
 
-Invariants (``schemas/README.md`` section 2a; ``docs/decisions/0005-fence-and-epochs.md``):
+Invariants (``schemas/README.md`` section 2a; ``docs/decisions/0007-fence-and-epochs.md``):
 
 1. The live instance names are ranked per partition by rendezvous hashing: the first owns
    the partition, the second is its standby.

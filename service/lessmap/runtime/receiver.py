@@ -1,6 +1,6 @@
 """The receive path: the frames subscribers' channels, swept in batches into the shards.
 
-Invariants (the why: ``docs/decisions/0004-receive-path.md``):
+Invariants (the why: ``docs/decisions/0006-receive-path.md``):
 
 1. No Python runs per sample on Zenoh's threads: each subscriber's handler is a Zenoh
    ``FifoChannel``, and one thread, ``lessmap-receive``, sweeps every channel each tick and

@@ -172,7 +172,7 @@ class Service:
             self._declared.append(session.declare_queryable(key, queries.put))
         # Frames: subscribed as partitions are taken (``membership.py``). Catch-up is an
         # explicit query of the robot's publication cache (``caches.py``), asked only on a
-        # gap, for one robot (docs/decisions/0003-catch-up-by-query.md).
+        # gap, for one robot (docs/decisions/0005-catch-up-by-query.md).
         self._membership = Membership(
             s, session, ownership, self._shards, receiver, self._replication, caches, outbox
         )

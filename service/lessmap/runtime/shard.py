@@ -1,6 +1,6 @@
 """A shard: one inbound queue, one worker thread, and the sessions of the robots hashed to it.
 
-Invariants (the why: ``docs/decisions/0001-shard-actor.md``, ``0002-fair-scheduling.md``):
+Invariants (the why: ``docs/decisions/0003-shard-actor.md``, ``0004-fair-scheduling.md``):
 
 1. A robot always hashes to the same shard, so its frames are handled in order by one thread.
 2. Only the worker touches the session table (an actor): queries, hand-overs and the stop
@@ -462,7 +462,7 @@ class Shard:
                         continue
                     # Judged on what the messages before it did to the table, so those
                     # are applied first; probed frames of one session are judged together
-                    # (docs/decisions/0002-fair-scheduling.md, "Probes in a turn").
+                    # (docs/decisions/0004-fair-scheduling.md, "Probes in a turn").
                     if recovered:
                         self._recover(recovered, now)
                         recovered = []

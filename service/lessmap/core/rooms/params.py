@@ -33,7 +33,7 @@ class RoomParams:
     min_side_features: int = 5  # distinct features on each side of a change
     # Rule 4: the area entered, when the new side's features are mostly an area's.
     revisit_overlap: float = 0.5
-    # Rule 6: sightings (feature, area) the area models hold at most; 0: no bound.
+    # Rule 5: sightings (feature, area) the area models hold at most; 0: no bound.
     max_area_sightings: int = 100_000
 
     def __post_init__(self) -> None:

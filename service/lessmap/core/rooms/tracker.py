@@ -1,29 +1,17 @@
-"""Rooms of one robot session from its frames: a windowed cut, confirmed, its areas named.
+"""Rooms of one robot session: a windowed cut of the frames, confirmed, its areas named.
 
-The paper cuts the CovGraph of everything seen since the last transition, so a small room
-must outweigh the whole area before it, and a 360° sensor, which keeps the room behind in
-view, decides late. Here the cut is local: the frames just seen against the frames before
-them, in windows sized by how fast the view changes.
+The paper cuts everything seen since the last change, so a small room must outweigh the
+area before it. Here the cut is local (``docs/design/rooms.md`` has the reasons):
 
-1. **Window.** Non-empty frames enter a window; a half spans the frames over which the view
-   keeps ``window_similarity`` of CovRate with its first frame, learnt from the stream's
-   own lag profile (so a half is about the same stretch of building at any speed or rate).
-2. **Cut.** At every frame the window is cut between its newer half and the half before:
-   score = mean similarity within the halves - mean similarity across them. A score of at
-   least ``cut_min`` that is a peak (above the scores of the half before it and of the next
-   frame) proposes a change whose boundary is the newer half's first frame.
-3. **Confirmation.** A proposal is a change unless (a) a side holds fewer than
-   ``min_side_features`` distinct features, or (b) the new half is the segment's own: at
-   least ``stay_share`` of its sightings are of features the segment saw often (at least
-   ``familiar_relative`` times its mean sightings per feature), as after a turn in a room.
-4. **Naming.** The features of the new half are compared with every other known area: the
-   best holding at least ``revisit_overlap`` of them is entered again, else a new area opens.
-5. **Models.** A segment's and an area's counts of sightings per feature; on a change the
-   frames from the boundary on move to the new segment and area. Area ids count from 0.
-6. **Bounded.** The area models hold at most ``max_area_sightings``; above it the areas other
-   than the current one with the fewest frames forget their features (never entered again).
-7. **State.** Everything a later decision reads is in the fields and round-trips through
-   ``lessmap.core.rooms.snapshot`` bit for bit. No I/O, no clock, no logging.
+1. Window: non-empty frames; a half spans the frames over which the view keeps
+   ``window_similarity`` of CovRate, learnt from the stream's own lag profile.
+2. Cut: within-half minus across-half similarity, less what a steady walk gives; a peak of
+   at least ``cut_min`` proposes a change at the newer half's first frame.
+3. Confirmation: each side holds ``min_side_features``; the newer half is not what the
+   area knew before the window (``known_share`` of its features).
+4. Naming: the other area holding ``revisit_overlap`` of the newer half is entered again.
+5. Models: per-feature sightings of the segment and of each area, bounded by
+   ``max_area_sightings``; every field round-trips through ``lessmap.core.rooms.snapshot``.
 """
 
 from __future__ import annotations
@@ -74,7 +62,7 @@ class RoomTracker:
 
     @property
     def sightings(self) -> int:
-        """(feature, area) entries the area models hold (rule 6)."""
+        """(feature, area) entries the area models hold (rule 5)."""
         return sum(len(area) for area in self.areas)
 
     @property
@@ -256,7 +244,7 @@ class RoomTracker:
         )
 
     def _bound_models(self) -> None:
-        """Rule 6: forget the smallest other areas' features above the bound."""
+        """Rule 5: forget the smallest other areas' features above the bound."""
         bound = self.params.max_area_sightings
         if not bound or self.sightings <= bound:
             return

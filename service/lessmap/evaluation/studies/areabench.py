@@ -22,7 +22,6 @@ import numpy as np
 
 from lessmap.evaluation.baselines import fixed_frames
 from lessmap.evaluation.methods import (
-    METHODS,
     AreaEvent,
     RevisitScore,
     dataset_area_params,
@@ -37,6 +36,9 @@ from lessmap.evaluation.scores.infoloss import (
 from lessmap.files.frames import FrameRow, read_frames
 from lessmap.sim.groundtruth import Score, score
 from lessmap.sim.simulator import simulate
+
+#: The methods this study compares (its targets are those of ``areas``).
+METHODS = ("paper", "areas")
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

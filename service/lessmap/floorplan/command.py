@@ -1,0 +1,151 @@
+"""``lessmap rooms``: a room map from a frames file with poses, written as map files."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import argparse
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Define ``lessmap rooms``."""
+    from lessmap.floorplan.roommap import RoomMapParams
+
+    defaults = RoomMapParams()
+    parser.description = (
+        "Segment FRAMES (or read a lessmap segment output), then label every free cell of MAP "
+        "the robots walked with its area: a cell takes the area of the geodesically nearest "
+        "pose, and a region between doorways mostly one area's is given to it whole. Writes "
+        "OUT.pgm + OUT.yaml (map_server: grey = room 1..254, 0 free without a room, 255 "
+        "occupied; negate 1) and OUT.png (colours); prints one JSON line. Poses must be in "
+        "the map's frame (an image's bottom-left corner is (0, 0) unless a YAML says otherwise)."
+    )
+    parser.add_argument("frames", metavar="FRAMES", type=Path, help="frames file with poses")
+    parser.add_argument(
+        "--map", required=True, type=Path, help="occupancy map: an image or a map_server YAML"
+    )
+    parser.add_argument(
+        "--resolution",
+        type=float,
+        default=None,
+        help="metres per pixel of an image map (default 0.05; a YAML names its own)",
+    )
+    parser.add_argument(
+        "--method",
+        choices=("areas", "rooms", "paper"),
+        default="areas",
+        help="segmentation method when no --transitions are given (default %(default)s)",
+    )
+    parser.add_argument(
+        "--transitions",
+        type=Path,
+        metavar="T.jsonl",
+        help="use this lessmap segment output instead of segmenting FRAMES",
+    )
+    parser.add_argument(
+        "--robot",
+        action="append",
+        help="only this robot (repeatable; default: every robot, areas merged where they overlap)",
+    )
+    parser.add_argument(
+        "--labels", type=Path, metavar="GT.png", help="ground-truth rooms: print P/R"
+    )
+    parser.add_argument("-o", "--out", required=True, type=Path, metavar="OUT_STEM")
+    parser.add_argument(
+        "--max-distance-m",
+        type=float,
+        default=defaults.max_distance_m,
+        help="cells farther than this walk from every pose stay unlabelled (default %(default)s)",
+    )
+    parser.add_argument(
+        "--door-width-m",
+        type=float,
+        default=defaults.door_width_m,
+        help="passages narrower than this bound regions; 0: no regions (default %(default)s)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``lessmap rooms``."""
+    import numpy as np
+
+    from lessmap.errors import ConfigError
+    from lessmap.files.frames import read_frames
+    from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
+    from lessmap.floorplan.mapfile import write_room_map
+    from lessmap.floorplan.metric import precision_recall
+    from lessmap.floorplan.roommap import RoomMapParams, door_regions, fleet_room_map
+    from lessmap.floorplan.streams import (
+        frame_areas,
+        method_cuts,
+        read_poses,
+        read_transitions,
+    )
+
+    if args.out.name == "" or not args.out.resolve().parent.is_dir():
+        msg = f"-o {args.out}: no folder {args.out.parent}"
+        raise ConfigError(msg)
+    try:
+        params = RoomMapParams(max_distance_m=args.max_distance_m, door_width_m=args.door_width_m)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    grid = load_grid(args.map, args.resolution)
+    truth = None
+    if args.labels is not None:
+        truth = room_labels(args.labels, grid.resolution_m, min_room_m2=0.0)
+        if truth.shape != grid.shape:
+            msg = f"--labels {args.labels}: {truth.shape} pixels, the map has {grid.shape}"
+            raise FloorplanError(msg)
+    frames = list(read_frames(args.frames))
+    if args.robot:
+        frames = [f for f in frames if f.robot in set(args.robot)]
+    if not frames:
+        which = f" of robot {', '.join(args.robot)}" if args.robot else ""
+        msg = f"{args.frames}: no frames{which}"
+        raise FloorplanError(msg)
+    poses = read_poses(frames, str(args.frames))
+    if args.transitions is not None:
+        cuts = read_transitions(args.transitions)
+        source = str(args.transitions)
+    else:
+        cuts = method_cuts(frames, args.method)
+        source = args.method
+    robots = [(p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()]
+    regions = door_regions(grid, params.door_width_m) if params.door_width_m > 0 else None
+    rooms = fleet_room_map(grid, robots, params, regions)
+    if not rooms.any():
+        msg = (
+            f"{args.frames}: no pose lies on a free cell of {args.map} "
+            "(are the poses in the map's frame and metres?)"
+        )
+        raise FloorplanError(msg)
+    files = write_room_map(rooms, grid, args.out)
+    record: dict[str, Any] = {
+        "robots": sorted(poses),
+        "segmentation": source,
+        "transitions": sum(len(cuts.get(robot, [])) for robot in poses),
+        "rooms": len(np.unique(rooms[rooms > 0])),
+        "labelled_share": round(float((rooms > 0).sum() / grid.free.sum()), 4),
+        "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
+    }
+    if truth is not None:
+        score = precision_recall(rooms, truth)
+        record["benchmark"] = {
+            "precision": _rounded(score.precision),
+            "recall": _rounded(score.recall),
+            "precision_pixels": _rounded(score.precision_pixels),
+            "recall_pixels": _rounded(score.recall_pixels),
+            "rooms": score.rooms,
+            "segments": score.segments,
+        }
+    sys.stdout.write(json.dumps(record) + "\n")
+    return 0
+
+
+def _rounded(value: float) -> float | None:
+    return None if math.isnan(value) else round(value, 4)

@@ -1,0 +1,133 @@
+"""Room-map files: a labelled map that ROS map_server loads as an occupancy map, and a picture.
+
+``write_room_map(labels, grid, stem)`` writes:
+
+- ``<stem>.pgm``: 8-bit grey, row 0 at the top: room 1..254 on a labelled free cell, 0 on a
+  free cell without a room, 255 on an occupied one (rooms renumbered in raster order).
+- ``<stem>.yaml``: map_server's ``image``, ``resolution``, ``origin``, ``negate: 1``,
+  ``occupied_thresh: 0.999``, ``free_thresh: 0.998``, ``mode: trinary``. Negated, the
+  occupancy is grey / 255: every free cell reads free, every wall occupied, so the file is
+  a navigation map whose grey values are the rooms. ``load_grid`` reads it back, and
+  ``read_room_labels`` its rooms.
+- ``<stem>.png``: walls black, free cells without a room light grey, a colour per room.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from lessmap.floorplan.grid import FloorplanError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from numpy.typing import NDArray
+
+    from lessmap.floorplan.grid import OccupancyGrid
+
+__all__ = ["MAX_LABELS", "RoomMapFiles", "compact_labels", "read_room_labels", "write_room_map"]
+
+MAX_LABELS = 254
+OCCUPIED_GREY = 255
+UNLABELLED_RGB = (230, 230, 230)
+
+
+class RoomMapFiles(NamedTuple):
+    """The files ``write_room_map`` wrote."""
+
+    pgm: Path
+    yaml: Path
+    png: Path
+
+
+def compact_labels(labels: NDArray[np.integer]) -> NDArray[np.int32]:
+    """Renumber the labels 1..k in raster order of their first cell (0 stays 0)."""
+    flat = np.asarray(labels).ravel()
+    ids, first, inverse = np.unique(flat, return_index=True, return_inverse=True)
+    nonzero = np.flatnonzero(ids != 0)
+    ranked = nonzero[np.argsort(first[nonzero], kind="stable")]
+    number = np.zeros(ids.size, dtype=np.int32)
+    number[ranked] = np.arange(1, ranked.size + 1, dtype=np.int32)
+    out = number[inverse.reshape(-1)]
+    return out.reshape(np.shape(labels))
+
+
+def room_colours(count: int) -> NDArray[np.uint8]:
+    """``count`` + 1 RGB colours: index 0 unused, then distinct hues (golden-ratio steps)."""
+    colours = np.zeros((count + 1, 3), dtype=np.uint8)
+    for index in range(1, count + 1):
+        hue = (index * 0.618033988749895) % 1.0
+        value = 0.95 if index % 2 else 0.75
+        r, g, b = colorsys.hsv_to_rgb(hue, 0.65, value)
+        colours[index] = (round(255 * r), round(255 * g), round(255 * b))
+    return colours
+
+
+def write_room_map(labels: NDArray[np.integer], grid: OccupancyGrid, stem: Path) -> RoomMapFiles:
+    """Write a room map's PGM, YAML and colour PNG next to ``stem`` (formats above).
+
+    Raises:
+        FloorplanError: more than 254 rooms, or a label array not of the grid's shape.
+    """
+    from PIL import Image
+
+    if np.shape(labels) != grid.shape:
+        msg = f"labels of shape {np.shape(labels)} for a map of shape {grid.shape}"
+        raise FloorplanError(msg)
+    rooms = compact_labels(np.where(grid.free, labels, 0))
+    count = int(rooms.max())
+    if count > MAX_LABELS:
+        msg = f"{count} rooms: a PGM room map holds at most {MAX_LABELS}"
+        raise FloorplanError(msg)
+    files = RoomMapFiles(
+        stem.with_name(stem.name + ".pgm"),
+        stem.with_name(stem.name + ".yaml"),
+        stem.with_name(stem.name + ".png"),
+    )
+    grey = np.where(grid.free, rooms, OCCUPIED_GREY).astype(np.uint8)
+    Image.fromarray(grey, mode="L").save(files.pgm)
+    ox, oy = grid.origin_xy
+    files.yaml.write_text(
+        f"image: {files.pgm.name}\n"
+        f"resolution: {grid.resolution_m!r}\n"
+        f"origin: [{ox!r}, {oy!r}, 0.0]\n"
+        "negate: 1\n"
+        "occupied_thresh: 0.999\n"
+        "free_thresh: 0.998\n"
+        "mode: trinary\n"
+        f"rooms: {count}  # grey 1..{count} = room, 0 = free without a room, 255 = occupied\n",
+        encoding="utf-8",
+    )
+    rgb = np.zeros((*grid.shape, 3), dtype=np.uint8)
+    rgb[grid.free] = UNLABELLED_RGB
+    colours = room_colours(count)
+    labelled = rooms > 0
+    rgb[labelled] = colours[rooms[labelled]]
+    Image.fromarray(rgb, mode="RGB").save(files.png)
+    return files
+
+
+def read_room_labels(pgm: Path) -> NDArray[np.int32]:
+    """The room labels of a PGM ``write_room_map`` wrote (0 = none, walls included).
+
+    Raises:
+        FloorplanError: the file is missing or not an 8-bit grey image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(pgm) as image:
+            if image.mode != "L":
+                msg = f"{pgm}: not an 8-bit grey room map (mode {image.mode})"
+                raise FloorplanError(msg)
+            grey = np.asarray(image, dtype=np.int32)
+    except FileNotFoundError:
+        msg = f"{pgm}: no such file"
+        raise FloorplanError(msg) from None
+    except (UnidentifiedImageError, OSError) as exc:
+        msg = f"{pgm}: not an image this tool reads ({exc.__class__.__name__})"
+        raise FloorplanError(msg) from None
+    return np.where(grey == OCCUPIED_GREY, 0, grey).astype(np.int32)

@@ -1,0 +1,345 @@
+"""A room map: each free cell of a grid labelled by the area of the robot poses it is nearest.
+
+Input: the grid and each pose with its area; output: int32 labels of the grid's shape, 0 none.
+
+1. **Nearest pose.** A free cell takes the area of the pose nearest by a walk over free cells
+   (8-neighbours, diagonals √2), so a wall is never crossed; poses in one cell vote.
+2. **Reach.** Cells beyond ``max_distance_m`` of walk from every pose stay 0; a pose on an
+   occupied cell moves to the nearest free cell within ``snap_m``, else is dropped.
+3. **Doorways.** Free space is cut into regions at passages narrower than ``door_width_m``
+   (cores: cells over half a door from walls, each cell joining its nearest). A region with
+   no pose stays 0 (seen, not visited); one an area holds ``region_share`` of goes to it
+   whole (a late decision paints nothing); others keep rule 1's labels (wide openings).
+4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
+   robots' poses, one holds half of the other's; then rules 1-3 over all poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from lessmap.floorplan.grid import OccupancyGrid
+
+__all__ = [
+    "RoomMapParams",
+    "SampleField",
+    "door_regions",
+    "fleet_room_map",
+    "label_cells",
+    "merge_overlapping",
+    "merged_room_map",
+    "nearest_samples",
+    "room_map",
+]
+
+SQRT2 = float(np.sqrt(2.0))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RoomMapParams:
+    """How far labels spread and where they stop (rules in the module docstring)."""
+
+    max_distance_m: float = 8.0  # rule 2: about a room's depth seen from its middle
+    snap_m: float = 0.5  # rule 2: a pose this near a wall still counts
+    door_width_m: float = 1.2  # rule 3: passages narrower than this split regions; 0: off
+    region_share: float = 0.6  # rule 3: the share of a region one area must hold
+    merge_m: float = 1.5  # rule 4: cells this near a robot's poses show where its areas are
+
+    def __post_init__(self) -> None:
+        if not (self.max_distance_m > 0 and self.merge_m > 0):
+            msg = "max_distance_m and merge_m must be > 0"
+            raise ValueError(msg)
+        if not (self.snap_m >= 0 and self.door_width_m >= 0):
+            msg = "snap_m and door_width_m must be >= 0"
+            raise ValueError(msg)
+        if not 0.5 <= self.region_share <= 1.0:
+            msg = f"region_share must be in [0.5, 1], got {self.region_share}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True, slots=True)
+class SampleField:
+    """For every cell, which trajectory cell is geodesically nearest (rules 1 and 2).
+
+    Computed once per trajectory: any labelling of its samples (one per method) is then a
+    lookup, ``label_cells``.
+    """
+
+    source_of_cell: NDArray[np.int64]  # (rows, cols): index into source_cells, -1 = none
+    distance_m: NDArray[np.float64]  # (rows, cols): walk to the nearest source, inf = none
+    source_cells: NDArray[np.int64]  # (m,) flat indices of the cells holding samples
+    sample_source: NDArray[np.int64]  # (n,) each sample's index into source_cells, -1 dropped
+
+
+def _free_graph(free: NDArray[np.bool_]) -> tuple[sparse.csr_array, NDArray[np.int64]]:
+    """The 8-connected graph of the free cells, and each cell's node (-1 when occupied)."""
+    rows, cols = free.shape
+    node = np.full(free.shape, -1, dtype=np.int64)
+    count = int(free.sum())
+    node[free] = np.arange(count, dtype=np.int64)
+    heads, tails, weights = [], [], []
+    for dr, dc, weight in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, SQRT2), (1, -1, SQRT2)):
+        a = node[0 : rows - dr, max(0, -dc) : cols - max(0, dc)]
+        b = node[dr:rows, max(0, dc) : cols + min(0, dc)]
+        both = (a >= 0) & (b >= 0)
+        heads.append(a[both])
+        tails.append(b[both])
+        weights.append(np.full(int(both.sum()), weight))
+    graph = sparse.csr_array(
+        (np.concatenate(weights), (np.concatenate(heads), np.concatenate(tails))),
+        shape=(count, count),
+    )
+    return graph, node
+
+
+def _nearest(
+    graph: sparse.csr_array, node: NDArray[np.int64], seeds: NDArray[np.int64], limit: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Per cell, the nearest seed (index into ``seeds``) and its distance in cells.
+
+    Cells beyond ``limit`` or not connected get -1 and inf.
+    """
+    out = np.full(node.shape, -1, dtype=np.int64)
+    distance = np.full(node.shape, np.inf)
+    if seeds.size == 0:
+        return out, distance
+    node_distance, _, nearest_node = csgraph.dijkstra(
+        graph, directed=False, indices=seeds, min_only=True, return_predecessors=True, limit=limit
+    )
+    position = np.full(graph.shape[0], -1, dtype=np.int64)
+    position[seeds] = np.arange(seeds.size, dtype=np.int64)
+    reached = nearest_node >= 0
+    free = node >= 0
+    cell_seed = np.full(graph.shape[0], -1, dtype=np.int64)
+    cell_seed[reached] = position[nearest_node[reached]]
+    out[free] = cell_seed[node[free]]
+    distance[free] = node_distance[node[free]]
+    return out, distance
+
+
+def nearest_samples(
+    grid: OccupancyGrid, xy: NDArray[np.float64], params: RoomMapParams | None = None
+) -> SampleField:
+    """Find each free cell's nearest trajectory cell, walking free space (rules 1-2).
+
+    Args:
+        grid: the occupancy grid.
+        xy: sample positions in metres, shape (n, 2), in the grid's frame.
+        params: reach and snapping; default ``RoomMapParams()``.
+    """
+    params = params or RoomMapParams()
+    free = grid.free
+    cells = grid.xy_to_cell(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    rows, cols = grid.shape
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < rows) & (cells[:, 1] >= 0) & (cells[:, 1] < cols)
+    flat = np.full(len(cells), -1, dtype=np.int64)
+    flat[inside] = cells[inside, 0] * cols + cells[inside, 1]
+    # rule 2: a sample in a wall moves to the nearest free cell, if that is near enough
+    clearance, (near_r, near_c) = ndimage.distance_transform_edt(~free, return_indices=True)
+    snap_cells = params.snap_m / grid.resolution_m
+    ok = inside.copy()
+    ok[inside] = clearance.ravel()[flat[inside]] <= snap_cells
+    flat[ok] = near_r.ravel()[flat[ok]] * cols + near_c.ravel()[flat[ok]]
+    flat[~ok] = -1
+    source_cells, sample_source = np.unique(flat[ok], return_inverse=True)
+    sample_index = np.full(len(flat), -1, dtype=np.int64)
+    sample_index[ok] = sample_source
+    graph, node = _free_graph(free)
+    seeds = node.ravel()[source_cells]
+    limit = params.max_distance_m / grid.resolution_m
+    source_of_cell, distance = _nearest(graph, node, seeds, limit)
+    return SampleField(
+        source_of_cell=source_of_cell,
+        distance_m=distance * grid.resolution_m,
+        source_cells=source_cells.astype(np.int64),
+        sample_source=sample_index,
+    )
+
+
+def label_cells(field: SampleField, labels: NDArray[np.int64]) -> NDArray[np.int32]:
+    """Rule 1: each cell takes the area of its nearest samples (majority, ties to the smaller).
+
+    Args:
+        field: from ``nearest_samples``.
+        labels: each sample's area, >= 1, shape (n,) as the samples given there.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    if labels.shape != field.sample_source.shape:
+        msg = f"{labels.size} labels for {field.sample_source.size} samples"
+        raise ValueError(msg)
+    if labels.size and labels.min() < 1:
+        msg = f"area labels must be >= 1, got {int(labels.min())}"
+        raise ValueError(msg)
+    kept = field.sample_source >= 0
+    source_label = np.zeros(field.source_cells.size, dtype=np.int64)
+    if kept.any():
+        # count (source, label) pairs; per source the label with most samples, smaller on ties
+        pairs = np.stack([field.sample_source[kept], labels[kept]], axis=1)
+        unique, counts = np.unique(pairs, axis=0, return_counts=True)
+        order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
+        first = np.unique(unique[order, 0], return_index=True)[1]
+        best = unique[order][first]
+        source_label[best[:, 0]] = best[:, 1]
+    out = np.zeros(field.source_of_cell.shape, dtype=np.int32)
+    reached = field.source_of_cell >= 0
+    out[reached] = source_label[field.source_of_cell[reached]]
+    return out
+
+
+def door_regions(grid: OccupancyGrid, door_width_m: float) -> NDArray[np.int32]:
+    """Rule 3's regions: free space cut at passages narrower than ``door_width_m``.
+
+    Returns an int32 array of the grid's shape: 0 on occupied cells and on free cells no
+    core reaches, regions 1..k otherwise.
+    """
+    free = grid.free
+    clearance = ndimage.distance_transform_edt(free) * grid.resolution_m
+    cores, count = ndimage.label(clearance > door_width_m / 2, structure=np.ones((3, 3)))
+    if count == 0:
+        return np.zeros(free.shape, dtype=np.int32)
+    graph, node = _free_graph(free)
+    core_cells = np.flatnonzero(cores.ravel() > 0)
+    nearest, _ = _nearest(graph, node, node.ravel()[core_cells], np.inf)
+    out = np.zeros(free.shape, dtype=np.int32)
+    reached = nearest >= 0
+    out[reached] = cores.ravel()[core_cells[nearest[reached]]]
+    return out
+
+
+def room_map(
+    field: SampleField,
+    labels: NDArray[np.int64],
+    regions: NDArray[np.int32] | None = None,
+    region_share: float = RoomMapParams().region_share,
+) -> NDArray[np.int32]:
+    """Label the free cells the trajectory reaches with its areas (rules 1-3).
+
+    Args:
+        field: from ``nearest_samples``.
+        labels: each sample's area (>= 1).
+        regions: from ``door_regions`` (rule 3), or None for rule 1 alone.
+        region_share: the share of a region's labelled cells one area must hold.
+    """
+    cells = label_cells(field, labels)
+    if regions is None:
+        return cells
+    visited = np.zeros(int(regions.max()) + 1, dtype=bool)
+    visited[regions.ravel()[field.source_cells]] = True
+    visited[0] = True  # cells outside every region keep rule 1's label
+    cells[~visited[regions]] = 0
+    both = (cells > 0) & (regions > 0)
+    if not both.any():
+        return cells
+    pairs = np.stack([regions[both], cells[both]], axis=1).astype(np.int64)
+    unique, counts = np.unique(pairs, axis=0, return_counts=True)
+    totals = np.bincount(unique[:, 0], weights=counts)
+    order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
+    first = np.unique(unique[order, 0], return_index=True)[1]
+    best = unique[order][first]
+    best_counts = counts[order][first]
+    dominant = best_counts >= region_share * totals[best[:, 0]]
+    owner = np.zeros(int(regions.max()) + 1, dtype=np.int32)
+    owner[best[dominant, 0]] = best[dominant, 1]
+    snapped = owner[regions]
+    out = cells.copy()
+    # a dominated region takes its area where the trajectory reached (rule 2 still holds)
+    take = (snapped > 0) & (cells > 0)
+    out[take] = snapped[take]
+    return out
+
+
+def merge_overlapping(
+    maps: list[NDArray[np.int32]], min_share: float = 0.5, top_labels: list[int] | None = None
+) -> list[NDArray[np.int32]]:
+    """Name the areas of several room maps (a fleet's robots) with one set of labels.
+
+    Two labels of different maps are one room when their overlap is at least ``min_share``
+    of the smaller's cells; merged transitively. Returns per map a lookup array: its label
+    ``a`` is fleet label ``lookup[a]`` (1..k over all maps; ``lookup[0]`` = 0), for every
+    ``a`` up to the map's largest label or its ``top_labels`` entry (a label with no cell).
+    """
+    tops = top_labels or [0] * len(maps)
+    offsets = np.cumsum([0, *[max(int(m.max()), top) for m, top in zip(maps, tops, strict=True)]])
+    parent = list(range(int(offsets[-1]) + 1))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for a in range(len(maps)):
+        for b in range(a + 1, len(maps)):
+            both = (maps[a] > 0) & (maps[b] > 0)
+            if not both.any():
+                continue
+            size_a = np.bincount(maps[a].ravel(), minlength=int(offsets[a + 1] - offsets[a]) + 1)
+            size_b = np.bincount(maps[b].ravel(), minlength=int(offsets[b + 1] - offsets[b]) + 1)
+            pairs = np.stack([maps[a][both], maps[b][both]], axis=1).astype(np.int64)
+            unique, counts = np.unique(pairs, axis=0, return_counts=True)
+            for (la, lb), count in zip(unique, counts, strict=True):
+                if count >= min_share * min(size_a[la], size_b[lb]):
+                    parent[root(int(offsets[a] + la))] = root(int(offsets[b] + lb))
+    roots = sorted({root(i) for i in range(1, len(parent))})
+    number = {r: n for n, r in enumerate(roots, start=1)}
+    lookups = []
+    for index in range(len(maps)):
+        lookup = np.zeros(int(offsets[index + 1] - offsets[index]) + 1, dtype=np.int32)
+        for label in range(1, lookup.size):
+            lookup[label] = number[root(int(offsets[index] + label))]
+        lookups.append(lookup)
+    return lookups
+
+
+def fleet_room_map(
+    grid: OccupancyGrid,
+    robots: list[tuple[NDArray[np.float64], NDArray[np.int64]]],
+    params: RoomMapParams | None = None,
+    regions: NDArray[np.int32] | None = None,
+) -> NDArray[np.int32]:
+    """One room map from several robots' labelled trajectories (``(xy, areas)`` each).
+
+    One robot: ``room_map``. Several: ``merged_room_map`` (rule 4).
+    """
+    params = params or RoomMapParams()
+    fields = [nearest_samples(grid, xy, params) for xy, _ in robots]
+    labels = [areas for _, areas in robots]
+    if len(robots) == 1:
+        return room_map(fields[0], labels[0], regions, params.region_share)
+    everyone = nearest_samples(grid, np.concatenate([xy for xy, _ in robots]), params)
+    return merged_room_map(fields, everyone, labels, regions, params)
+
+
+def merged_room_map(
+    fields: list[SampleField],
+    everyone: SampleField,
+    labels: list[NDArray[np.int64]],
+    regions: NDArray[np.int32] | None = None,
+    params: RoomMapParams | None = None,
+) -> NDArray[np.int32]:
+    """Several robots' room map, their areas merged where they name the same place (rule 4).
+
+    Args:
+        fields: each robot's field (``nearest_samples`` of its poses).
+        everyone: the field of all poses, robots concatenated in the order of ``fields``.
+        labels: each robot's areas of its poses (>= 1).
+        regions: ``door_regions`` for rule 3, or None.
+        params: ``region_share`` and ``merge_m``.
+    """
+    params = params or RoomMapParams()
+    own = []
+    for field, areas in zip(fields, labels, strict=True):
+        near = room_map(field, areas, regions, params.region_share)
+        near[field.distance_m > params.merge_m] = 0
+        own.append(near)
+    lookups = merge_overlapping(own, top_labels=[int(a.max(initial=0)) for a in labels])
+    merged = np.concatenate([lookup[a] for lookup, a in zip(lookups, labels, strict=True)])
+    return room_map(everyone, merged, regions, params.region_share)

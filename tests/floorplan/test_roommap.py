@@ -1,0 +1,167 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lessmap.floorplan.grid import OccupancyGrid
+from lessmap.floorplan.roommap import (
+    RoomMapParams,
+    door_regions,
+    fleet_room_map,
+    label_cells,
+    merge_overlapping,
+    nearest_samples,
+    room_map,
+)
+
+RES_M = 0.1
+
+
+def two_rooms(third: bool = False) -> OccupancyGrid:
+    """Rooms A (cols 1-19) and B (21-39), rows 1-18, joined by a 0.4 m door at col 20.
+
+    With ``third``, room C (cols 41-59) behind a door from B at col 40.
+    """
+    cols = 61 if third else 41
+    free = np.zeros((20, cols), dtype=bool)
+    free[1:19, 1:20] = True
+    free[1:19, 21:40] = True
+    free[8:12, 20] = True  # the door
+    if third:
+        free[1:19, 41:60] = True
+        free[8:12, 40] = True
+    return OccupancyGrid(free=free, resolution_m=RES_M)
+
+
+def room_of_cols(grid: OccupancyGrid) -> np.ndarray:
+    """The true rooms: 1 left of the door column, 2 right of it, 3 behind the second door."""
+    col = np.broadcast_to(np.arange(grid.shape[1]), grid.shape)
+    rooms = np.where(col < 20, 1, np.where(col <= 40, 2, 3))
+    return np.where(grid.free, rooms, 0)
+
+
+def walk(grid: OccupancyGrid, first_col: int, last_col: int) -> np.ndarray:
+    """Poses along row 10 from one column to another, one per cell."""
+    cols = np.arange(first_col, last_col + 1, dtype=float)
+    return grid.cell_to_xy(np.full(cols.size, 10.0), cols)
+
+
+def test_each_room_takes_the_area_of_the_poses_in_it() -> None:
+    grid = two_rooms()
+    xy = walk(grid, 2, 38)
+    areas = np.where(xy[:, 0] < 2.0, 1, 2)  # the area changes at the door
+    for regions in (None, door_regions(grid, 0.6)):
+        labels = room_map(nearest_samples(grid, xy), areas, regions)
+        truth = room_of_cols(grid)
+        inside = truth > 0
+        inside[:, 20] = False  # the door column may go either way
+        assert (labels[inside] == truth[inside]).all()
+        assert (labels[~grid.free] == 0).all()
+
+
+def test_walls_stop_the_labels_even_where_a_room_is_nearer_through_them() -> None:
+    grid = two_rooms()
+    rows = np.arange(1, 19, dtype=float)
+    xy = np.concatenate(
+        [grid.cell_to_xy(rows, rows * 0 + 16), grid.cell_to_xy(rows, rows * 0 + 21)]
+    )
+    areas = np.repeat([1, 2], rows.size)
+    labels = room_map(nearest_samples(grid, xy), areas)
+    # cell (1, 19) is 0.2 m from B's pose (1, 21) through the wall, 0.3 m from A's (1, 16)
+    assert (labels[1:7, 17:20] == 1).all()
+    assert (labels[1:7, 21:24] == 2).all()
+
+
+def test_a_short_excursion_does_not_split_a_room_with_regions() -> None:
+    grid = two_rooms()
+    xy = walk(grid, 2, 38)
+    areas = np.where(xy[:, 0] < 2.4, 1, 2)  # the segmentation switched 0.3 m late, in B
+    field = nearest_samples(grid, xy)
+    plain = room_map(field, areas)
+    snapped = room_map(field, areas, door_regions(grid, 0.6))
+    in_b = room_of_cols(grid) == 2
+    in_b[:, 20] = False
+    assert (plain[in_b] == 1).any()  # rule 1 alone paints part of B with A's area
+    assert (snapped[in_b] == 2).all()
+
+
+def test_unreached_and_unvisited_cells_stay_unlabelled() -> None:
+    grid = two_rooms(third=True)
+    xy = walk(grid, 2, 38)  # never enters C
+    areas = np.where(xy[:, 0] < 2.0, 1, 2)
+    in_c = room_of_cols(grid) == 3
+    far = room_map(nearest_samples(grid, xy, RoomMapParams(max_distance_m=50.0)), areas)
+    assert (far[in_c] == 2).all()  # rule 1 alone: C is reachable, so B's
+    regions = door_regions(grid, 0.6)
+    assert (room_map(nearest_samples(grid, xy), areas, regions)[in_c] == 0).all()
+    near = room_map(nearest_samples(grid, xy[:3], RoomMapParams(max_distance_m=0.5)), areas[:3])
+    assert 0 < (near > 0).sum() < (room_of_cols(grid) == 1).sum()
+
+
+def test_a_pose_in_a_wall_moves_to_the_nearest_free_cell_or_is_dropped() -> None:
+    grid = two_rooms()
+    in_wall = grid.cell_to_xy(np.array([0.0]), np.array([5.0]))  # the top wall, above (1, 5)
+    field = nearest_samples(grid, in_wall)
+    assert field.sample_source[0] >= 0
+    assert label_cells(field, np.array([4]))[1, 5] == 4
+    both = nearest_samples(grid, grid.cell_to_xy(np.array([0.0, 1.0]), np.array([5.0, 5.0])))
+    assert both.source_cells.size == 1
+    outside = nearest_samples(grid, np.array([[-5.0, -5.0]]))
+    assert outside.sample_source[0] == -1
+    assert not label_cells(outside, np.array([1])).any()
+
+
+def test_poses_in_one_cell_vote_and_ties_go_to_the_smaller_area() -> None:
+    grid = two_rooms()
+    xy = walk(grid, 10, 10)
+    field = nearest_samples(grid, np.repeat(xy, 3, axis=0))
+    assert label_cells(field, np.array([5, 3, 5]))[10, 10] == 5
+    assert label_cells(field, np.array([5, 3, 7]))[10, 10] == 3
+    with pytest.raises(ValueError, match=">= 1"):
+        label_cells(field, np.array([0, 1, 1]))
+    with pytest.raises(ValueError, match="labels for"):
+        label_cells(field, np.array([1]))
+
+
+def test_door_regions_split_at_the_door_only() -> None:
+    grid = two_rooms()
+    regions = door_regions(grid, 0.6)
+    assert regions.max() == 2
+    assert len(np.unique(regions[room_of_cols(grid) == 1])) == 1
+    assert regions[10, 5] != regions[10, 30]
+    assert door_regions(grid, 0.2).max() == 1  # the door is wider: one region
+
+
+def test_areas_of_two_robots_that_cover_one_room_merge() -> None:
+    one = np.array([[1, 1, 2, 2, 0]])
+    other = np.array([[7, 7, 0, 0, 3]])  # its 7 is the first's 1; its 3 overlaps nothing
+    lookups = merge_overlapping([one, other])
+    assert lookups[0][1] == lookups[1][7]
+    assert lookups[0][2] != lookups[0][1]
+    assert lookups[1][3] not in (lookups[0][1], lookups[0][2])
+    assert lookups[0][0] == lookups[1][0] == 0
+    padded = merge_overlapping([one, other], top_labels=[4, 0])
+    assert len(padded[0]) == 5  # label 4 has no cell but gets a fleet label
+    assert padded[0][4] not in {*padded[0][1:4], *padded[1][1:]}
+
+
+def test_a_fleet_map_names_a_room_once_whatever_each_robot_called_it() -> None:
+    grid = two_rooms()
+    xy = walk(grid, 2, 38)
+    areas = np.where(xy[:, 0] < 2.0, 1, 2)
+    params = RoomMapParams(door_width_m=0.6)
+    regions = door_regions(grid, params.door_width_m)
+    fleet = fleet_room_map(grid, [(xy, areas), (xy[::-1], 3 - areas[::-1])], params, regions)
+    assert len(np.unique(fleet[room_of_cols(grid) == 1])) == 1
+    assert len(np.unique(fleet[fleet > 0])) == 2
+    alone = fleet_room_map(grid, [(xy, areas)], params, regions)
+    assert len(np.unique(alone[alone > 0])) == 2
+
+
+def test_parameters_are_checked() -> None:
+    with pytest.raises(ValueError, match="region_share"):
+        RoomMapParams(region_share=0.4)
+    with pytest.raises(ValueError, match="max_distance_m"):
+        RoomMapParams(max_distance_m=0)
+    with pytest.raises(ValueError, match="door_width_m"):
+        RoomMapParams(door_width_m=-1)
