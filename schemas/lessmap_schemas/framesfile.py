@@ -153,6 +153,6 @@ def sparse_frames_warning(source: str, frames: int, features: int) -> str | None
         return None
     return (
         f"warning: {source}: its {frames} frames hold {features / frames:.2f} features on "
-        f"average, fewer than {MIN_MEAN_FEATURES:g}: only features seen in one frame are "
-        f"linked, so few links decide the areas"
+        f"average, fewer than {MIN_MEAN_FEATURES:g}: only features seen in the same frame "
+        f"are linked, so few links decide the areas"
     )

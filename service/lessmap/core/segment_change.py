@@ -7,12 +7,15 @@ from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Final
 
 from lessmap.core import segmenter_snapshot as record
+from lessmap.core.errors import GraphError
 from lessmap.core.paper.submaps import Transition
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Iterable, Mapping
 
     from lessmap.core.areas.events import AreaTransition
+    from lessmap.core.areas.graph import AreaGraphBuilder
+    from lessmap.core.paper.submaps import Submap
 
 
 class Method(StrEnum):
@@ -75,3 +78,40 @@ def change_of(d: Mapping[str, Any]) -> SegmentChange:
         left_area=int(d["left_area"]),
         revisit_of=None if d["revisit_of"] is None else int(d["revisit_of"]),
     )
+
+
+def pack_beside(
+    method: Method,
+    inner: bytes,
+    builder: AreaGraphBuilder,
+    closed: Iterable[Submap],
+    held: Iterable[SegmentChange],
+    pending_frames: int,
+) -> bytes:
+    """The record of an area-naming segmenter: its tracker's bytes and what it keeps beside."""
+    rows, arrays = record.submaps_pack(closed)
+    meta: dict[str, Any] = {
+        "pending_frames": pending_frames,
+        "builder": record.builder_json(builder),
+        "closed": rows,
+        "held": [change_json(change) for change in held],
+    }
+    return record.pack(method, meta, inner, arrays)
+
+
+def unpack_beside(
+    found: record.Record,
+) -> tuple[AreaGraphBuilder, list[Submap], list[SegmentChange], int]:
+    """What ``pack_beside`` kept: the builder, closed segments, held changes, pending frames.
+
+    Raises:
+        GraphError: ``pending_frames`` is not a count.
+    """
+    meta = found.meta
+    pending = meta["pending_frames"]
+    if type(pending) is not int or pending < 0:
+        msg = f"segmenter snapshot: pending_frames {pending!r}"
+        raise GraphError(msg)
+    closed = list(record.submaps_unpack(meta["closed"], found.arrays))
+    held = [change_of(d) for d in meta["held"]]
+    return record.builder_of(meta["builder"]), closed, held, pending

@@ -16,7 +16,7 @@ its ``AreaGraphBuilder``. No I/O. Rules (in full: ``docs/design/segmenter.md``):
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Any, Final, Protocol
+from typing import TYPE_CHECKING, Final, Protocol
 
 from lessmap.core import segmenter_snapshot as record
 from lessmap.core.areas import snapshot as areas_snapshot
@@ -40,8 +40,8 @@ from lessmap.core.segment_change import (
     Method,
     SegmentChange,
     change_from,
-    change_json,
-    change_of,
+    pack_beside,
+    unpack_beside,
 )
 from lessmap.core.segmenter_rooms import RoomsSegmenter
 
@@ -429,26 +429,18 @@ class AreasSegmenter:
 
     def to_bytes(self) -> bytes:
         """The tracker's snapshot, the builder's sums, the segments and held changes."""
-        rows, arrays = record.submaps_pack(self._closed)
-        meta: dict[str, Any] = {
-            "pending_frames": self._pending_frames,
-            "builder": record.builder_json(self.builder),
-            "closed": rows,
-            "held": [change_json(change) for change in self._held],
-        }
-        return record.pack(Method.AREAS, meta, areas_snapshot.to_bytes(self.tracker), arrays)
+        inner = areas_snapshot.to_bytes(self.tracker)
+        return pack_beside(
+            Method.AREAS, inner, self.builder, self._closed, self._held, self._pending_frames
+        )
 
     @classmethod
     def _from_record(cls, found: record.Record) -> AreasSegmenter:
-        meta = found.meta
-        pending = meta["pending_frames"]
-        if type(pending) is not int or pending < 0:
-            msg = f"segmenter snapshot: pending_frames {pending!r}"
-            raise GraphError(msg)
+        builder, closed, held, pending = unpack_beside(found)
         return cls(
             areas_snapshot.from_bytes(found.inner),
-            record.builder_of(meta["builder"]),
-            closed=record.submaps_unpack(meta["closed"], found.arrays),
-            held=[change_of(d) for d in meta["held"]],
+            builder,
+            closed=closed,
+            held=held,
             pending_frames=pending,
         )

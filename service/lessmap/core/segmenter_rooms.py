@@ -9,11 +9,11 @@ tests each frame as it arrives (the cut is cheap), so ``apply`` already finds th
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Final
 
 from lessmap.core import segmenter_snapshot as record
 from lessmap.core.areas.graph import AreaGraph, AreaGraphBuilder
-from lessmap.core.errors import GraphError, StaleFrameError
+from lessmap.core.errors import StaleFrameError
 from lessmap.core.paper.params import PartitionParams
 from lessmap.core.paper.partitioner import _feature_ids
 from lessmap.core.rooms import snapshot as rooms_snapshot
@@ -23,8 +23,8 @@ from lessmap.core.segment_change import (
     Method,
     SegmentChange,
     change_from,
-    change_json,
-    change_of,
+    pack_beside,
+    unpack_beside,
 )
 
 if TYPE_CHECKING:
@@ -137,27 +137,19 @@ class RoomsSegmenter:
 
     def to_bytes(self) -> bytes:
         """The tracker's snapshot, the builder's sums, the segments and held changes."""
-        rows, arrays = record.submaps_pack(self._closed)
-        meta: dict[str, Any] = {
-            "pending_frames": self._pending_frames,
-            "builder": record.builder_json(self.builder),
-            "closed": rows,
-            "held": [change_json(change) for change in self._held],
-        }
-        return record.pack(Method.ROOMS, meta, rooms_snapshot.to_bytes(self.tracker), arrays)
+        inner = rooms_snapshot.to_bytes(self.tracker)
+        return pack_beside(
+            Method.ROOMS, inner, self.builder, self._closed, self._held, self._pending_frames
+        )
 
     @classmethod
     def from_record(cls, found: record.Record) -> RoomsSegmenter:
         """Rebuild from a segmenter record of the rooms method."""
-        meta = found.meta
-        pending = meta["pending_frames"]
-        if type(pending) is not int or pending < 0:
-            msg = f"segmenter snapshot: pending_frames {pending!r}"
-            raise GraphError(msg)
+        builder, closed, held, pending = unpack_beside(found)
         return cls(
             rooms_snapshot.from_bytes(found.inner),
-            record.builder_of(meta["builder"]),
-            closed=record.submaps_unpack(meta["closed"], found.arrays),
-            held=[change_of(d) for d in meta["held"]],
+            builder,
+            closed=closed,
+            held=held,
             pending_frames=pending,
         )
