@@ -178,6 +178,9 @@ def raw_put(session: zenoh.Session, key: str, payload: bytes) -> None:
     session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
 
+REJECTED = "lessmap_frames_rejected_total"
+
+
 def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
     serve: Callable[..., ServeProcess],
     client_session: Callable[[str], zenoh.Session],
@@ -228,7 +231,6 @@ def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
     with FleetClient(fleet_name, "good", session=session) as client:
         with RobotPublisher(fleet_name, "good", session=session) as robot:
             assert robot.wait_for_service(20.0), service.log()
-            rss_before = service.rss_kib()
             attacker = threading.Thread(target=hostile)
             attacker.start()
             for frame in frames:
@@ -236,6 +238,15 @@ def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
             attacker.join(60)
         wait_closed(client, fleet_name, "good", len(frames))
         got = drain(client)
+        # A second attack once the good robot's session is built and the solver's modules are
+        # loaded: what RSS gains now is what the hostile traffic left behind.
+        rss_before = service.rss_kib()
+        hostile()
+        wait_until(
+            lambda: metric_value(service.metrics(), REJECTED, reason="LIMIT_EXCEEDED") >= 80,
+            20.0,
+            "the second attack rejected",
+        )
     needed = {"MALFORMED", "INVALID", "LIMIT_EXCEEDED", "BAD_NAME", "DUPLICATE_SEQ"}
     wait_until(
         lambda: needed <= {e.code.value for e in errors},
@@ -250,12 +261,12 @@ def test_hostile_input_is_rejected_and_the_good_robot_is_unaffected(
     assert all(e.robot in (None, "evil", "replayer") for e in errors)
     metrics = service.metrics()
     assert metric_value(metrics, "lessmap_frames_rejected_total", reason="MALFORMED") >= 20
-    assert metric_value(metrics, "lessmap_frames_rejected_total", reason="LIMIT_EXCEEDED") >= 40
+    assert metric_value(metrics, REJECTED, reason="LIMIT_EXCEEDED") >= 80
     assert metric_value(metrics, "lessmap_frames_rejected_total", reason="BAD_NAME") >= 20
     assert metric_value(metrics, "lessmap_frames_duplicate_total") >= 20
     assert metric_value(metrics, "lessmap_transitions_total", reason="SPECTRAL") > 0
-    # Forty 2 MiB payloads went by: none may stay in memory.
-    assert service.rss_kib() - rss_before < 64 * 1024
+    # Twenty 2 MiB payloads went by in the second attack: none may stay in memory.
+    assert service.rss_kib() - rss_before < 16 * 1024
     assert service.terminate() == 0
 
 
