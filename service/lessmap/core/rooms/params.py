@@ -30,6 +30,10 @@ class RoomParams:
     settle_share: float = 0.0
     # Rule 3: a cut is a room change only when the new side is not the segment's own.
     known_share: float = 0.9  # of the new half's features, the area's own at least this
+    # ... unless the cut reaches sure_cut over at least sure_features new-half features:
+    # a door's view seen from inside, not a glimpse through it or a turn among a few poles.
+    sure_cut: float = 0.12
+    sure_features: int = 10
     min_side_features: int = 5  # distinct features on each side of a change
     # Rule 4: the area entered, when the new side's features are mostly an area's.
     revisit_overlap: float = 0.5
@@ -46,6 +50,8 @@ class RoomParams:
             "cut_min": self.cut_min > 0.0,
             "settle_share": 0.0 <= self.settle_share <= 2.0,
             "known_share": self.known_share > 0.0,
+            "sure_cut": self.sure_cut > 0.0,
+            "sure_features": self.sure_features >= 1,
             "min_side_features": self.min_side_features >= 1,
             "revisit_overlap": 0.0 < self.revisit_overlap <= 1.0,
             "max_area_sightings": self.max_area_sightings >= 0,

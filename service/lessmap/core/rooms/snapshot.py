@@ -43,6 +43,9 @@ def _hex(params: RoomParams) -> dict[str, Any]:
 def _params(d: dict[str, Any]) -> RoomParams:
     floats = {k for k, v in asdict(RoomParams()).items() if isinstance(v, float)}
     values: dict[str, Any] = {k: float.fromhex(v) if k in floats else int(v) for k, v in d.items()}
+    # Snapshots from before the sure-cut rule keep deciding as they did.
+    values.setdefault("sure_cut", float("inf"))
+    values.setdefault("sure_features", 1)
     return RoomParams(**values)
 
 

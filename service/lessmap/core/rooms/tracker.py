@@ -8,7 +8,8 @@ area before it. Here the cut is local (``docs/design/rooms.md`` has the reasons)
 2. Cut: within-half minus across-half similarity, less what a steady walk gives; a peak of
    at least ``cut_min`` proposes a change at the newer half's first frame.
 3. Confirmation: each side holds ``min_side_features``; the newer half is not what the
-   area knew before the window (``known_share`` of its features).
+   area knew before the window (``known_share`` of its features), unless the cut reaches
+   ``sure_cut`` with ``sure_features`` features behind it.
 4. Naming: the other area holding ``revisit_overlap`` of the newer half is entered again.
 5. Models: per-feature sightings of the segment and of each area, bounded by
    ``max_area_sightings``; every field round-trips through ``lessmap.core.rooms.snapshot``.
@@ -169,7 +170,10 @@ class RoomTracker:
                 count(recent, frame)
         area = self.areas[self.current]
         known = sum(1 for f in moved if area.get(f, 0) > recent.get(f, 0))
-        if known >= p.known_share * len(moved):
+        # A strong cut backed by enough features is a change even if the area glimpsed the
+        # room through its door; a turn among a handful of landmarks never has that backing.
+        sure = peak.score >= p.sure_cut and len(moved) >= p.sure_features
+        if known >= p.known_share * len(moved) and not sure:
             return None  # the area had seen nearly all of it before: the same place again
         return self._change(peak, moved, before)
 
