@@ -168,6 +168,9 @@ def test_evaluation_builds_on_the_core_and_the_simulator_only(path: Path) -> Non
         "lessmap.cli.segment",
         "lessmap.config.partitioning",
         "lessmap.cli.flags",
+        # Progress: a protocol the loops report to, and the bars the commands draw it with.
+        "lessmap.progress",
+        "lessmap.cli.progress",
         # The fleet merge: one rule for fleet apps (over the bus) and the offline tools.
         "lessmap_client.fleet_areas",
         # The command-line grammar every command shares (argparse types, no transport).

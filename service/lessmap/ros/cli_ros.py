@@ -278,6 +278,7 @@ def configure_import(parser: argparse.ArgumentParser) -> None:
 
 def run_import(args: argparse.Namespace) -> int:
     """Write the frames file; print what was written as JSON."""
+    from lessmap.cli.progress import progress
     from lessmap.ros.bags import import_bags
 
     converter = converter_from_args(args)
@@ -290,15 +291,17 @@ def run_import(args: argparse.Namespace) -> int:
     if not out.resolve().parent.is_dir():  # before reading the bags, not after
         msg = f"-o/--out {out}: no folder {out.parent}"
         raise ConfigError(msg)
-    stats = import_bags(
-        args.bags,
-        out,
-        converter,
-        topics=args.topic,
-        pose_topics=args.pose_topic,
-        robot=args.robot,
-        root_robot=args.root_robot,
-    )
+    with progress(args) as shown:
+        stats = import_bags(
+            args.bags,
+            out,
+            converter,
+            topics=args.topic,
+            pose_topics=args.pose_topic,
+            robot=args.robot,
+            root_robot=args.root_robot,
+            progress=shown,
+        )
     summary = {
         "out": str(out),
         "robots": stats.frames,
