@@ -133,12 +133,14 @@ def test_client_needs_only_the_schemas(path: Path) -> None:
 
 
 #: Besides the runtime and the SDK, the bridges to other key spaces touch Zenoh directly:
-#: ``lessmap ros`` subscribes to rmw_zenoh's ROS 2 keys, which the SDK knows nothing of, and
-#: the viewer follows the robots' frames keys (their poses), which no SDK call subscribes to
+#: ``lessmap ros`` subscribes and publishes on rmw_zenoh's ROS 2 keys, which the SDK knows
+#: nothing of, and the viewer follows the robots' frames keys (their poses), which no SDK
+#: call subscribes to
 #: (``lessmap view`` holds that session: opened before its WebSocket server, closed after).
 ZENOH_BRIDGES = (
     "lessmap.ros.bridge",
     "lessmap.ros.cli_ros",
+    "lessmap.ros.publisher",
     "lessmap.viz.feed",
     "lessmap.viz.cli_viz",
 )
@@ -166,6 +168,9 @@ def test_evaluation_builds_on_the_core_and_the_simulator_only(path: Path) -> Non
         "lessmap.cli.segment",
         "lessmap.config.partitioning",
         "lessmap.cli.flags",
+        # Progress: a protocol the loops report to, and the bars the commands draw it with.
+        "lessmap.progress",
+        "lessmap.cli.progress",
         # The fleet merge: one rule for fleet apps (over the bus) and the offline tools.
         "lessmap_client.fleet_areas",
         # The command-line grammar every command shares (argparse types, no transport).

@@ -153,6 +153,7 @@ CASES: dict[str, list[Case]] = {
         ),
         Case(("ros", "-c", "{missing}"), 1, "no such file"),
         Case(("ros", "--max-features-per-frame", "0"), 2, "must be at least 1"),
+        Case(("ros", "--publish-ros=no"), 2, "--publish-ros"),
     ],
     "import": [
         Case(("import", "{missing}"), 1, "{missing}: no such file"),

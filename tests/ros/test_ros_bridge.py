@@ -202,3 +202,58 @@ def test_rmw_zenoh_topics_become_frames_and_transitions(
     assert summary["empty"] == 1
     assert summary[f"lost: undecodable {APRILTAG}"] == 1
     assert not [k for k in summary if k.startswith("lost:") and "undecodable" not in k]
+
+
+def test_lessmap_ros_publishes_the_transitions_back_to_ros_2(
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    fleet_name: str,
+    store: Typestore,
+    tmp_path: Path,
+) -> None:
+    import lessmap_client
+    from lessmap.ros.outgoing import TRANSITION
+
+    service = serve("--memory-only", "--max-batch-frames", "1")
+    ros_node = client_session(service.endpoint)
+    from_lessmap: list[bytes] = []
+    ros_sub = ros_node.declare_subscriber(
+        f"3/amr1/lessmap/transitions/lessmap_msgs::msg::dds_::Transition_/{store.hash_rihs01(TRANSITION)}",
+        lambda s: from_lessmap.append(s.payload.to_bytes()),
+    )
+    bridge = start_bridge(service.endpoint, fleet_name, tmp_path, "--topic", "detections")
+    try:
+        with lessmap_client.connect(service.endpoint, timeout_s=20) as conn:
+            assert conn.wait_for_service(20)
+            transitions = conn.subscribe_transitions(fleet_name)
+            tags = ros_node.declare_publisher(rmw_key(store, 3, "/amr1/detections", APRILTAG))
+            wait_matched(tags, "detections")
+            # The bridge's own subscription to the fleet's transitions, before the walk.
+            wait_until(
+                lambda: "ROS 2 publisher ready" in (tmp_path / "ros.log").read_text(),
+                20,
+                "the bridge to follow transitions",
+            )
+            for seq, ids in enumerate(rooms_walk(2, FRAMES_PER_ROOM)):
+                message = apriltag_array(store, ids, 1000.0 + 0.1 * seq)
+                tags.put(
+                    bytes(store.serialize_cdr(message, APRILTAG)),
+                    attachment=rmw_attachment(seq, int((1000.0 + 0.1 * seq) * 1e9), bytes(16)),
+                )
+            first = transitions.recv(30)
+            assert first is not None, "no transition from lessmap"
+            wait_until(lambda: bool(from_lessmap), 20, "the transition on the ROS 2 topic")
+    finally:
+        summary = stop_bridge(bridge)
+        ros_sub.undeclare()
+    echoed: Any = store.deserialize_cdr(from_lessmap[0], TRANSITION)
+    assert (echoed.fleet, echoed.robot, echoed.seq, echoed.area) == (
+        first.fleet,
+        first.robot,
+        first.seq,
+        first.area,
+    )
+    assert list(echoed.closed.features) == first.closed.features
+    published = summary["published to ROS"]
+    assert isinstance(published, int)
+    assert published >= 1

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 SIM = Path(__file__).resolve().parents[2] / "service" / "lessmap" / "sim"
-# The CLI command publishes through the SDK and runs the floor-plan simulator.
-EXTRA = {"command.py": ("lessmap_client", "lessmap.floorplan")}
+# The CLI command publishes through the SDK, runs the floor-plan simulator and draws progress.
+EXTRA = {"command.py": ("lessmap_client", "lessmap.floorplan", "lessmap.cli.progress")}
 
 
 def imported(path: Path) -> set[str]:

@@ -1,11 +1,10 @@
-"""Client-side subcommands of ``lessmap``: replay, watch, status (wired in by ``lessmap.cli``)."""
+"""Client-side subcommands of ``lessmap``: replay and watch (wired in by ``lessmap.cli``)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import textwrap
 import threading
 import time
 from pathlib import Path
@@ -20,11 +19,19 @@ from lessmap_client.cli_options import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from lessmap_client.adapters.replay import ReplayStats
     from lessmap_client.fleet import FleetClient
     from lessmap_client.subscription import Subscription
     from lessmap_client.watch import FleetView
-    from lessmap_schemas.messages import Error, Health, SessionState, Transition
+    from lessmap_schemas.messages import Error, SessionState, Transition
+
+    #: Draws a fleet's view with a title (``lessmap watch`` on a terminal).
+    Draw = Callable[[FleetView, str], None]
+
+#: Seconds between two progress lines of ``replay`` on a terminal.
+PROGRESS_S = 5.0
 
 
 def configure_replay(rep: argparse.ArgumentParser) -> None:
@@ -54,9 +61,10 @@ def configure_replay(rep: argparse.ArgumentParser) -> None:
     rep.add_argument(
         "--progress",
         type=non_negative_float,
-        default=5.0,
+        default=None,
         metavar="S",
-        help="a progress line on stderr every S seconds (0: none)",
+        help="a progress line on stderr every S seconds (0: none; default: every "
+        f"{PROGRESS_S:g} s when stderr is a terminal, none with -q or into a pipe)",
     )
     group = add_zenoh_options(rep)
     add_deprecated_alias(
@@ -140,7 +148,7 @@ def run_replay(args: argparse.Namespace) -> int:
             sys.stderr.flush()
 
         reporter = ProgressReporter(
-            args.progress, lambda: stats.frames, acknowledged, say, len(frames)
+            _progress_interval_s(args), lambda: stats.frames, acknowledged, say, len(frames)
         ).start()
         try:
             replay(
@@ -173,6 +181,15 @@ def run_replay(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+def _progress_interval_s(args: argparse.Namespace) -> float:
+    """``--progress``, else a line every few seconds on a terminal, none into a pipe."""
+    if getattr(args, "quiet", False):
+        return 0.0
+    if args.progress is not None:
+        return float(args.progress)
+    return PROGRESS_S if sys.stderr.isatty() else 0.0
 
 
 class Batches:
@@ -276,8 +293,8 @@ def replay_summary(
     return summary, problems
 
 
-def run_watch(args: argparse.Namespace) -> int:
-    """Run ``lessmap watch``."""
+def run_watch(args: argparse.Namespace, draw: Draw | None = None) -> int:
+    """Run ``lessmap watch``: transition lines and a final table, or ``draw`` the view."""
     from lessmap_client.fleet import FleetClient
     from lessmap_client.watch import FleetView
 
@@ -303,8 +320,10 @@ def run_watch(args: argparse.Namespace) -> int:
             args.interval,
             title=f"lessmap watch {args.fleet}",
             places_every_s=args.places_interval if args.shared_features else None,
+            draw=draw,
         )
-    sys.stdout.write(view.table() + "\n")
+    if draw is None:
+        sys.stdout.write(view.table() + "\n")
     return 0
 
 
@@ -316,15 +335,16 @@ def follow(
     title: str,
     fleet: str | None = None,
     places_every_s: float | None = None,
+    draw: Draw | None = None,
 ) -> None:
     """Feed the view from the client until ``duration_s`` passes (or Ctrl-C).
 
-    With ``places_every_s``, also the fleet's places (``fleet_area_graph`` with shared
-    features) that often: a query for every robot's graph, so less often than states.
+    Without ``draw``, each transition is a line on stdout; with it, the view is drawn every
+    ``interval_s``. With ``places_every_s``, also the fleet's places (``fleet_area_graph``
+    with shared features) that often: a query for every robot's graph, so less often.
     """
     from lessmap_client.fleet_areas import FleetParams
 
-    tty = sys.stdout.isatty()
     deadline = None if duration_s is None else time.monotonic() + duration_s
     next_refresh = next_places = 0.0
     try:
@@ -332,7 +352,7 @@ def follow(
             transition = client.next_transition(timeout_s=0.1)
             if transition is not None:
                 line = view.add_transition(transition)
-                if not tty:
+                if draw is None:
                     sys.stdout.write(line + "\n")
                     sys.stdout.flush()
             now = time.monotonic()
@@ -347,220 +367,7 @@ def follow(
                         places, params=FleetParams(shared_features=True), timeout_s=0.5
                     )
                     view.add_fleet_graph(places, graph)
-                if tty:
-                    sys.stdout.write("\x1b[2J\x1b[H" + view.screen(title) + "\n")
-                    sys.stdout.flush()
+                if draw is not None:
+                    draw(view, title)
     except KeyboardInterrupt:
         pass
-
-
-# -- lessmap status --------------------------------------------------------------------------
-
-
-def configure_status(status: argparse.ArgumentParser) -> None:
-    """Define ``lessmap status`` (run by ``run_status``)."""
-    from lessmap_schemas.partition import PARTITIONS
-
-    status.description = (
-        "Show the running lessmap service: its live instances (liveliness tokens) with their "
-        "Health (version, uptime, sessions, queue depth, lag, partitions owned and shadowed), "
-        f"then which of the {PARTITIONS} partitions each instance owns and stands by for "
-        "(as ranges) as every participant computes them (rendezvous hashing over the live "
-        "instances), and the partitions whose owner does not say it serves them. A "
-        "disagreement (an owner that has not taken its partition yet, an instance still "
-        "serving a partition it no longer owns) is flagged; it is normal for a moment after "
-        "an instance joins or leaves. --json lists every partition. Exit code 1 when no "
-        "instance answers."
-    )
-    status.add_argument("--json", action="store_true", help="print one JSON object")
-    status.add_argument(
-        "--timeout",
-        type=positive_float,
-        default=2.0,
-        metavar="S",
-        help="seconds to wait for liveliness and Health replies",
-    )
-    add_zenoh_options(status)
-
-
-def run_status(args: argparse.Namespace) -> int:
-    """Run ``lessmap status``."""
-    net = zenoh_options(args)
-    with net.connection() as conn:
-        live = conn.instances(args.timeout)
-        healths = conn.health(args.timeout)
-    if not live and not healths:
-        sys.stderr.write(
-            f"lessmap status: no lessmap instance answered at {net.where} "
-            f"within {args.timeout:g} s\n"
-        )
-        return 1
-    report = status_report(live, healths)
-    if args.json:
-        sys.stdout.write(json.dumps(report) + "\n")
-    else:
-        sys.stdout.write(render_status(report))
-    return 0
-
-
-def status_report(live: list[str], healths: list[Health]) -> dict[str, Any]:
-    """Compare the rendezvous assignment over ``live`` with what each instance reports.
-
-    Returns the JSON object ``lessmap status --json`` prints: ``instances`` (one entry per
-    instance with a token or a Health reply), ``partitions`` (owner, standby, and the flags
-    of each partition), ``disagreements`` (partitions with a flag) and ``ok``.
-    """
-    from lessmap_schemas.partition import assignment
-
-    by_name: dict[str, Health] = {}
-    for health in healths:  # an instance answering twice (two routes): keep one
-        by_name.setdefault(health.instance, health)
-    alive = sorted(set(live))
-    table = assignment(alive)
-    instances = []
-    for name in sorted(set(alive) | set(by_name)):
-        h = by_name.get(name)
-        should_own = sorted(p for p, (owner, _) in table.items() if owner == name)
-        instances.append(
-            {
-                "instance": name,
-                "alive": name in alive,
-                "health": h is not None,
-                "version": None if h is None else h.version,
-                "uptime_s": None if h is None else round(h.uptime_s, 3),
-                "sessions": None if h is None else h.sessions,
-                "frames_applied": None if h is None else h.frames_applied,
-                "queue_depth": None if h is None else h.queue_depth,
-                "lag_s": None if h is None else round(h.lag_s, 3),
-                "partitions": None if h is None else list(h.partitions),
-                "standby": None if h is None else list(h.standby),
-                "owned": None if h is None else len(h.partitions),
-                "standby_count": None if h is None else len(h.standby),
-                "should_own": len(should_own),
-            }
-        )
-    partitions = []
-    for p, (owner, standby) in sorted(table.items()):
-        holders = sorted(n for n, h in by_name.items() if p in h.partitions)
-        flags = []
-        owner_health = None if owner is None else by_name.get(owner)
-        if owner is None:
-            flags.append("no owner: no instance is alive")
-        elif owner_health is None:
-            flags.append(f"owner {owner} did not answer the Health query")
-        elif p not in owner_health.partitions:
-            flags.append(f"owner {owner} has not taken it yet")
-        for other in holders:
-            if other != owner:
-                flags.append(f"{other} still serves it")
-        partitions.append(
-            {
-                "partition": p,
-                "owner": owner,
-                "standby": standby,
-                "owner_agrees": None if owner_health is None else p in owner_health.partitions,
-                "served_by": holders,
-                "flags": flags,
-            }
-        )
-    for entry in instances:
-        if not entry["alive"]:
-            entry["note"] = "answers Health but has no liveliness token"
-        elif not entry["health"]:
-            entry["note"] = "alive but did not answer the Health query"
-    disagreements = sum(1 for entry in partitions if entry["flags"])
-    return {
-        "instances": instances,
-        "partitions": partitions,
-        "disagreements": disagreements,
-        "ok": disagreements == 0,
-    }
-
-
-def render_status(report: dict[str, Any]) -> str:
-    """Render a ``status_report`` as the text tables of ``lessmap status``."""
-
-    def cell(value: object) -> str:
-        return "-" if value is None else str(value)
-
-    head = ["instance", "version", "uptime_s", "sessions", "queue", "lag_s", "owns", "standby"]
-    rows = [
-        [
-            entry["instance"],
-            cell(entry["version"]),
-            cell(entry["uptime_s"]),
-            cell(entry["sessions"]),
-            cell(entry["queue_depth"]),
-            cell(entry["lag_s"]),
-            f"{cell(entry['owned'])}/{entry['should_own']}",
-            cell(entry["standby_count"]),
-        ]
-        for entry in report["instances"]
-    ]
-    lines = _table(head, rows)
-    for entry in report["instances"]:
-        if "note" in entry:
-            lines.append(f"  ! {entry['instance']}: {entry['note']}")
-    # Partitions as ranges per instance and per problem, not one line per partition: the
-    # count is fixed by the contract (hundreds); ``--json`` has every partition.
-    owned: dict[str | None, list[int]] = {}
-    shadowed: dict[str | None, list[int]] = {}
-    problems: dict[str, list[int]] = {}
-    for entry in report["partitions"]:
-        owned.setdefault(entry["owner"], []).append(entry["partition"])
-        shadowed.setdefault(entry["standby"], []).append(entry["partition"])
-        if entry["flags"]:
-            problems.setdefault("; ".join(entry["flags"]), []).append(entry["partition"])
-    lines.append("")
-    lines.append("partitions by instance (rendezvous ranking over the live instances):")
-    for name in sorted(n for n in {*owned, *shadowed} if n is not None):
-        mine, backup = owned.get(name, []), shadowed.get(name, [])
-        lines += _wrapped(f"  {name} owns {len(mine)}", mine)
-        lines += _wrapped(f"  {name} stands by for {len(backup)}", backup)
-    if None in owned:
-        lines += _wrapped(f"  without an owner {len(owned[None])}", owned[None])
-    if problems:
-        lines.append("")
-        lines.append("disagreements:")
-        for problem, partitions in problems.items():
-            lines += _wrapped(f"  {problem} ({len(partitions)})", partitions)
-    total = len(report["partitions"])
-    bad = report["disagreements"]
-    lines.append("")
-    lines.append(
-        f"{total - bad} of {total} partitions served as the live instances rank them"
-        + (f"; {bad} disagree (normal for a moment after a join or a leave)" if bad else "")
-    )
-    return "\n".join(lines) + "\n"
-
-
-def _ranges(partitions: list[int], sep: str = ",") -> str:
-    """'0-3,7,9-10' for [0, 1, 2, 3, 7, 9, 10]; '-' for none."""
-    runs: list[list[int]] = []
-    for p in sorted(partitions):
-        if runs and p == runs[-1][1] + 1:
-            runs[-1][1] = p
-        else:
-            runs.append([p, p])
-    return sep.join(str(a) if a == b else f"{a}-{b}" for a, b in runs) or "-"
-
-
-def _wrapped(label: str, partitions: list[int], width: int = 100) -> list[str]:
-    """``label: ranges``, wrapped under the ranges at ``width`` columns."""
-    head = f"{label}: "
-    return textwrap.wrap(
-        _ranges(partitions, ", "),
-        width=max(width, len(head) + 20),
-        initial_indent=head,
-        subsequent_indent=" " * len(head),
-        break_on_hyphens=False,
-        break_long_words=False,
-    )
-
-
-def _table(head: list[str], rows: list[list[str]]) -> list[str]:
-    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
-    return [
-        "  ".join(value.ljust(width) for value, width in zip(row, widths, strict=True)).rstrip()
-        for row in [head, *rows]
-    ]

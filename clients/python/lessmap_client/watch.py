@@ -136,16 +136,6 @@ class FleetView:
             )
         return "\n".join(lines)
 
-    def screen(self, title: str, recent: int = 8) -> str:
-        """Render a full screen: title, table, the most recent transitions."""
-        elapsed = time.monotonic() - self.started_s
-        parts = [f"{title}   ({elapsed:5.1f} s)", "", self.table(), "", "recent transitions:"]
-        parts += [f"  {line}" for line in self.log[-recent:]] or ["  (none yet)"]
-        if self.shared_places:
-            parts += ["", "places shared by several robots (robot:area):"]
-            parts += [f"  {line}" for line in self.shared_places[-recent:]]
-        return "\n".join(parts)
-
 
 def _num(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"

@@ -38,6 +38,12 @@
 //! ```
 
 mod checks;
+
+/// The README's program, compiled by `cargo test` so that it stays true.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
+
 pub mod closing;
 pub mod codec;
 pub mod connection;

@@ -44,7 +44,7 @@ COMMANDS: dict[str, Command] = {
         "run a plain Zenoh router for several service instances (no lessmap service in it)",
     ),
     "status": Command(
-        "lessmap_client.cli_client",
+        "lessmap.cli.screens",
         "instances, partitions, owners, standbys and lag of the running service",
         "configure_status",
         "run_status",
@@ -68,7 +68,7 @@ COMMANDS: dict[str, Command] = {
         "run_replay",
     ),
     "watch": Command(
-        "lessmap_client.cli_client",
+        "lessmap.cli.screens",
         "live view of a fleet: one row per robot, transitions as they arrive",
         "configure_watch",
         "run_watch",
@@ -204,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def add_global_options(parser: argparse.ArgumentParser, *, defaults: bool) -> None:
-    """Add ``-v`` and ``--log-format``, accepted before the command name and after it."""
+    """Add ``-v``, ``-q`` and ``--log-format``, accepted before the command and after it."""
     group = parser.add_argument_group("global options (before or after COMMAND)")
     group.add_argument(
         "-v",
@@ -212,6 +212,13 @@ def add_global_options(parser: argparse.ArgumentParser, *, defaults: bool) -> No
         action="count",
         default=0 if defaults else argparse.SUPPRESS,
         help="more logging (repeat for more)",
+    )
+    group.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=False if defaults else argparse.SUPPRESS,
+        help="no progress bars (they are drawn on stderr only when it is a terminal)",
     )
     group.add_argument(
         "--log-format",
@@ -235,7 +242,7 @@ def command_parser(name: str) -> tuple[argparse.ArgumentParser, Callable[..., in
 def short_usage() -> str:
     """What bare ``lessmap`` prints: the grammar and the commands, in three lines."""
     return (
-        "usage: lessmap [-v] [--log-format text|json] COMMAND [ARGUMENTS]\n"
+        "usage: lessmap [-v] [-q] [--log-format text|json] COMMAND [ARGUMENTS]\n"
         f"commands: {', '.join(COMMANDS)}\n"
         "'lessmap --help' says what each does; 'lessmap COMMAND --help' how to run it.\n"
     )
@@ -252,6 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.command = top.command
     args.verbose = top.verbose + getattr(args, "verbose", 0)
     args.log_format = getattr(args, "log_format", top.log_format)
+    args.quiet = top.quiet or getattr(args, "quiet", False)
     # The command line of this process (not a call from Python code, e.g. a test): a daemon
     # may then restart itself with other allocator settings (``serve``).
     args.own_process = argv is None

@@ -99,6 +99,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _stream_and_watch(run: SimRun, args: argparse.Namespace) -> DemoResult:
+    from lessmap.cli.screens import live_fleet_screen
     from lessmap_client.adapters.replay import RecordedFrame, replay
     from lessmap_client.cli_client import follow
     from lessmap_client.fleet import FleetClient
@@ -125,7 +126,8 @@ def _stream_and_watch(run: SimRun, args: argparse.Namespace) -> DemoResult:
             daemon=True,
         )
         publisher.start()
-        follow(client, view, args.duration + 1.0, 0.5, title="lessmap demo", fleet=fleet)
+        with live_fleet_screen() as draw:
+            follow(client, view, args.duration + 1.0, 0.5, "lessmap demo", fleet, draw=draw)
         publisher.join(timeout=max(5.0, args.duration))
         # Sessions end when the publishers close: read the final states back over Zenoh.
         deadline = time.monotonic() + 20.0

@@ -227,10 +227,12 @@ def run(args: argparse.Namespace) -> int:
     """Run ``lessmap segment``: transitions as JSON lines, then the summary."""
     from pydantic import ValidationError
 
+    from lessmap.cli.progress import line_count, progress, wanted
     from lessmap.config.partitioning import area_params, partition_settings
     from lessmap.config.settings import LimitSettings
     from lessmap.errors import ConfigError
     from lessmap.files.frames import read_frames, sparse_frames_warning
+    from lessmap.progress import tracked
 
     if args.area_graph is not None and args.method == "paper":
         msg = "--area-graph needs --method areas or rooms (the paper names no areas)"
@@ -265,26 +267,30 @@ def run(args: argparse.Namespace) -> int:
         robots = set(args.robot)
         frames = (f for f in frames if f.robot in robots)
     frames = counted(frames)
-    out = sys.stdout
 
+    # sys.stdout looked up at each write: on a terminal the bars redirect it above them.
     def emit(robot: str, transition: Transition) -> None:
         if not args.summary_only:
-            out.write(json.dumps(transition_record(robot, transition)) + "\n")
+            sys.stdout.write(json.dumps(transition_record(robot, transition)) + "\n")
 
     def emit_area(robot: str, change: AreaTransition) -> None:
         if not args.summary_only:
-            out.write(json.dumps(area_record(robot, change)) + "\n")
+            sys.stdout.write(json.dumps(area_record(robot, change)) + "\n")
 
     graphs: dict[str, AreaGraph] = {}
-    if args.method == "areas":
-        areas = area_params(settings, empty_frames_omitted=args.empty_frames_omitted)
-        summary, graphs = segment_area_graphs(frames, areas, on_change=emit_area)
-        params = areas.proposal
-    elif args.method == "rooms":
-        rooms = RoomParams()
-        summary, graphs = segment_area_graphs(frames, rooms, on_change=emit_area)
-    else:
-        summary = segment(frames, params, on_transition=emit)
+    with progress(args) as shown:
+        shown.stage(f"segmenting {path.name}", line_count(path) if wanted(args) else None)
+        frames = tracked(frames, shown)
+        if args.method == "areas":
+            areas = area_params(settings, empty_frames_omitted=args.empty_frames_omitted)
+            summary, graphs = segment_area_graphs(frames, areas, on_change=emit_area)
+            params = areas.proposal
+        elif args.method == "rooms":
+            rooms = RoomParams()
+            summary, graphs = segment_area_graphs(frames, rooms, on_change=emit_area)
+        else:
+            summary = segment(frames, params, on_transition=emit)
+    out = sys.stdout
     if tally[0] == 0:
         which = f" of robot {', '.join(sorted(args.robot))}" if args.robot else ""
         msg = f"{path}: no frames{which} to segment"

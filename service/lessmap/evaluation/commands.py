@@ -95,6 +95,7 @@ def run_eval(args: argparse.Namespace) -> int:
     On a simulated run (``<name>.truth.jsonl`` next to FILE) it also scores the transitions
     of every robot against the true room changes (``lessmap.evaluation.scores.consistency``).
     """
+    from lessmap.cli.progress import progress
     from lessmap.evaluation.data.simrun import is_sim_run, load_for_eval
     from lessmap.evaluation.report.evaluation import evaluate
     from lessmap.evaluation.report.markdown import describe, eval_markdown
@@ -113,26 +114,30 @@ def run_eval(args: argparse.Namespace) -> int:
     if not args.odometry_scale > 0:
         msg = f"--odometry-scale must be positive, got {args.odometry_scale}"
         raise ConfigError(msg)
-    dataset = scale_odometry(load_for_eval(args.file, args.robot), args.odometry_scale)
-    _warn_if_sparse("eval", args.file, dataset.frames)
     ncuts, lams = _grid(args)
-    report = evaluate(
-        dataset,
-        params,
-        feature_limits=args.fixed_features,
-        frames_per_submap=args.fixed_frames,
-        ncut_values=ncuts,
-        lambda2_values=lams,
-        jobs=args.jobs,
-        anchor_information=args.anchor_information,
-        areas=area_params(partition_settings(args)),
-    )
-    sys.stdout.write(report.to_text())
-    truth: SimTruth | None = None
-    consistency: list[Consistency] = []
-    detections: dict[str, list[Detection]] = {}
-    if is_sim_run(args.file):
-        truth, consistency, detections = _consistency(args, params)
+    with progress(args) as shown:
+        shown.stage(f"reading {Path(args.file).name}")
+        dataset = scale_odometry(load_for_eval(args.file, args.robot), args.odometry_scale)
+        _warn_if_sparse("eval", args.file, dataset.frames)
+        report = evaluate(
+            dataset,
+            params,
+            feature_limits=args.fixed_features,
+            frames_per_submap=args.fixed_frames,
+            ncut_values=ncuts,
+            lambda2_values=lams,
+            jobs=args.jobs,
+            anchor_information=args.anchor_information,
+            areas=area_params(partition_settings(args)),
+            progress=shown,
+        )
+        sys.stdout.write(report.to_text())
+        truth: SimTruth | None = None
+        consistency: list[Consistency] = []
+        detections: dict[str, list[Detection]] = {}
+        if is_sim_run(args.file):
+            shown.stage("consistency with the ground truth")
+            truth, consistency, detections = _consistency(args, params)
         sys.stdout.write("\nconsistency with the ground truth (all robots):\n")
         sys.stdout.write("".join(describe(result) + "\n" for result in consistency))
     if args.out is not None:

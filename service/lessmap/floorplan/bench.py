@@ -55,6 +55,7 @@ from lessmap.floorplan.streams import (
     read_poses,
     read_tracks,
 )
+from lessmap.progress import NO_PROGRESS, tracked
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -62,6 +63,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from lessmap.floorplan.metric import Cut, Track
+    from lessmap.progress import Progress
 
 METHODS = ("areas", "rooms", "paper", "fixed")
 SIMULATORS: dict[str, Simulator] = {"building": building_run}
@@ -175,19 +177,22 @@ def run_bench(
     tolerance_m: float = 1.0,
     jobs: int = 1,
     work_dir: Path | None = None,
+    progress: Progress = NO_PROGRESS,
 ) -> list[CaseResult]:
     """Run every case (in ``jobs`` processes) and return the results in case order.
 
-    The runs' files go to ``work_dir`` (kept), or to a temporary folder (removed).
+    The runs' files go to ``work_dir`` (kept), or to a temporary folder (removed);
+    ``progress`` counts the cases done.
     """
     params = params or RoomMapParams()
+    progress.stage(f"{len(cases)} cases", len(cases))
     with tempfile.TemporaryDirectory(prefix="lessmap-floorplan-") as scratch:
         root = work_dir or Path(scratch)
         work = [(simulator, case, root, tuple(methods), params, tolerance_m) for case in cases]
         if jobs <= 1 or len(work) <= 1:
-            return [_work(job) for job in work]
+            return list(tracked((_work(job) for job in work), progress))
         with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-            return list(pool.map(_work, work))
+            return list(tracked(pool.map(_work, work), progress))
 
 
 @dataclass(slots=True)
@@ -332,11 +337,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")
     parser.add_argument("--work", type=Path, help="keep the runs' files in this folder")
     parser.add_argument("--markdown", type=Path, help="also write the tables to this file")
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress bar (drawn only on a terminal)"
+    )
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; print its tables (Markdown)."""
+    from lessmap.cli.progress import progress
     from lessmap.errors import DatasetError
 
     args = build_parser().parse_args(argv)
@@ -355,15 +364,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             BenchCase(map=m, sensor=s, seed=seed, rate_hz=rate)
             for m, s, seed, rate in product(args.maps, args.sensors, args.seeds, args.rates)
         ]
-        results = run_bench(
-            simulator,
-            cases,
-            methods=args.methods,
-            params=params,
-            tolerance_m=args.tolerance_m,
-            jobs=args.jobs,
-            work_dir=args.work,
-        )
+        with progress(args) as shown:
+            results = run_bench(
+                simulator,
+                cases,
+                methods=args.methods,
+                params=params,
+                tolerance_m=args.tolerance_m,
+                jobs=args.jobs,
+                work_dir=args.work,
+                progress=shown,
+            )
     except (FloorplanError, DatasetError, OSError) as exc:
         sys.stderr.write(f"lessmap.floorplan.bench: {exc}\n")
         return 1

@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``lessmap rooms``."""
     import numpy as np
 
+    from lessmap.cli.progress import progress
     from lessmap.errors import ConfigError
     from lessmap.files.frames import read_frames
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
@@ -94,55 +95,63 @@ def run(args: argparse.Namespace) -> int:
         params = RoomMapParams(max_distance_m=args.max_distance_m, door_width_m=args.door_width_m)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    grid = load_grid(args.map, args.resolution)
-    truth = None
-    if args.labels is not None:
-        truth = room_labels(args.labels, grid.resolution_m, min_room_m2=0.0)
-        if truth.shape != grid.shape:
-            msg = f"--labels {args.labels}: {truth.shape} pixels, the map has {grid.shape}"
+    with progress(args) as shown:
+        shown.stage(f"reading {args.map.name}")
+        grid = load_grid(args.map, args.resolution)
+        truth = None
+        if args.labels is not None:
+            truth = room_labels(args.labels, grid.resolution_m, min_room_m2=0.0)
+            if truth.shape != grid.shape:
+                msg = f"--labels {args.labels}: {truth.shape} pixels, the map has {grid.shape}"
+                raise FloorplanError(msg)
+        shown.stage(f"reading {args.frames.name}")
+        frames = list(read_frames(args.frames))
+        if args.robot:
+            frames = [f for f in frames if f.robot in set(args.robot)]
+        if not frames:
+            which = f" of robot {', '.join(args.robot)}" if args.robot else ""
+            msg = f"{args.frames}: no frames{which}"
             raise FloorplanError(msg)
-    frames = list(read_frames(args.frames))
-    if args.robot:
-        frames = [f for f in frames if f.robot in set(args.robot)]
-    if not frames:
-        which = f" of robot {', '.join(args.robot)}" if args.robot else ""
-        msg = f"{args.frames}: no frames{which}"
-        raise FloorplanError(msg)
-    poses = read_poses(frames, str(args.frames))
-    if args.transitions is not None:
-        cuts = read_transitions(args.transitions)
-        source = str(args.transitions)
-    else:
-        cuts = method_cuts(frames, args.method)
-        source = args.method
-    robots = [(p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()]
-    regions = door_regions(grid, params.door_width_m) if params.door_width_m > 0 else None
-    rooms = fleet_room_map(grid, robots, params, regions)
-    if not rooms.any():
-        msg = (
-            f"{args.frames}: no pose lies on a free cell of {args.map} "
-            "(are the poses in the map's frame and metres?)"
-        )
-        raise FloorplanError(msg)
-    files = write_room_map(rooms, grid, args.out)
-    record: dict[str, Any] = {
-        "robots": sorted(poses),
-        "segmentation": source,
-        "transitions": sum(len(cuts.get(robot, [])) for robot in poses),
-        "rooms": len(np.unique(rooms[rooms > 0])),
-        "labelled_share": round(float((rooms > 0).sum() / grid.free.sum()), 4),
-        "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
-    }
-    if truth is not None:
-        score = precision_recall(rooms, truth)
-        record["benchmark"] = {
-            "precision": _rounded(score.precision),
-            "recall": _rounded(score.recall),
-            "precision_pixels": _rounded(score.precision_pixels),
-            "recall_pixels": _rounded(score.recall_pixels),
-            "rooms": score.rooms,
-            "segments": score.segments,
+        poses = read_poses(frames, str(args.frames))
+        if args.transitions is not None:
+            cuts = read_transitions(args.transitions)
+            source = str(args.transitions)
+        else:
+            shown.stage(f"segmenting ({args.method})")
+            cuts = method_cuts(frames, args.method)
+            source = args.method
+        robots = [
+            (p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()
+        ]
+        shown.stage("labelling the map")
+        regions = door_regions(grid, params.door_width_m) if params.door_width_m > 0 else None
+        rooms = fleet_room_map(grid, robots, params, regions)
+        if not rooms.any():
+            msg = (
+                f"{args.frames}: no pose lies on a free cell of {args.map} "
+                "(are the poses in the map's frame and metres?)"
+            )
+            raise FloorplanError(msg)
+        files = write_room_map(rooms, grid, args.out)
+        record: dict[str, Any] = {
+            "robots": sorted(poses),
+            "segmentation": source,
+            "transitions": sum(len(cuts.get(robot, [])) for robot in poses),
+            "rooms": len(np.unique(rooms[rooms > 0])),
+            "labelled_share": round(float((rooms > 0).sum() / grid.free.sum()), 4),
+            "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
         }
+        if truth is not None:
+            shown.stage("scoring against --labels")
+            score = precision_recall(rooms, truth)
+            record["benchmark"] = {
+                "precision": _rounded(score.precision),
+                "recall": _rounded(score.recall),
+                "precision_pixels": _rounded(score.precision_pixels),
+                "recall_pixels": _rounded(score.recall_pixels),
+                "rooms": score.rooms,
+                "segments": score.segments,
+            }
     sys.stdout.write(json.dumps(record) + "\n")
     return 0
 

@@ -110,6 +110,7 @@ def simulate_floorplan_files(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def _simulate(args: argparse.Namespace) -> list[dict[str, Any]]:
+    from lessmap.cli.progress import progress
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
     from lessmap.floorplan.runfiles import write_floorplan_run
     from lessmap.floorplan.simulation import simulate_floorplan
@@ -137,7 +138,8 @@ def _simulate(args: argparse.Namespace) -> list[dict[str, Any]]:
         raise FloorplanError(msg)
     grid = load_grid(args.floorplan, args.resolution)
     labels = None if args.labels is None else room_labels(args.labels, grid.resolution_m)
-    run = simulate_floorplan(grid, labels, options, progress=say)
+    with progress(args) as shown:
+        run = simulate_floorplan(grid, labels, options, progress=say, steps=shown)
     frames = len(run.frames)
     mean = sum(len(f["features"]) for f in run.frames) / max(1, frames)
     walked = sum(run.path_m.values())

@@ -26,6 +26,7 @@ from lessmap.floorplan.planner import build_planner, walkable_cells
 from lessmap.floorplan.sensors import detect, visible_sites
 from lessmap.floorplan.tours import block_regions, room_targets, tour
 from lessmap.floorplan.truth import RoomChange, nearest_rooms, room_changes, rooms_along
+from lessmap.progress import NO_PROGRESS, tracked
 from lessmap.sim.simulator import TruthRow
 
 if TYPE_CHECKING:
@@ -35,11 +36,13 @@ if TYPE_CHECKING:
 
     from lessmap.floorplan.grid import OccupancyGrid
     from lessmap.floorplan.options import FloorplanOptions, SensorProfile
+    from lessmap.progress import Progress
 
 __all__ = ["FloorplanRun", "simulate_floorplan"]
 
 _ROUTE, _SENSOR = 0, 1  # random streams, per robot
-_PROGRESS_FRAMES = 2000  # frames between two progress reports
+
+_BLOCK_FRAMES = 2000  # poses whose sight lines are computed together
 
 
 @dataclass(slots=True, kw_only=True)
@@ -62,8 +65,11 @@ def simulate_floorplan(
     labels: NDArray[np.int32] | None,
     options: FloorplanOptions,
     progress: Callable[[str], None] | None = None,
+    steps: Progress = NO_PROGRESS,
 ) -> FloorplanRun:
     """Tour ``grid`` with ``options.robots`` robots; ``labels`` are the true rooms (1..k).
+
+    ``progress`` hears what was planned (a line a robot), ``steps`` counts the frames sensed.
 
     Raises:
         FloorplanError: bad options, labels of another shape than the map, or no room
@@ -111,15 +117,14 @@ def simulate_floorplan(
         if labels is not None:
             changes += [(c.seq, index, c) for c in room_changes(robot, along, walk.poses)]
         sensed = _sensed(grid, sites, walk.poses, _rng(options.seed, _SENSOR, index), options)
-        for seq, features in enumerate(sensed):
+        steps.stage(f"{robot}: sensing", len(walk.poses))
+        for seq, features in enumerate(tracked(sensed, steps)):
             x, y, theta = (round(float(v), 4) for v in walk.poses[seq])
             stamp = round(seq / options.tour.rate_hz, 6)
             frame = {"robot": robot, "seq": seq, "stamp": stamp, "features": features}
             frame["pose"] = [x, y, theta]
             truth = TruthRow(robot, seq, stamp, int(along[seq]), x, y, None, float("inf"))
             rows.append((seq, index, frame, truth))
-            if (seq + 1) % _PROGRESS_FRAMES == 0 or seq + 1 == len(walk.poses):
-                say(f"{robot}: {seq + 1}/{len(walk.poses)} frames sensed")
     rows.sort(key=lambda row: (row[0], row[1]))
     changes.sort(key=lambda change: (change[0], change[1]))
     return FloorplanRun(
@@ -143,8 +148,8 @@ def _sensed(
     options: FloorplanOptions,
 ) -> Iterator[list[int]]:
     """Yield each pose's frame (sorted landmark ids), computing sight lines in blocks."""
-    for start in range(0, len(poses), _PROGRESS_FRAMES):
-        block = poses[start : start + _PROGRESS_FRAMES]
+    for start in range(0, len(poses), _BLOCK_FRAMES):
+        block = poses[start : start + _BLOCK_FRAMES]
         for seen in visible_sites(grid, sites, block, options.sensor):
             yield detect(rng, sites, seen, options.sensor)
 

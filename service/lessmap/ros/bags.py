@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from lessmap.errors import ConfigError
+from lessmap.progress import NO_PROGRESS, tracked
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -22,6 +23,7 @@ if TYPE_CHECKING:
 
     from rosbags.highlevel import AnyReader
 
+    from lessmap.progress import Progress
     from lessmap.ros.convert import Converter
 
 log = logging.getLogger(__name__)
@@ -62,8 +64,11 @@ def import_bags(
     pose_topics: Sequence[str] = (),
     robot: str | None = None,
     root_robot: str = "robot",
+    progress: Progress = NO_PROGRESS,
 ) -> ImportStats:
     """Write the frames of the landmark topics of ``paths`` (one bag or several) to ``out``.
+
+    ``progress`` counts the messages read, of the chosen topics' total.
 
     Raises:
         ConfigError: no topic of the bags is a landmark topic (the message lists them), or a
@@ -101,7 +106,10 @@ def import_bags(
         names: dict[str, str | None] = {}
         with out.open("w", encoding="utf-8") as sink:
             connections = [c for c in reader.connections if c.topic in chosen]
-            for conn, timestamp_ns, raw in reader.messages(connections=connections):
+            total = sum(c.msgcount for c in connections)
+            progress.stage(f"reading {len(connections)} topic(s)", total)
+            messages = tracked(reader.messages(connections=connections), progress)
+            for conn, timestamp_ns, raw in messages:
                 converter.counts["received"] += 1
                 is_pose, pattern = chosen[conn.topic]
                 if conn.topic not in names:

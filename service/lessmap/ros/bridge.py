@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
+from lessmap.ros import rmw
 from lessmap.ros.msgtypes import dds_name, ros_name
 from lessmap_client.errors import SessionClosedError
 from lessmap_schemas import keys
@@ -123,6 +124,7 @@ class RosBridge:
         self._subscribers: list[zenoh.Subscriber[None]] = []
         self._robots: dict[str, RobotPublisher] = {}
         self._seen: set[str] = set()
+        self._namespaces: dict[str, str] = {}
         self._poses: dict[str, deque[tuple[float, tuple[float, float, float]]]] = {}
         self._hash_checked: set[tuple[str, str]] = set()
         self._thread = threading.Thread(target=self._run, name="lessmap-ros", daemon=True)
@@ -142,6 +144,12 @@ class RosBridge:
         """Return the names of the robots published so far."""
         with self._lock:
             return sorted(self._seen)
+
+    def namespace_of(self, robot: str) -> str:
+        """Return the ROS namespace a robot's messages came from (else one made of its name)."""
+        with self._lock:
+            found = self._namespaces.get(robot)
+        return rmw.ros_namespace(robot, self.root_robot) if found is None else found
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Undeclare the subscribers, handle what was queued, end every robot's session."""
@@ -241,10 +249,14 @@ class RosBridge:
         if not namespace:
             return self.root_robot
         try:
-            return keys.validate_name(".".join(namespace), "robot")
+            robot = keys.validate_name(".".join(namespace), "robot")
         except InvalidNameError as exc:
             self.converter.lost("bad robot name", f"{exc}; give one with --robot NAME")
             return None
+        if robot not in self._namespaces:
+            with self._lock:
+                self._namespaces[robot] = "/" + "/".join(namespace)
+        return robot
 
     def _publisher(self, robot: str) -> RobotPublisher:
         publisher = self._robots.get(robot)

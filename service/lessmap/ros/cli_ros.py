@@ -6,6 +6,7 @@ No ROS installation is needed: the bridge is a Zenoh client of the ROS 2 router
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import os
@@ -18,9 +19,14 @@ from lessmap.errors import ConfigError
 from lessmap_client.cli_options import add_zenoh_options, positive_int, zenoh_options
 
 if TYPE_CHECKING:
-    import argparse
+    import zenoh
 
+    from lessmap.ros.bridge import RosBridge
     from lessmap.ros.convert import Converter
+    from lessmap.ros.publisher import RosPublisher
+    from lessmap_client.connection import Connection
+    from lessmap_client.subscription import Subscription
+    from lessmap_schemas.messages import Transition
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +111,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default="robot",
         help="robot name of topics in the root namespace (default robot)",
     )
+    parser.add_argument(
+        "--publish-ros",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="publish the robots' transitions back to ROS 2, as lessmap_msgs/msg/Transition on "
+        "<namespace>/lessmap/transitions and lessmap_msgs/msg/AreaChange on "
+        "<namespace>/lessmap/area (default: on)",
+    )
     add_message_options(parser)
     add_run_options(parser)
 
@@ -159,21 +173,58 @@ def _run(args: argparse.Namespace, stop: StopSignal) -> int:
                 robot=args.robot,
                 root_robot=args.root_robot,
             ).start()
+            outbound = _publish_back(args, ros_session, conn, bridge, converter, domain)
             try:
                 stop.wait(args.duration)
             finally:
+                if outbound is not None:
+                    outbound[0].close()  # the subscription first: the publisher's one caller
+                    outbound[1].close()
                 bridge.stop()
             summary = {
                 "fleet": bridge.fleet,
                 "robots": bridge.robots(),
                 **dict(sorted(converter.counts.items())),
             }
+            if outbound is not None:
+                summary["published to ROS"] = outbound[1].published
     finally:
         if lessmap_session is not ros_session:
             lessmap_session.close()
         ros_session.close()
     print(json.dumps(summary))
     return 0
+
+
+def _publish_back(
+    args: argparse.Namespace,
+    ros_session: zenoh.Session,
+    conn: Connection,
+    bridge: RosBridge,
+    converter: Converter,
+    domain: int,
+) -> tuple[Subscription[Transition], RosPublisher] | None:
+    """Follow the fleet's transitions and publish each to ROS 2 (``--publish-ros``)."""
+    if not args.publish_ros:
+        return None
+    from lessmap.ros.publisher import RosPublisher
+
+    publisher = RosPublisher(
+        ros_session, converter.store, domain=domain, namespace_of=bridge.namespace_of
+    )
+    try:
+        # Live only: a restarted bridge must not publish old transitions again.
+        sub = conn.subscribe_transitions(bridge.fleet, history=False, handler=publisher.publish)
+    except BaseException:
+        publisher.close()
+        raise
+    log.info(
+        "ROS 2 publisher ready: fleet %s's transitions go to <namespace>/lessmap/transitions "
+        "and <namespace>/lessmap/area, domain %d",
+        bridge.fleet,
+        domain,
+    )
+    return sub, publisher
 
 
 def _env_domain() -> int:
@@ -227,6 +278,7 @@ def configure_import(parser: argparse.ArgumentParser) -> None:
 
 def run_import(args: argparse.Namespace) -> int:
     """Write the frames file; print what was written as JSON."""
+    from lessmap.cli.progress import progress
     from lessmap.ros.bags import import_bags
 
     converter = converter_from_args(args)
@@ -239,15 +291,17 @@ def run_import(args: argparse.Namespace) -> int:
     if not out.resolve().parent.is_dir():  # before reading the bags, not after
         msg = f"-o/--out {out}: no folder {out.parent}"
         raise ConfigError(msg)
-    stats = import_bags(
-        args.bags,
-        out,
-        converter,
-        topics=args.topic,
-        pose_topics=args.pose_topic,
-        robot=args.robot,
-        root_robot=args.root_robot,
-    )
+    with progress(args) as shown:
+        stats = import_bags(
+            args.bags,
+            out,
+            converter,
+            topics=args.topic,
+            pose_topics=args.pose_topic,
+            robot=args.robot,
+            root_robot=args.root_robot,
+            progress=shown,
+        )
     summary = {
         "out": str(out),
         "robots": stats.frames,

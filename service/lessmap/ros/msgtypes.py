@@ -79,7 +79,7 @@ def ros_name(dds: str) -> str | None:
 
 
 def typestore(extra: Mapping[str, str] | None = None) -> Typestore:
-    """Return a ROS 2 (Jazzy) type store with lessmap's detector types and ``extra`` in it.
+    """Return a ROS 2 (Jazzy) type store with the detector types, lessmap_msgs and ``extra``.
 
     Args:
         extra: more definitions, type name to ``.msg`` text (a user's ``--msg-def``).
@@ -89,8 +89,10 @@ def typestore(extra: Mapping[str, str] | None = None) -> Typestore:
     """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+    from lessmap.ros.outgoing import definitions
+
     store = get_typestore(Stores.ROS2_JAZZY)
-    for name, text in {**BUILTIN_DEFINITIONS, **dict(extra or {})}.items():
+    for name, text in {**BUILTIN_DEFINITIONS, **definitions(), **dict(extra or {})}.items():
         try:
             store.register(get_types_from_msg(text, check_type_name(name)))
         except ConfigError:

@@ -81,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _publish(rows: list[dict[str, Any]], args: argparse.Namespace, net: ZenohOptions) -> None:
-    from lessmap_client.adapters.replay import RecordedFrame, replay
+    from lessmap.cli.progress import polled, progress
+    from lessmap_client.adapters.replay import RecordedFrame, ReplayStats, replay
 
     frames = [
         RecordedFrame(
@@ -93,9 +94,19 @@ def _publish(rows: list[dict[str, Any]], args: argparse.Namespace, net: ZenohOpt
         )
         for f in rows
     ]
-    with net.open_session() as session:
+    stats = ReplayStats()
+    with (
+        net.open_session() as session,
+        progress(args) as shown,
+        polled(shown, f"publishing to fleet {args.fleet}", len(frames), lambda: stats.frames),
+    ):
         # Each robot's first frame waits for its partition's owner, as replay's does.
-        stats = replay(
-            frames, session, args.fleet, speed=args.speed, wait_service_s=net.connect_timeout_s
+        replay(
+            frames,
+            session,
+            args.fleet,
+            speed=args.speed,
+            wait_service_s=net.connect_timeout_s,
+            stats=stats,
         )
     sys.stdout.write(json.dumps({"published": stats.frames, "robots": stats.robots}) + "\n")

@@ -18,6 +18,7 @@ from lessmap.evaluation.scores.infoloss import (
     landmark_submaps,
 )
 from lessmap.evaluation.studies.sweep import DEFAULT_GRID, format_table, run_grid, sweep
+from lessmap.progress import NO_PROGRESS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -30,6 +31,7 @@ if TYPE_CHECKING:
     from lessmap.evaluation.data.segmentation import LessmapRun, SubmapStats
     from lessmap.evaluation.scores.infoloss import LandmarkInformation
     from lessmap.evaluation.studies.sweep import RunKey, SweepRow
+    from lessmap.progress import Progress
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -179,6 +181,7 @@ def evaluate(
     jobs: int = 1,
     anchor_information: float = DEFAULT_ANCHOR_INFORMATION,
     areas: AreaParams | None = None,
+    progress: Progress = NO_PROGRESS,
 ) -> EvalReport:
     """Compute e for LESS-mapping, the baselines and a threshold sweep on one data set.
 
@@ -195,13 +198,15 @@ def evaluate(
         areas: also segment with ``lessmap.core.areas.tracker``: its segments, its areas (revisits
             merged) and fixed frames cut to as many submaps as it has segments, appended
             after the paper's rows.
+        progress: where the runs are counted, a stage per method and one for the sweep.
     """
     started = time.perf_counter()
     frames = dataset.frames
     features = [frame.features for frame in frames]
     info = landmark_information(dataset.problem, anchor_information)
     main_key: RunKey = (params.ncut_min, params.lambda2_min)
-    runs: dict[RunKey, LessmapRun] = run_grid(frames, params, [main_key])
+    progress.stage("LESS-mapping", 1)
+    runs: dict[RunKey, LessmapRun] = run_grid(frames, params, [main_key], progress=progress)
     main = runs[main_key]
 
     def result(name: str, labels: NDArray[np.int64]) -> MethodResult:
@@ -224,6 +229,7 @@ def evaluate(
     if areas is not None:
         from lessmap.evaluation.methods import area_of_frames, run_method
 
+        progress.stage("areas", 1)
         events = run_method(frames, "areas", areas=areas).get(dataset.robot, [])
         seqs = [frame.seq for frame in frames]
         starts = [event.boundary_seq for event in events]
@@ -235,7 +241,10 @@ def evaluate(
         methods.append(
             result(f"fixed-{length} frames (areas' count)", fixed_frames(features, length))
         )
-    rows = sweep(frames, info, params, ncut_values, lambda2_values, jobs=jobs, known=runs)
+        progress.advance()
+    rows = sweep(
+        frames, info, params, ncut_values, lambda2_values, jobs=jobs, known=runs, progress=progress
+    )
     return EvalReport(
         dataset=dataset.name,
         robot=dataset.robot,

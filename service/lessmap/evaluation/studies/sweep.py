@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from lessmap.core import Reason
 from lessmap.evaluation.data.segmentation import run_lessmap, submap_stats
 from lessmap.evaluation.scores.infoloss import information_loss, landmark_submaps
+from lessmap.progress import NO_PROGRESS, tracked
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -18,6 +19,7 @@ if TYPE_CHECKING:
     from lessmap.evaluation.data.segmentation import LessmapRun, SubmapStats
     from lessmap.evaluation.scores.infoloss import LandmarkInformation
     from lessmap.files.frames import FrameRow
+    from lessmap.progress import Progress
 
 #: The default grid: both thresholds from 0.1 to 0.5 in steps of 0.1 (25 runs).
 DEFAULT_GRID: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5)
@@ -57,6 +59,7 @@ def run_grid(
     *,
     jobs: int = 1,
     known: dict[RunKey, LessmapRun] | None = None,
+    progress: Progress = NO_PROGRESS,
 ) -> dict[RunKey, LessmapRun]:
     """Run the partitioner once per (Ncut_min, λ2_min) pair not already in ``known``.
 
@@ -68,6 +71,7 @@ def run_grid(
             that calls this with jobs > 1 needs an ``if __name__ == "__main__":`` guard
             (the ``lessmap`` command and ``python -m lessmap`` are safe).
         known: runs already made; they are reused and the new ones are added to it.
+        progress: advanced by one per run made.
     """
     runs = known if known is not None else {}
     todo = [pair for pair in dict.fromkeys(pairs) if pair not in runs]
@@ -75,9 +79,9 @@ def run_grid(
     if jobs > 1 and len(todo) > 1:
         context = multiprocessing.get_context("spawn")  # no fork of a threaded parent
         with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=context) as pool:
-            results = list(pool.map(run_lessmap, [frames] * len(todo), params))
+            results = list(tracked(pool.map(run_lessmap, [frames] * len(todo), params), progress))
     else:
-        results = [run_lessmap(frames, p) for p in params]
+        results = list(tracked((run_lessmap(frames, p) for p in params), progress))
     runs.update(zip(todo, results, strict=True))
     return runs
 
@@ -106,13 +110,18 @@ def sweep(
     *,
     jobs: int = 1,
     known: dict[RunKey, LessmapRun] | None = None,
+    progress: Progress = NO_PROGRESS,
 ) -> list[SweepRow]:
     """Run the partitioner over the grid Ncut_min × λ2_min; return one row per pair.
 
-    Rows come in grid order: Ncut_min outer, λ2_min inner.
+    Rows come in grid order: Ncut_min outer, λ2_min inner. ``progress`` gets one stage, a
+    step per run.
     """
     pairs = [(float(n), float(lam)) for n in ncut_values for lam in lambda2_values]
-    runs = run_grid(frames, base, pairs, jobs=jobs, known=known)
+    todo = {pair for pair in pairs if known is None or pair not in known}
+    if pairs:
+        progress.stage(f"threshold sweep, {len(pairs)} pairs", len(todo))
+    runs = run_grid(frames, base, pairs, jobs=jobs, known=known, progress=progress)
     return [sweep_row(frames, info, runs[pair]) for pair in pairs]
 
 
