@@ -5,7 +5,7 @@ Decoding is the service's hot path and its attack surface, so the order of check
 1. payload size, before a single byte is unpacked (`max_payload_bytes`);
 2. msgpack, with every length bounded: an unbounded array header would make msgpack allocate
    its slots before the items arrive, turning kilobytes into gigabytes;
-3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (3);
+3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (4);
 4. `Frame.features` length, on the raw list, before pydantic touches it;
 5. pydantic, strict;
 6. limits tighter than the format bounds, if the caller set any.

@@ -102,7 +102,7 @@ class Frame(Message):
     """One sensor frame of a robot session: the features it observed (robot -> service)."""
 
     type: Literal["Frame"] = "Frame"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     session: Name
     """Robot-chosen session id; a restarted robot picks a new one and gets a new CovGraph."""
     seq: Seq
@@ -119,7 +119,7 @@ class SessionEnd(Message):
     """The robot ends its session; the service closes it (robot -> service, on `frames`)."""
 
     type: Literal["SessionEnd"] = "SessionEnd"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     session: Name
     """Session being ended."""
     last_seq: Seq | None
@@ -156,7 +156,7 @@ class Transition(Message):
     """The robot left one area for another (service -> apps)."""
 
     type: Literal["Transition"] = "Transition"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -216,7 +216,7 @@ class Error(Message):
     """A frame or message was rejected, or frames went missing (service -> apps)."""
 
     type: Literal["Error"] = "Error"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name | None
     """Fleet of the key the input arrived on; null if the key could not be parsed."""
     robot: Name | None
@@ -241,7 +241,7 @@ class SessionState(Message):
     """Counters and submaps of a robot's current session (reply to a `state` query)."""
 
     type: Literal["SessionState"] = "SessionState"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -284,7 +284,7 @@ class Submap(Message):
     """One submap of a robot's session (reply to a `submaps/<id>` query)."""
 
     type: Literal["Submap"] = "Submap"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -359,7 +359,7 @@ class AreaGraph(Message):
     """A robot session's areas and the passages between them (reply to an `areas` query)."""
 
     type: Literal["AreaGraph"] = "AreaGraph"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -399,7 +399,7 @@ class Health(Message):
     """Liveness figures of one service instance (reply to a `health` query)."""
 
     type: Literal["Health"] = "Health"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     instance: Name
     """The instance reporting."""
     version: Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]

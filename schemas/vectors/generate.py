@@ -75,7 +75,7 @@ PASSAGE = {"a": 0, "b": 2, "a_to_b": 1, "b_to_a": 1, "boundary_features": [[3, 2
 BASE: dict[str, dict[str, object]] = {
     "Frame": {
         "type": "Frame",
-        "v": 3,
+        "v": 4,
         "session": "run-2024.06_1",
         "seq": 42,
         "stamp_s": 1718000000.25,
@@ -84,14 +84,14 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionEnd": {
         "type": "SessionEnd",
-        "v": 3,
+        "v": 4,
         "session": "run-2024.06_1",
         "last_seq": 42,
         "stamp_s": 1718000100.5,
     },
     "Transition": {
         "type": "Transition",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -114,7 +114,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Error": {
         "type": "Error",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -127,7 +127,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionState": {
         "type": "SessionState",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -149,7 +149,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Submap": {
         "type": "Submap",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -158,7 +158,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "AreaGraph": {
         "type": "AreaGraph",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -170,7 +170,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Health": {
         "type": "Health",
-        "v": 3,
+        "v": 4,
         "instance": "lessmap-a1",
         "version": "0.1.0",
         "sessions": 12,
@@ -228,14 +228,15 @@ def common(kind: str) -> list[Invalid]:
         ("missing v", pack(edit(base, v=DROP)), "UNSUPPORTED_VERSION", None),
         ("v is 1 (superseded)", pack(edit(base, v=1)), "UNSUPPORTED_VERSION", None),
         ("v is 2 (superseded)", pack(edit(base, v=2)), "UNSUPPORTED_VERSION", None),
-        ("v is 4", pack(edit(base, v=4)), "UNSUPPORTED_VERSION", None),
+        ("v is 3 (superseded)", pack(edit(base, v=3)), "UNSUPPORTED_VERSION", None),
+        ("v is 5", pack(edit(base, v=5)), "UNSUPPORTED_VERSION", None),
         ("v is true", pack(edit(base, v=True)), "UNSUPPORTED_VERSION", None),
-        ("v is a string", pack(edit(base, v="3")), "UNSUPPORTED_VERSION", None),
+        ("v is a string", pack(edit(base, v="4")), "UNSUPPORTED_VERSION", None),
         ("unknown field", pack(edit(base, color="red")), "INVALID", None),
         ("bin value", pack(edit(base, blob=b"\x00\x01")), "INVALID", None),
         ("extension value", pack(edit(base, ext=msgpack.ExtType(5, b"x"))), "INVALID", None),
         ("map of 40 extra entries", pack(many), "INVALID", None),
-        ("key v twice, same value", pack_pairs([*base.items(), ("v", 3)]), "INVALID", None),
+        ("key v twice, same value", pack_pairs([*base.items(), ("v", 4)]), "INVALID", None),
         ("key type twice", pack_pairs([*base.items(), ("type", other)]), "INVALID", None),
         (
             "string of 1025 bytes",

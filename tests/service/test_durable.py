@@ -336,10 +336,10 @@ def test_robots_where_reads_only_thenamed_fleet_and_robot(tmp_path: Path) -> Non
     assert store.robots_where(lambda _f, r: r == "a", fleet="f1") == [("f1", "a")]
     store.close()
     # A query's selector names a fleet and a robot only where it holds no wildcard.
-    assert named_fleet_and_robot("lessmap/v3/f1/b/state") == ("f1", "b")
-    assert named_fleet_and_robot("lessmap/v3/f1/*/areas") == ("f1", None)
-    assert named_fleet_and_robot("lessmap/v3/*/b/state") == (None, None)
-    assert named_fleet_and_robot("lessmap/v3/**") == (None, None)
+    assert named_fleet_and_robot("lessmap/v4/f1/b/state") == ("f1", "b")
+    assert named_fleet_and_robot("lessmap/v4/f1/*/areas") == ("f1", None)
+    assert named_fleet_and_robot("lessmap/v4/*/b/state") == (None, None)
+    assert named_fleet_and_robot("lessmap/v4/**") == (None, None)
 
 
 def test_a_corrupt_store_file_is_moved_aside(tmp_path: Path) -> None:

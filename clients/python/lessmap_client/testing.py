@@ -85,7 +85,7 @@ class FakeBus:
     for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
     stored. The fake is no service: publishing frames produces no transitions by itself.
 
-    Contract v3: robots put their frames on ``lessmap/v3/<fleet>/<robot>/frames/<partition>``;
+    Contract v4: robots put their frames on ``lessmap/v4/<fleet>/<robot>/frames/<partition>``;
     a frames key naming another partition reaches no service and is counted in
     ``misrouted_sent``. The bus's ``instances`` are the live service instances (their liveliness
     tokens): robot publishers follow them (``status.owner``), ``coverage()`` ranks them. Events

@@ -1,4 +1,4 @@
-//! The messages of the wire contract v3 (section 5), field for field: those robots put and
+//! The messages of the wire contract v4 (section 5), field for field: those robots put and
 //! the service publishes here, the replies of its queryables in `messages/replies.rs`.
 //!
 //! Invariants of this file:
