@@ -163,6 +163,9 @@ class Transition(Message):
     """Robot that moved."""
     session: Name
     """Session the frames belong to."""
+    incarnation: Seq
+    """First seq of the history the decision stands on (0 when nothing was lost); a new
+    value after state was lost. Identity: (fleet, robot, session, incarnation, closed.id)."""
     seq: Seq
     """Detection frame: the last frame covered by this decision."""
     boundary_seq: Seq
@@ -201,6 +204,11 @@ class Transition(Message):
     def _consistent(self) -> Self:
         if self.boundary_seq > self.seq:
             msg = f"boundary_seq {self.boundary_seq} is after seq {self.seq}"
+            raise ValueError(msg)
+        if self.incarnation > self.closed.first_seq:
+            msg = (
+                f"incarnation {self.incarnation} is after closed.first_seq {self.closed.first_seq}"
+            )
             raise ValueError(msg)
         spectral = self.reason == "SPECTRAL"
         if (self.ncut is not None) != spectral or (self.lambda2 is not None) != spectral:
@@ -248,6 +256,9 @@ class SessionState(Message):
     """Robot of the session."""
     session: Name
     """The robot's current (latest) session."""
+    incarnation: Seq
+    """First seq of the history the service holds (0 when nothing was lost): submap and
+    area ids of this reply belong to it."""
     instance: Name
     """Service instance holding the session."""
     epoch: Epoch

@@ -95,6 +95,7 @@ BASE: dict[str, dict[str, object]] = {
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
+        "incarnation": 0,
         "seq": 42,
         "boundary_seq": 38,
         "stamp_s": 1718000000.25,
@@ -131,6 +132,7 @@ BASE: dict[str, dict[str, object]] = {
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
+        "incarnation": 0,
         "instance": "lessmap-a1",
         "epoch": 1718000000123,
         "open": True,
@@ -362,6 +364,18 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("area negative", "INVALID", area=-1)
         bad("revisit as int", "INVALID", revisit=1)
         bad("revisit missing", "INVALID", revisit=DROP)
+        ok(
+            "after lost state: a new incarnation",
+            incarnation=1200,
+            seq=1242,
+            boundary_seq=1238,
+            closed={**SUMMARY_A, "first_seq": 1200, "last_seq": 1241},
+            opened={**SUMMARY_B, "first_seq": 1238, "last_seq": 1242},
+        )
+        bad("incarnation after closed first_seq", "INVALID", incarnation=1)
+        bad("incarnation missing", "INVALID", incarnation=DROP)
+        bad("incarnation negative", "INVALID", incarnation=-1)
+        bad("incarnation 2**53", "LIMIT_EXCEEDED", "max_seq", incarnation=2**53)
     elif kind == "Error":
         ok(
             "nothing known about the sender",
@@ -373,6 +387,17 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
             detail="not a msgpack value",
         )
         ok("detail of 1024 chars", detail="d" * 1024)
+        for code in ("DURABILITY_LOST", "DURABILITY_BACK"):
+            ok(
+                f"{code.lower().replace('_', ' ')}, from the service itself",
+                fleet=None,
+                robot=None,
+                session=None,
+                seq=None,
+                epoch=None,
+                code=code,
+                detail="state store: disk full",
+            )
         bad("unknown code", "INVALID", code="NOPE")
         bad("code lower case", "INVALID", code="seq_gap")
         bad("code as int", "INVALID", code=3)
@@ -380,6 +405,8 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("fleet empty", "BAD_NAME", fleet="")
         bad("epoch as float", "INVALID", epoch=1.0)
     elif kind == "SessionState":
+        ok("after lost state", incarnation=30)
+        bad("incarnation missing", "INVALID", incarnation=DROP)
         ok(
             "closed, no frames yet",
             open=False,
