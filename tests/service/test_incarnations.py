@@ -119,11 +119,13 @@ def test_a_resume_without_a_gap_keeps_the_incarnation_and_the_history(tmp_path: 
     store.close()
 
 
-def test_the_incarnation_survives_a_checkpoint(tmp_path: Path) -> None:
+def test_the_incarnation_and_the_counts_survive_a_checkpoint(tmp_path: Path) -> None:
     resumed_then_gap(tmp_path, 100, 250)  # incarnation 250, checkpointed as it goes
     store = open_store(tmp_path)
     table = make_table(store, every=25)
     state = table.state(FLEET, ROBOT)
     assert state is not None
     assert state.incarnation == 250
+    # Every seq is applied (in either incarnation) or missing, each once.
+    assert (state.frames_applied, state.frames_missing) == (100 + len(FRAMES) - 250, 150)
     store.close()

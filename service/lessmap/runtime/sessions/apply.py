@@ -69,6 +69,8 @@ class Applier:
         gap = session.advance(seq)
         if gap is not None:
             if session.incarnation != incarnation:  # invariant 4
+                session.applied_before += session.segmenter.frames_applied
+                session.transitions_before += session.segmenter.transitions
                 session.segmenter = self._fresh(session)
                 self._budgets.set_edges(session, 0)
             report_gap(session, gap, seq, out)

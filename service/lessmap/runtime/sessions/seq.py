@@ -54,6 +54,10 @@ class SeqState:
     restored_seq: int | None = None  # last_seen_seq of the checkpoint it resumed from
     incarnation: int = 0  # invariant 6
     at_origin: bool = True  # nothing received since a fresh start or a resume
+    # Frames applied and transitions published in earlier incarnations (their segmenter is
+    # gone; the session's counters still count them).
+    applied_before: int = 0
+    transitions_before: int = 0
 
     @property
     def expected_seq(self) -> int:
@@ -106,6 +110,7 @@ class SeqState:
             "last_seen_seq": self.last_seen_seq,
             "gaps": [list(g) for g in self.gaps],
             "incarnation": self.incarnation,
+            "before": [self.applied_before, self.transitions_before],
         }
 
     def restore_counters(self, meta: dict[str, Any]) -> None:
@@ -117,6 +122,7 @@ class SeqState:
         self.last_seen_seq = self.restored_seq = None if seen is None else int(seen)
         self.gaps.extend((int(lo), int(hi)) for lo, hi in meta["gaps"])
         self.incarnation = int(meta.get("incarnation", 0))
+        self.applied_before, self.transitions_before = map(int, meta.get("before", (0, 0)))
         self.at_origin = True  # what the service published after this record may be lost
 
 
