@@ -22,7 +22,7 @@ from lessmap_schemas.limits import DEFAULT_LIMITS, MAX_SEQ, WireLimits
 from lessmap_schemas.partition import PARTITIONS, partition_of
 
 WIRE_VERSION = 4
-"""Value of the `v` field of every message and of the `v3` key chunk."""
+"""Value of the `v` field of every message and of the `v4` key chunk."""
 KEY_PREFIX = f"lessmap/v{WIRE_VERSION}"
 """First two chunks of every key; the version chunk changes only on a breaking change."""
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$"

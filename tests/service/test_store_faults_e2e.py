@@ -2,8 +2,8 @@
 
 Real processes on loopback: a Zenoh router opened by the test, ``lessmap replay`` of DLR at
 speed 40 (its robot keeps 1000 frames in its publication cache), and a ``lessmap serve``
-whose store fails a sixth of the way in: its filesystem fills up (freed later), or its file
-is deleted, or overwritten with garbage. Once the store is back the service is killed with
+whose store fails a sixth of the way in: its filesystem fills up (freed later), or its files
+are deleted, or overwritten with garbage. Once the store is back the service is killed with
 SIGKILL and a second one starts on the same state directory. The frames since the fault
 outnumber the robot's cache, so only a healed store lets the second service resume.
 
@@ -22,7 +22,7 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -119,6 +119,13 @@ class SmallDisk:
         (self.outside / "filler").unlink()
 
 
+def last_summary(replay_log: Path) -> dict[str, Any]:
+    """The JSON summary ``lessmap replay`` prints last on stdout (its log shares the file)."""
+    lines = replay_log.read_text(errors="replace").splitlines()
+    summary: dict[str, Any] = json.loads(next(x for x in reversed(lines) if x.startswith("{")))
+    return summary
+
+
 def serve_args(router: str, state_dir: Path) -> list[str]:
     return [
         sys.executable,
@@ -208,7 +215,7 @@ def run_with_fault(
             time.sleep(2.0)  # the robot keeps publishing into its cache meanwhile
             _second, second_log = processes.start(prefix + serve_args(router, state_dir), "second")
             code = replay.wait(240)
-            summary = json.loads(replay_log.read_text().strip().splitlines()[-1])
+            summary = last_summary(replay_log)
             time.sleep(1.0)  # the last transitions on their way
     finally:
         ledger.close()
@@ -281,7 +288,12 @@ def test_store_corrupted_mid_replay_loses_nothing(
     state_dir = tmp_path / "state"
 
     def corrupt() -> None:
-        (state_dir / STORE_FILE).write_bytes(bytes(range(256)) * 256)
+        # The database and its write-ahead log, each over its whole length: what SQLite
+        # wrote cannot be read back from either.
+        for suffix in ("", "-wal"):
+            part = state_dir / (STORE_FILE + suffix)
+            size = max(part.stat().st_size, 1 << 16)
+            part.write_bytes((bytes(range(256)) * (size // 256 + 1))[:size])
 
     run_with_fault(
         processes=processes,

@@ -36,6 +36,7 @@ from lessmap.runtime.store_file import (
     file_id,
     file_problem,
     move_aside,
+    prune,
     reopen,
 )
 
@@ -376,7 +377,8 @@ class CheckpointStore:
                     self._in_flight = True
                 self._batches_taken += 1
             if not health.lost:
-                self._watch_file()
+                self._watch_file(before_write=bool(batch))
+                retry = health.lost  # the file is gone: rebuilt at once, the batch with it
             if retry:
                 self._retry(batch)
             elif batch:
@@ -506,10 +508,16 @@ class CheckpointStore:
 
     # -- durability: lost, retried, back (rule 4) --------------------------------------------
 
-    def _watch_file(self) -> None:
-        """Lose durability when the open file was deleted, replaced or overwritten."""
+    def _watch_file(self, *, before_write: bool) -> None:
+        """Lose durability when the open file was deleted, replaced or overwritten.
+
+        Before every write (a record written to a lost file is lost with it) and at least
+        every ``CHECK_EVERY_S``.
+        """
         now = time.monotonic()
-        if self.path is None or self._db is None or now - self._checked_s < CHECK_EVERY_S:
+        if self.path is None or self._db is None:
+            return
+        if not before_write and now - self._checked_s < CHECK_EVERY_S:
             return
         self._checked_s = now
         problem = file_problem(self.path, self._file_id)
@@ -556,32 +564,10 @@ class CheckpointStore:
     def _prune(self, now: float) -> None:
         try:
             with self._db_lock:
-                if self._db is None:
-                    return
-                self._db.execute(
-                    "DELETE FROM sessions WHERE updated_s < ?", (now - self.retention_s,)
-                )
-                while self._size_bytes() > self.max_bytes:
-                    deleted = self._db.execute(
-                        "DELETE FROM sessions WHERE rowid IN (SELECT rowid FROM sessions"
-                        " WHERE status != 'open' ORDER BY updated_s LIMIT 64)"
-                    ).rowcount
-                    if not deleted:
-                        log.warning(
-                            "state store %s holds more than %d bytes of open sessions",
-                            self.path,
-                            self.max_bytes,
-                        )
-                        break
+                if self._db is not None:
+                    prune(self._db, now - self.retention_s, self.max_bytes, self.path)
         except sqlite3.Error as exc:
             log.error("state store %s: pruning failed: %s", self.path, exc)
-
-    def _size_bytes(self) -> int:
-        assert self._db is not None
-        (pages,) = self._db.execute("PRAGMA page_count").fetchone()
-        (free,) = self._db.execute("PRAGMA freelist_count").fetchone()
-        (size,) = self._db.execute("PRAGMA page_size").fetchone()
-        return int((pages - free) * size)
 
 
 def _record(row: tuple[Any, ...]) -> SessionRecord:

@@ -88,6 +88,31 @@ def salvage(db: sqlite3.Connection) -> list[tuple[Any, ...]]:
         return []
 
 
+def prune(db: sqlite3.Connection, older_than_s: float, max_bytes: int, path: Path | None) -> None:
+    """Retention: delete rows not updated since ``older_than_s``.
+
+    Then, while the file holds more than ``max_bytes``, the oldest rows of sessions that are
+    not open.
+    """
+    db.execute("DELETE FROM sessions WHERE updated_s < ?", (older_than_s,))
+    while size_bytes(db) > max_bytes:
+        deleted = db.execute(
+            "DELETE FROM sessions WHERE rowid IN (SELECT rowid FROM sessions"
+            " WHERE status != 'open' ORDER BY updated_s LIMIT 64)"
+        ).rowcount
+        if not deleted:
+            log.warning("state store %s holds more than %d bytes of open sessions", path, max_bytes)
+            return
+
+
+def size_bytes(db: sqlite3.Connection) -> int:
+    """Bytes the database's used pages take."""
+    (pages,) = db.execute("PRAGMA page_count").fetchone()
+    (free,) = db.execute("PRAGMA freelist_count").fetchone()
+    (size,) = db.execute("PRAGMA page_size").fetchone()
+    return int((pages - free) * size)
+
+
 def reopen(
     path: Path,
     old: sqlite3.Connection | None,
