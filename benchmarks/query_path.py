@@ -3,7 +3,7 @@
 Run from the repository root: ``python -m benchmarks.query_path``. It starts one
 ``lessmap serve`` (memory-only, its embedded router on a random free loopback port), opens
 ``--robots`` sessions of one frame each, then asks one robot's state ``--queries`` times
-with its key written out (``lessmap/v3/<fleet>/solo/state``: the service answers from that
+with its key written out (``lessmap/v4/<fleet>/solo/state``: the service answers from that
 robot's shard alone) and as many times by a wildcard that only that robot matches
 (``.../so$*/state``: every robot of every shard is checked against the selector, as every
 query was before the named path existed). Printed: the median and p90 round trip of each,

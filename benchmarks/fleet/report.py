@@ -173,7 +173,7 @@ class LoadReport:
     offered_by_robot: dict[str, int] = field(default_factory=dict)
     transitions_by_robot: dict[str, list[int]] = field(default_factory=dict)
     instance_figures: list[InstanceFigures] = field(default_factory=list)
-    checkpoint_puts: int = 0  # checkpoints seen on lessmap/v3/@/checkpoints/** (N > 1)
+    checkpoint_puts: int = 0  # checkpoints seen on lessmap/v4/@/checkpoints/** (N > 1)
     checkpoint_bytes: int = 0  # their payload bytes
     checkpoint_zlib_ratio: float = math.nan  # zlib level 1 size / raw, every tenth one
     takeover: dict[str, Any] | None = None  # TakeoverResult.as_dict() of a kill run
@@ -465,7 +465,7 @@ def _instance_lines(r: LoadReport) -> list[str]:
     )
     if r.checkpoint_puts:
         lines.append(
-            f"  checkpoints on the wire (lessmap/v3/@/checkpoints/**, seen by the benchmark): "
+            f"  checkpoints on the wire (lessmap/v4/@/checkpoints/**, seen by the benchmark): "
             f"{r.checkpoint_puts} puts, {r.checkpoint_bytes / 1e6:.2f} MB, "
             f"{r.checkpoint_bytes / max(1, r.checkpoint_puts) / 1024:.1f} KiB each, "
             f"{r.checkpoint_bytes / max(1, r.applied):.0f} bytes per applied frame; "

@@ -5,7 +5,7 @@ Decoding is the service's hot path and its attack surface, so the order of check
 1. payload size, before a single byte is unpacked (`max_payload_bytes`);
 2. msgpack, with every length bounded: an unbounded array header would make msgpack allocate
    its slots before the items arrive, turning kilobytes into gigabytes;
-3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (3);
+3. envelope: a map, a known `type` accepted here, `v == WIRE_VERSION` (4);
 4. `Frame.features` length, on the raw list, before pydantic touches it;
 5. pydantic, strict;
 6. limits tighter than the format bounds, if the caller set any.
@@ -40,7 +40,7 @@ MEDIA_TYPE = "application/msgpack"
 _INBOUND: frozenset[type[Message]] = frozenset({Frame, SessionEnd})
 _MAX_MAP_LEN = 32  # no lessmap map has more fields; bounds hash work on hostile maps
 _NAME_FIELDS = frozenset({"fleet", "robot", "session", "instance"})
-_SEQ_FIELDS = frozenset({"seq", "last_seq", "boundary_seq", "first_seq"})
+_SEQ_FIELDS = frozenset({"seq", "last_seq", "boundary_seq", "first_seq", "incarnation"})
 _FEATURE_FIELDS = frozenset({"features", "boundary_features"})
 _NAME_ERRORS = frozenset({"string_pattern_mismatch", "string_too_short", "string_too_long"})
 _LENGTH_ERROR = re.compile(r"(\d+) exceeds max_(str|bin|array|map|ext)_len\((\d+)\)")

@@ -39,6 +39,10 @@ class ErrorCode(StrEnum):
     """A frame or SessionEnd arrived for a session that a SessionEnd already closed."""
     INTERNAL = "INTERNAL"
     """The service failed on valid input (a bug); the session was reset."""
+    DURABILITY_LOST = "DURABILITY_LOST"
+    """The service's state store stopped taking checkpoints; it keeps them in memory, retries."""
+    DURABILITY_BACK = "DURABILITY_BACK"
+    """The state store takes checkpoints again; every open session was checkpointed anew."""
 
 
 class WireError(ValueError):

@@ -2,13 +2,13 @@
 
 Layout under `KEY_PREFIX` (in full: schemas/README.md section 2), then rules of this file:
 
-    lessmap/v3/<fleet>/<robot>/{frames/<p>, transitions, errors, state, areas, submaps/<id>}
-    lessmap/v3/@/{instances, health, errors}/<instance>, .../@/{checkpoints, released}/<p>/...
+    lessmap/v4/<fleet>/<robot>/{frames/<p>, transitions, errors, state, areas, submaps/<id>}
+    lessmap/v4/@/{instances, health, errors}/<instance>, .../@/{checkpoints, released}/<p>/...
 
 1. `<p>` is the robot's partition (`partition.partition_of`), the last chunk of its frames
    key, so an instance may subscribe to the partitions it owns only.
 2. Service bookkeeping sits under `@`: Zenoh never lets `*` or `**` match a chunk that starts
-   with `@`, so a fleet-wide `lessmap/v3/**` subscription sees robot traffic only.
+   with `@`, so a fleet-wide `lessmap/v4/**` subscription sees robot traffic only.
 3. A fleet or robot may be `"*"` to subscribe, declare a queryable or query; publishers pass
    concrete names, which `validate_name` checks.
 """
@@ -21,8 +21,8 @@ from lessmap_schemas.errors import InvalidNameError
 from lessmap_schemas.limits import DEFAULT_LIMITS, MAX_SEQ, WireLimits
 from lessmap_schemas.partition import PARTITIONS, partition_of
 
-WIRE_VERSION = 3
-"""Value of the `v` field of every message and of the `v3` key chunk."""
+WIRE_VERSION = 4
+"""Value of the `v` field of every message and of the `v4` key chunk."""
 KEY_PREFIX = f"lessmap/v{WIRE_VERSION}"
 """First two chunks of every key; the version chunk changes only on a breaking change."""
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$"
@@ -30,7 +30,7 @@ NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$"
 ANY = "*"
 """Wildcard for exactly one fleet, robot or instance chunk."""
 ROBOT_STREAMS = ("frames", "transitions", "errors", "state", "areas")
-"""Streams of `lessmap/v3/<fleet>/<robot>/<stream>` keys; frames and submaps have one more chunk."""
+"""Streams of `lessmap/v4/<fleet>/<robot>/<stream>` keys; frames and submaps have one more chunk."""
 
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 _FIRST = re.compile(r"[A-Za-z0-9_]")
@@ -176,7 +176,7 @@ def checkpoints(partition: int | str = ANY, fleet: str = ANY, robot: str = ANY) 
 
 
 def parse_checkpoint_key(key: str) -> tuple[int, str, str]:
-    """Split a concrete `lessmap/v3/@/checkpoints/<p>/<fleet>/<robot>` key."""
+    """Split a concrete `lessmap/v4/@/checkpoints/<p>/<fleet>/<robot>` key."""
     parts = key.split("/") if type(key) is str else []
     prefix = f"{KEY_PREFIX}/@/checkpoints"
     if len(parts) != 7 or "/".join(parts[:4]) != prefix or _ID.fullmatch(parts[4]) is None:
@@ -202,7 +202,7 @@ def released(partition: int | str = ANY, instance: str = ANY) -> str:
 
 
 def parse_released_key(key: str) -> tuple[int, str]:
-    """Split a concrete `lessmap/v3/@/released/<p>/<instance>` key: (partition, instance)."""
+    """Split a concrete `lessmap/v4/@/released/<p>/<instance>` key: (partition, instance)."""
     parts = key.split("/") if type(key) is str else []
     prefix = f"{KEY_PREFIX}/@/released"
     if len(parts) != 6 or "/".join(parts[:4]) != prefix or _ID.fullmatch(parts[4]) is None:
@@ -219,10 +219,10 @@ def service_errors(instance: str = ANY) -> str:
 
 
 def parse_robot_key(key: str) -> tuple[str, str, str]:
-    """Split a concrete `lessmap/v3/<fleet>/<robot>/<stream>` key.
+    """Split a concrete `lessmap/v4/<fleet>/<robot>/<stream>` key.
 
     Args:
-        key: A key a sample arrived on, e.g. `lessmap/v3/warehouse/amr-7/frames`.
+        key: A key a sample arrived on, e.g. `lessmap/v4/warehouse/amr-7/frames`.
 
     Returns:
         `(fleet, robot, stream)`, stream one of `ROBOT_STREAMS`.
@@ -250,7 +250,7 @@ def parse_robot_key(key: str) -> tuple[str, str, str]:
 
 
 def parse_submap_key(key: str) -> tuple[str, str, int]:
-    """Split a concrete `lessmap/v3/<fleet>/<robot>/submaps/<id>` key.
+    """Split a concrete `lessmap/v4/<fleet>/<robot>/submaps/<id>` key.
 
     Args:
         key: A concrete submap key.

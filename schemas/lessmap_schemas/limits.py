@@ -38,7 +38,7 @@ class WireLimits:
         max_payload_bytes: Largest encoded message, checked before unpacking anything.
         max_features_per_frame: Longest `Frame.features` list (duplicates count).
         max_name_len: Longest name (format bound, may only be lowered).
-        max_seq: Largest seq, first_seq, last_seq or boundary_seq (format bound).
+        max_seq: Largest seq, first_seq, last_seq, boundary_seq or incarnation (format bound).
         max_feature_id: Largest feature ID (format bound).
         max_detail_len: Longest `Error.detail` (format bound).
         max_list_len: Longest list in a service-to-client message (submap features,

@@ -102,7 +102,7 @@ class Frame(Message):
     """One sensor frame of a robot session: the features it observed (robot -> service)."""
 
     type: Literal["Frame"] = "Frame"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     session: Name
     """Robot-chosen session id; a restarted robot picks a new one and gets a new CovGraph."""
     seq: Seq
@@ -119,7 +119,7 @@ class SessionEnd(Message):
     """The robot ends its session; the service closes it (robot -> service, on `frames`)."""
 
     type: Literal["SessionEnd"] = "SessionEnd"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     session: Name
     """Session being ended."""
     last_seq: Seq | None
@@ -156,13 +156,16 @@ class Transition(Message):
     """The robot left one area for another (service -> apps)."""
 
     type: Literal["Transition"] = "Transition"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
     """Robot that moved."""
     session: Name
     """Session the frames belong to."""
+    incarnation: Seq
+    """First seq of the history the decision stands on (0 when nothing was lost); a new
+    value after state was lost. Identity: (fleet, robot, session, incarnation, closed.id)."""
     seq: Seq
     """Detection frame: the last frame covered by this decision."""
     boundary_seq: Seq
@@ -202,6 +205,11 @@ class Transition(Message):
         if self.boundary_seq > self.seq:
             msg = f"boundary_seq {self.boundary_seq} is after seq {self.seq}"
             raise ValueError(msg)
+        if self.incarnation > self.closed.first_seq:
+            msg = (
+                f"incarnation {self.incarnation} is after closed.first_seq {self.closed.first_seq}"
+            )
+            raise ValueError(msg)
         spectral = self.reason == "SPECTRAL"
         if (self.ncut is not None) != spectral or (self.lambda2 is not None) != spectral:
             msg = f"{self.reason}: ncut, lambda2 are set for SPECTRAL only, null otherwise"
@@ -216,7 +224,7 @@ class Error(Message):
     """A frame or message was rejected, or frames went missing (service -> apps)."""
 
     type: Literal["Error"] = "Error"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name | None
     """Fleet of the key the input arrived on; null if the key could not be parsed."""
     robot: Name | None
@@ -241,13 +249,16 @@ class SessionState(Message):
     """Counters and submaps of a robot's current session (reply to a `state` query)."""
 
     type: Literal["SessionState"] = "SessionState"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
     """Robot of the session."""
     session: Name
     """The robot's current (latest) session."""
+    incarnation: Seq
+    """First seq of the history the service holds (0 when nothing was lost): submap and
+    area ids of this reply belong to it."""
     instance: Name
     """Service instance holding the session."""
     epoch: Epoch
@@ -284,7 +295,7 @@ class Submap(Message):
     """One submap of a robot's session (reply to a `submaps/<id>` query)."""
 
     type: Literal["Submap"] = "Submap"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -359,7 +370,7 @@ class AreaGraph(Message):
     """A robot session's areas and the passages between them (reply to an `areas` query)."""
 
     type: Literal["AreaGraph"] = "AreaGraph"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     fleet: Name
     """Fleet of the robot."""
     robot: Name
@@ -399,7 +410,7 @@ class Health(Message):
     """Liveness figures of one service instance (reply to a `health` query)."""
 
     type: Literal["Health"] = "Health"
-    v: Literal[3] = 3
+    v: Literal[4] = 4
     instance: Name
     """The instance reporting."""
     version: Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]

@@ -75,7 +75,7 @@ PASSAGE = {"a": 0, "b": 2, "a_to_b": 1, "b_to_a": 1, "boundary_features": [[3, 2
 BASE: dict[str, dict[str, object]] = {
     "Frame": {
         "type": "Frame",
-        "v": 3,
+        "v": 4,
         "session": "run-2024.06_1",
         "seq": 42,
         "stamp_s": 1718000000.25,
@@ -84,17 +84,18 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionEnd": {
         "type": "SessionEnd",
-        "v": 3,
+        "v": 4,
         "session": "run-2024.06_1",
         "last_seq": 42,
         "stamp_s": 1718000100.5,
     },
     "Transition": {
         "type": "Transition",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
+        "incarnation": 0,
         "seq": 42,
         "boundary_seq": 38,
         "stamp_s": 1718000000.25,
@@ -114,7 +115,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Error": {
         "type": "Error",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -127,10 +128,11 @@ BASE: dict[str, dict[str, object]] = {
     },
     "SessionState": {
         "type": "SessionState",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
+        "incarnation": 0,
         "instance": "lessmap-a1",
         "epoch": 1718000000123,
         "open": True,
@@ -149,7 +151,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Submap": {
         "type": "Submap",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -158,7 +160,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "AreaGraph": {
         "type": "AreaGraph",
-        "v": 3,
+        "v": 4,
         "fleet": "warehouse",
         "robot": "amr-7",
         "session": "run-2024.06_1",
@@ -170,7 +172,7 @@ BASE: dict[str, dict[str, object]] = {
     },
     "Health": {
         "type": "Health",
-        "v": 3,
+        "v": 4,
         "instance": "lessmap-a1",
         "version": "0.1.0",
         "sessions": 12,
@@ -228,14 +230,15 @@ def common(kind: str) -> list[Invalid]:
         ("missing v", pack(edit(base, v=DROP)), "UNSUPPORTED_VERSION", None),
         ("v is 1 (superseded)", pack(edit(base, v=1)), "UNSUPPORTED_VERSION", None),
         ("v is 2 (superseded)", pack(edit(base, v=2)), "UNSUPPORTED_VERSION", None),
-        ("v is 4", pack(edit(base, v=4)), "UNSUPPORTED_VERSION", None),
+        ("v is 3 (superseded)", pack(edit(base, v=3)), "UNSUPPORTED_VERSION", None),
+        ("v is 5", pack(edit(base, v=5)), "UNSUPPORTED_VERSION", None),
         ("v is true", pack(edit(base, v=True)), "UNSUPPORTED_VERSION", None),
-        ("v is a string", pack(edit(base, v="3")), "UNSUPPORTED_VERSION", None),
+        ("v is a string", pack(edit(base, v="4")), "UNSUPPORTED_VERSION", None),
         ("unknown field", pack(edit(base, color="red")), "INVALID", None),
         ("bin value", pack(edit(base, blob=b"\x00\x01")), "INVALID", None),
         ("extension value", pack(edit(base, ext=msgpack.ExtType(5, b"x"))), "INVALID", None),
         ("map of 40 extra entries", pack(many), "INVALID", None),
-        ("key v twice, same value", pack_pairs([*base.items(), ("v", 3)]), "INVALID", None),
+        ("key v twice, same value", pack_pairs([*base.items(), ("v", 4)]), "INVALID", None),
         ("key type twice", pack_pairs([*base.items(), ("type", other)]), "INVALID", None),
         (
             "string of 1025 bytes",
@@ -361,6 +364,18 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("area negative", "INVALID", area=-1)
         bad("revisit as int", "INVALID", revisit=1)
         bad("revisit missing", "INVALID", revisit=DROP)
+        ok(
+            "after lost state: a new incarnation",
+            incarnation=1200,
+            seq=1242,
+            boundary_seq=1238,
+            closed={**SUMMARY_A, "first_seq": 1200, "last_seq": 1241},
+            opened={**SUMMARY_B, "first_seq": 1238, "last_seq": 1242},
+        )
+        bad("incarnation after closed first_seq", "INVALID", incarnation=1)
+        bad("incarnation missing", "INVALID", incarnation=DROP)
+        bad("incarnation negative", "INVALID", incarnation=-1)
+        bad("incarnation 2**53", "LIMIT_EXCEEDED", "max_seq", incarnation=2**53)
     elif kind == "Error":
         ok(
             "nothing known about the sender",
@@ -372,6 +387,17 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
             detail="not a msgpack value",
         )
         ok("detail of 1024 chars", detail="d" * 1024)
+        for code in ("DURABILITY_LOST", "DURABILITY_BACK"):
+            ok(
+                f"{code.lower().replace('_', ' ')}, from the service itself",
+                fleet=None,
+                robot=None,
+                session=None,
+                seq=None,
+                epoch=None,
+                code=code,
+                detail="state store: disk full",
+            )
         bad("unknown code", "INVALID", code="NOPE")
         bad("code lower case", "INVALID", code="seq_gap")
         bad("code as int", "INVALID", code=3)
@@ -379,6 +405,8 @@ def specific(kind: str) -> tuple[list[Valid], list[Invalid]]:
         bad("fleet empty", "BAD_NAME", fleet="")
         bad("epoch as float", "INVALID", epoch=1.0)
     elif kind == "SessionState":
+        ok("after lost state", incarnation=30)
+        bad("incarnation missing", "INVALID", incarnation=DROP)
         ok(
             "closed, no frames yet",
             open=False,

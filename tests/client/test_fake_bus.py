@@ -182,17 +182,17 @@ async def _take(sub: aio.AsyncSubscription[Transition], n: int):  # type: ignore
 @pytest.mark.parametrize(
     ("pattern", "key", "matches"),
     [
-        ("lessmap/v3/*/*/transitions", "lessmap/v3/f/r/transitions", True),
-        ("lessmap/v3/f/*/transitions", "lessmap/v3/g/r/transitions", False),
-        ("lessmap/v3/**", "lessmap/v3/f/r/errors", True),
-        ("lessmap/v3/*/*/errors", "lessmap/v3/@/errors/i", False),
-        ("lessmap/v3/**", "lessmap/v3/@/errors/i", False),
-        ("lessmap/v3/**", "lessmap/v3/@/instances/i", False),
-        ("lessmap/v3/f/r/submaps/*", "lessmap/v3/f/r/submaps/3", True),
-        ("lessmap/v3/*/*/frames/23", "lessmap/v3/warehouse/amr-7/frames/23", True),
-        ("lessmap/v3/*/*/frames/22", "lessmap/v3/warehouse/amr-7/frames/23", False),
-        ("lessmap/v3/*/*/frames/*", "lessmap/v3/warehouse/amr-7/frames/23", True),
-        ("lessmap/v1/*/*/transitions", "lessmap/v3/f/r/transitions", False),
+        ("lessmap/v4/*/*/transitions", "lessmap/v4/f/r/transitions", True),
+        ("lessmap/v4/f/*/transitions", "lessmap/v4/g/r/transitions", False),
+        ("lessmap/v4/**", "lessmap/v4/f/r/errors", True),
+        ("lessmap/v4/*/*/errors", "lessmap/v4/@/errors/i", False),
+        ("lessmap/v4/**", "lessmap/v4/@/errors/i", False),
+        ("lessmap/v4/**", "lessmap/v4/@/instances/i", False),
+        ("lessmap/v4/f/r/submaps/*", "lessmap/v4/f/r/submaps/3", True),
+        ("lessmap/v4/*/*/frames/23", "lessmap/v4/warehouse/amr-7/frames/23", True),
+        ("lessmap/v4/*/*/frames/22", "lessmap/v4/warehouse/amr-7/frames/23", False),
+        ("lessmap/v4/*/*/frames/*", "lessmap/v4/warehouse/amr-7/frames/23", True),
+        ("lessmap/v1/*/*/transitions", "lessmap/v4/f/r/transitions", False),
     ],
 )
 def test_key_matching_follows_zenoh(pattern: str, key: str, matches: bool) -> None:
@@ -235,10 +235,10 @@ def test_the_fake_routes_partitioned_frames_keys_and_counts_misrouted_ones() -> 
     bus = FakeBus()
     p = partition_of("warehouse", "amr-7")
     payload = encode(Frame(session="s", seq=0, stamp_s=0.0, features=[1]))
-    bus.put(f"lessmap/v3/warehouse/amr-7/frames/{p}", payload)
+    bus.put(f"lessmap/v4/warehouse/amr-7/frames/{p}", payload)
     other = (p + 1) % PARTITIONS
-    bus.put(f"lessmap/v3/warehouse/amr-7/frames/{other}", payload)  # another partition
-    bus.put("lessmap/v3/warehouse/amr-7/frames", payload)  # v1 shape: no partition chunk
+    bus.put(f"lessmap/v4/warehouse/amr-7/frames/{other}", payload)  # another partition
+    bus.put("lessmap/v4/warehouse/amr-7/frames", payload)  # v1 shape: no partition chunk
     assert [f.seq for f in bus.frames("warehouse", "amr-7")] == [0]
     assert bus.misrouted_sent == 2
     with bus.connect() as conn, conn.robot("warehouse", "amr-7") as robot:
@@ -252,7 +252,7 @@ def test_the_fake_emits_epoch_stamped_events_and_the_sdk_fences_them() -> None:
 
     bus = FakeBus()
     t = make_transition("f", "r")
-    assert (t.partition, t.epoch, t.v) == (partition_of("f", "r"), 1, 3)
+    assert (t.partition, t.epoch, t.v) == (partition_of("f", "r"), 1, 4)
     assert make_state("f", "r").epoch == 1
     assert make_error("f", "r").epoch == 1
     assert make_error(None, None, ErrorCode.MALFORMED).epoch is None

@@ -127,7 +127,7 @@ def test_a_custom_type_from_its_msg_text_with_its_own_id_path(
         bridge.start()
         frames: list[bytes] = []
         sub = bridge_session.declare_subscriber(
-            f"lessmap/v3/{fleet_name}/amr9/frames/*", lambda s: frames.append(s.payload.to_bytes())
+            f"lessmap/v4/{fleet_name}/amr9/frames/*", lambda s: frames.append(s.payload.to_bytes())
         )
         try:
             pub = ros.declare_publisher(key)

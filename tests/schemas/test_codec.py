@@ -65,7 +65,7 @@ def test_encoding_is_a_map_in_field_order(message: Message) -> None:
     assert list(fields) == list(type(message).model_fields)
     assert list(fields)[:2] == ["type", "v"]
     assert fields["type"] == type(message).__name__
-    assert fields["v"] == 3
+    assert fields["v"] == 4
 
 
 def test_floats_are_float64_and_ints_are_minimal() -> None:
@@ -75,10 +75,10 @@ def test_floats_are_float64_and_ints_are_minimal() -> None:
 
 
 def test_encoding_names_type_and_version() -> None:
-    assert encoding(FRAME) == "application/msgpack;lessmap.Frame/3"
-    assert encoding(Transition) == "application/msgpack;lessmap.Transition/3"
+    assert encoding(FRAME) == "application/msgpack;lessmap.Frame/4"
+    assert encoding(Transition) == "application/msgpack;lessmap.Transition/4"
     assert {encoding(model) for model in MESSAGE_TYPES.values()} == {
-        f"application/msgpack;lessmap.{name}/3" for name in MESSAGE_TYPES
+        f"application/msgpack;lessmap.{name}/4" for name in MESSAGE_TYPES
     }
 
 
@@ -126,8 +126,8 @@ def test_expected_must_be_a_message_type() -> None:
         ({"extra": 1}, ErrorCode.INVALID),
         ({"v": 1}, ErrorCode.UNSUPPORTED_VERSION),
         ({"v": 2}, ErrorCode.UNSUPPORTED_VERSION),
-        ({"v": 4}, ErrorCode.UNSUPPORTED_VERSION),
-        ({"v": 3.0}, ErrorCode.UNSUPPORTED_VERSION),
+        ({"v": 3}, ErrorCode.UNSUPPORTED_VERSION),
+        ({"v": 4.0}, ErrorCode.UNSUPPORTED_VERSION),
         ({"type": "frame"}, ErrorCode.UNKNOWN_TYPE),
         ({"type": None}, ErrorCode.UNKNOWN_TYPE),
     ],
@@ -217,7 +217,7 @@ def test_malformed(data: bytes) -> None:
     [
         (b"\x82\xa4type" + b"\x91" * 1000 + b"\xc0\xa1v\x01", ErrorCode.UNKNOWN_TYPE),
         (b"\x82\xa4type\xa5Frame\xa1v" + b"\x91" * 1000 + b"\xc0", ErrorCode.UNSUPPORTED_VERSION),
-        (pack({"type": list(range(4000)), "v": 3}), ErrorCode.UNKNOWN_TYPE),
+        (pack({"type": list(range(4000)), "v": 4}), ErrorCode.UNKNOWN_TYPE),
     ],
     ids=["deep-type", "deep-v", "long-type"],
 )

@@ -49,7 +49,7 @@ def test_written_files_are_deterministic(tmp_path: Path) -> None:
     for name, text in first.items():
         assert text.endswith(b"}\n")
         schema = json.loads(text)
-        assert schema["$id"] == f"https://lessmap.dev/schemas/v3/{name}"
+        assert schema["$id"] == f"https://lessmap.dev/schemas/v4/{name}"
         assert schema["title"] == name.removesuffix(".json")
         assert schema["required"][:2] == ["type", "v"]
         assert text == (json.dumps(schema, indent=2, sort_keys=True) + "\n").encode()
@@ -93,7 +93,7 @@ def test_schemas_accept_every_sample(message: Message) -> None:
 )
 def test_schemas_reject_what_the_models_reject(field: str, value: object) -> None:
     schema = json.loads((CHECKED_IN / "Frame.json").read_text(encoding="utf-8"))
-    frame = {"type": "Frame", "v": 3, "session": "s", "seq": 1, "stamp_s": 0.0, "features": []}
+    frame = {"type": "Frame", "v": 4, "session": "s", "seq": 1, "stamp_s": 0.0, "features": []}
     jsonschema.Draft202012Validator(schema).validate(frame)  # the baseline is valid
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.Draft202012Validator(schema).validate({**frame, "v": 1})  # superseded

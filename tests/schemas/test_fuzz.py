@@ -196,10 +196,10 @@ def test_deeply_nested_values(message: Message, field: str, depth: int, leaf: ob
 
 @FUZZ
 @given(st.sampled_from(samples()), st.integers(-(2**63), 2**64 - 1) | st.floats() | st.none())
-def test_any_version_but_3_is_refused(message: Message, version: object) -> None:
+def test_any_version_but_4_is_refused(message: Message, version: object) -> None:
     fields = {**message.model_dump(), "v": version}
     result = outcome(msgpack.packb(fields, use_bin_type=True), type(message))
-    if version == 3 and type(version) is int:
+    if version == 4 and type(version) is int:
         assert not isinstance(result, WireError)
     else:
         assert isinstance(result, WireError)
@@ -267,7 +267,7 @@ chunks = st.text(max_size=8) | st.integers(-100, 200).map(str) | st.sampled_from
 @FUZZ
 @given(names, names, chunks)
 def test_frames_keys_need_the_robots_own_partition(fleet: str, robot: str, chunk: str) -> None:
-    key = f"lessmap/v3/{fleet}/{robot}/frames/{chunk}"
+    key = f"lessmap/v4/{fleet}/{robot}/frames/{chunk}"
     result = parsed(lessmap_keys.parse_robot_key, key)
     if refused(result):
         assert chunk != str(partition_of(fleet, robot))
@@ -275,14 +275,14 @@ def test_frames_keys_need_the_robots_own_partition(fleet: str, robot: str, chunk
         assert result == (fleet, robot, "frames")
         assert lessmap_keys.frames(fleet, robot) == key
     # Without its partition chunk a frames key names no robot's frames.
-    assert refused(parsed(lessmap_keys.parse_robot_key, f"lessmap/v3/{fleet}/{robot}/frames"))
+    assert refused(parsed(lessmap_keys.parse_robot_key, f"lessmap/v4/{fleet}/{robot}/frames"))
 
 
 @FUZZ
 @given(
     st.lists(
         st.text(max_size=12)
-        | st.sampled_from(["lessmap", "v3", "v2", "v1", "frames", "@", "0", "63"]),
+        | st.sampled_from(["lessmap", "v4", "v3", "v2", "v1", "frames", "@", "0", "63"]),
         max_size=8,
     )
 )

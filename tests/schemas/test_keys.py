@@ -71,22 +71,22 @@ def test_name_length_follows_the_limit() -> None:
 
 
 def test_robot_stream_keys() -> None:
-    assert keys.KEY_PREFIX == "lessmap/v3"
-    assert keys.WIRE_VERSION == 3
+    assert keys.KEY_PREFIX == "lessmap/v4"
+    assert keys.WIRE_VERSION == 4
     # warehouse/amr-7 is in partition 23 (vectors/partition.json pins it).
-    assert keys.frames("warehouse", "amr-7") == "lessmap/v3/warehouse/amr-7/frames/23"
-    assert keys.transitions("warehouse", "amr-7") == "lessmap/v3/warehouse/amr-7/transitions"
-    assert keys.errors("warehouse", "amr-7") == "lessmap/v3/warehouse/amr-7/errors"
-    assert keys.state("warehouse", "amr-7") == "lessmap/v3/warehouse/amr-7/state"
-    assert keys.submap("warehouse", "amr-7", 3) == "lessmap/v3/warehouse/amr-7/submaps/3"
-    assert keys.submaps("warehouse", "amr-7") == "lessmap/v3/warehouse/amr-7/submaps/*"
+    assert keys.frames("warehouse", "amr-7") == "lessmap/v4/warehouse/amr-7/frames/23"
+    assert keys.transitions("warehouse", "amr-7") == "lessmap/v4/warehouse/amr-7/transitions"
+    assert keys.errors("warehouse", "amr-7") == "lessmap/v4/warehouse/amr-7/errors"
+    assert keys.state("warehouse", "amr-7") == "lessmap/v4/warehouse/amr-7/state"
+    assert keys.submap("warehouse", "amr-7", 3) == "lessmap/v4/warehouse/amr-7/submaps/3"
+    assert keys.submaps("warehouse", "amr-7") == "lessmap/v4/warehouse/amr-7/submaps/*"
 
 
 @pytest.mark.parametrize(("fleet", "robot"), [("f", "r"), ("warehouse", "amr-8"), ("_", "0")])
 def test_frames_key_ends_with_the_partition(fleet: str, robot: str) -> None:
     key = keys.frames(fleet, robot)
     assert key.rsplit("/", 1) == [
-        f"lessmap/v3/{fleet}/{robot}/frames",
+        f"lessmap/v4/{fleet}/{robot}/frames",
         str(partition.partition_of(fleet, robot)),
     ]
     own = partition.partition_of(fleet, robot)
@@ -96,15 +96,15 @@ def test_frames_key_ends_with_the_partition(fleet: str, robot: str) -> None:
 
 
 def test_subscription_helpers_default_to_every_robot() -> None:
-    assert keys.transitions() == "lessmap/v3/*/*/transitions"
-    assert keys.errors() == "lessmap/v3/*/*/errors"
-    assert keys.transitions("warehouse") == "lessmap/v3/warehouse/*/transitions"
-    assert keys.frames("*", "*") == "lessmap/v3/*/*/frames/*"
-    assert keys.frames("warehouse", "*") == "lessmap/v3/warehouse/*/frames/*"
-    assert keys.frames_of_partition(0) == "lessmap/v3/*/*/frames/0"
+    assert keys.transitions() == "lessmap/v4/*/*/transitions"
+    assert keys.errors() == "lessmap/v4/*/*/errors"
+    assert keys.transitions("warehouse") == "lessmap/v4/warehouse/*/transitions"
+    assert keys.frames("*", "*") == "lessmap/v4/*/*/frames/*"
+    assert keys.frames("warehouse", "*") == "lessmap/v4/warehouse/*/frames/*"
+    assert keys.frames_of_partition(0) == "lessmap/v4/*/*/frames/0"
     last = partition.PARTITIONS - 1
-    assert keys.frames_of_partition(last) == f"lessmap/v3/*/*/frames/{last}"
-    assert keys.health() == "lessmap/v3/@/health/*"
+    assert keys.frames_of_partition(last) == f"lessmap/v4/*/*/frames/{last}"
+    assert keys.health() == "lessmap/v4/@/health/*"
 
 
 @pytest.mark.parametrize(
@@ -128,20 +128,20 @@ def test_only_a_whole_star_chunk_is_a_wildcard(chunk: str) -> None:
 
 
 def test_service_keys_live_under_the_hermetic_chunk() -> None:
-    assert keys.instance_token("lessmap-a1") == "lessmap/v3/@/instances/lessmap-a1"
-    assert keys.instances() == "lessmap/v3/@/instances/*"
-    assert keys.health("lessmap-a1") == "lessmap/v3/@/health/lessmap-a1"
-    assert keys.service_errors("lessmap-a1") == "lessmap/v3/@/errors/lessmap-a1"
+    assert keys.instance_token("lessmap-a1") == "lessmap/v4/@/instances/lessmap-a1"
+    assert keys.instances() == "lessmap/v4/@/instances/*"
+    assert keys.health("lessmap-a1") == "lessmap/v4/@/health/lessmap-a1"
+    assert keys.service_errors("lessmap-a1") == "lessmap/v4/@/errors/lessmap-a1"
     assert keys.checkpoints(23, "warehouse", "amr-7") == (
-        "lessmap/v3/@/checkpoints/23/warehouse/amr-7"
+        "lessmap/v4/@/checkpoints/23/warehouse/amr-7"
     )
-    assert keys.checkpoints() == "lessmap/v3/@/checkpoints/*/*/*"
-    assert keys.checkpoints(5) == "lessmap/v3/@/checkpoints/5/*/*"
+    assert keys.checkpoints() == "lessmap/v4/@/checkpoints/*/*/*"
+    assert keys.checkpoints(5) == "lessmap/v4/@/checkpoints/5/*/*"
     with pytest.raises(InvalidNameError):
         keys.instance_token("*")  # a liveliness token must be concrete
 
 
-@pytest.mark.parametrize("wide", ["lessmap/v3/**", "lessmap/**", "**", "lessmap/v3/*/**"])
+@pytest.mark.parametrize("wide", ["lessmap/v4/**", "lessmap/**", "**", "lessmap/v4/*/**"])
 def test_fleet_wide_subscriptions_never_see_service_keys(wide: str) -> None:
     service_keys = [
         keys.instance_token("i-1"),
@@ -200,7 +200,7 @@ def test_submap_ids_are_non_negative_ints(submap_id: object) -> None:
 
 @pytest.mark.parametrize("stream", keys.ROBOT_STREAMS)
 def test_parse_robot_key_round_trips(stream: str) -> None:
-    key = f"lessmap/v3/warehouse/amr-7/{stream}" + ("/23" if stream == "frames" else "")
+    key = f"lessmap/v4/warehouse/amr-7/{stream}" + ("/23" if stream == "frames" else "")
     assert keys.parse_robot_key(key) == ("warehouse", "amr-7", stream)
     made = {"frames": keys.frames, "transitions": keys.transitions, "errors": keys.errors}
     if stream in made:
@@ -211,7 +211,7 @@ def test_parse_robot_key_round_trips(stream: str) -> None:
         )
 
 
-FRAMES = "lessmap/v3/warehouse/amr-7/frames"  # partition 23
+FRAMES = "lessmap/v4/warehouse/amr-7/frames"  # partition 23
 BAD_PARTITION_CHUNKS = [
     "",
     "22",
@@ -240,20 +240,20 @@ BAD_PARTITION_CHUNKS = [
         FRAMES,  # frames keys end with the partition
         f"{FRAMES}/23/x",
         *[f"{FRAMES}/{chunk}" for chunk in BAD_PARTITION_CHUNKS],
-        "lessmap/v3/warehouse/amr-7/transitions/23",
-        "lessmap/v3/warehouse/amr-7/state/23",
+        "lessmap/v4/warehouse/amr-7/transitions/23",
+        "lessmap/v4/warehouse/amr-7/state/23",
         "lessmap/v1/warehouse/amr-7/frames",  # superseded
         "lessmap/v1/warehouse/amr-7/frames/23",
         "lessmap/v1/warehouse/amr-7/transitions",
         "other/v3/f/r/transitions",
-        "lessmap/v3/f/transitions",
-        "lessmap/v3/f/r/telemetry",
-        "lessmap/v3/*/r/transitions",
-        "lessmap/v3/f/**/transitions",
-        "lessmap/v3//r/transitions",
-        "lessmap/v3/f/r/submaps/1",
-        "lessmap/v3/@/instances/x",
-        "lessmap/v3/@/checkpoints/23/warehouse/amr-7",
+        "lessmap/v4/f/transitions",
+        "lessmap/v4/f/r/telemetry",
+        "lessmap/v4/*/r/transitions",
+        "lessmap/v4/f/**/transitions",
+        "lessmap/v4//r/transitions",
+        "lessmap/v4/f/r/submaps/1",
+        "lessmap/v4/@/instances/x",
+        "lessmap/v4/@/checkpoints/23/warehouse/amr-7",
         "",
     ],
 )
@@ -273,13 +273,13 @@ def test_parse_checkpoint_key() -> None:
     key = keys.checkpoints(23, "warehouse", "amr-7")
     assert keys.parse_checkpoint_key(key) == (23, "warehouse", "amr-7")
     for bad in [
-        "lessmap/v3/@/checkpoints/5/warehouse/amr-7",
-        "lessmap/v3/@/checkpoints/023/warehouse/amr-7",
-        "lessmap/v3/@/checkpoints/*/warehouse/amr-7",
-        "lessmap/v3/@/checkpoints/23/warehouse/*",
-        "lessmap/v3/@/checkpoints/23/warehouse",
+        "lessmap/v4/@/checkpoints/5/warehouse/amr-7",
+        "lessmap/v4/@/checkpoints/023/warehouse/amr-7",
+        "lessmap/v4/@/checkpoints/*/warehouse/amr-7",
+        "lessmap/v4/@/checkpoints/23/warehouse/*",
+        "lessmap/v4/@/checkpoints/23/warehouse",
         "lessmap/v1/@/checkpoints/23/warehouse/amr-7",
-        "lessmap/v3/warehouse/amr-7/frames/23",
+        "lessmap/v4/warehouse/amr-7/frames/23",
     ]:
         with pytest.raises(InvalidNameError):
             keys.parse_checkpoint_key(bad)
@@ -287,7 +287,7 @@ def test_parse_checkpoint_key() -> None:
 
 def test_parse_submap_key() -> None:
     assert keys.parse_submap_key(keys.submap("f", "r", 12)) == ("f", "r", 12)
-    assert keys.parse_submap_key("lessmap/v3/f/r/submaps/0") == ("f", "r", 0)
+    assert keys.parse_submap_key("lessmap/v4/f/r/submaps/0") == ("f", "r", 0)
     with pytest.raises(InvalidNameError):
         keys.parse_submap_key("lessmap/v1/f/r/submaps/0")
 
@@ -295,24 +295,24 @@ def test_parse_submap_key() -> None:
 @pytest.mark.parametrize("tail", ["01", "-1", "+1", "1.0", "x", "*", "", "\u0661", "9" * 5000])
 def test_parse_submap_key_rejects_other_ids(tail: str) -> None:
     with pytest.raises(InvalidNameError):
-        keys.parse_submap_key(f"lessmap/v3/f/r/submaps/{tail}")
+        keys.parse_submap_key(f"lessmap/v4/f/r/submaps/{tail}")
     with pytest.raises(InvalidNameError):
-        keys.parse_submap_key(f"lessmap/v3/f/r/state/{tail}")
+        keys.parse_submap_key(f"lessmap/v4/f/r/state/{tail}")
 
 
 def test_released_key_round_trips_and_rejects_others() -> None:
     key = keys.released(23, "inst-a")
-    assert key == "lessmap/v3/@/released/23/inst-a"
-    assert keys.released() == "lessmap/v3/@/released/*/*"
+    assert key == "lessmap/v4/@/released/23/inst-a"
+    assert keys.released() == "lessmap/v4/@/released/*/*"
     assert zenoh.KeyExpr(keys.released()).intersects(zenoh.KeyExpr(key))
     assert keys.parse_released_key(key) == (23, "inst-a")
     for bad in (
-        "lessmap/v3/@/released/256/inst-a",
-        "lessmap/v3/@/released/023/inst-a",
-        "lessmap/v3/@/released/*/inst-a",
-        "lessmap/v3/@/released/23",
-        "lessmap/v3/@/released/23/a/b",
-        "lessmap/v3/@/checkpoints/23/inst-a",
+        "lessmap/v4/@/released/256/inst-a",
+        "lessmap/v4/@/released/023/inst-a",
+        "lessmap/v4/@/released/*/inst-a",
+        "lessmap/v4/@/released/23",
+        "lessmap/v4/@/released/23/a/b",
+        "lessmap/v4/@/checkpoints/23/inst-a",
     ):
         with pytest.raises(InvalidNameError):
             keys.parse_released_key(bad)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from lessmap.core import PartitionParams
+from lessmap.runtime.record import SessionRecord
 from lessmap.runtime.sessions import (
     CatchupPolicy,
     DurabilityPolicy,
@@ -26,7 +27,7 @@ from lessmap.runtime.sessions import (
     SessionTable,
     commit_checkpoints,
 )
-from lessmap.runtime.store import STORE_FILE, CheckpointStore, SessionRecord
+from lessmap.runtime.store import STORE_FILE, CheckpointStore
 from lessmap.sim.simulator import simulate
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame, SessionEnd
@@ -272,10 +273,10 @@ def test_a_record_being_written_is_what_load_returns(tmp_path: Path) -> None:
     gate, taken = threading.Event(), threading.Event()
 
     class SlowStore(CheckpointStore):
-        def _write(self, batch: Any) -> None:
+        def _commit(self, batch: Any) -> None:
             taken.set()
             gate.wait(10.0)
-            super()._write(batch)
+            super()._commit(batch)
 
     store = SlowStore(tmp_path)
     store.open()
@@ -336,10 +337,10 @@ def test_robots_where_reads_only_thenamed_fleet_and_robot(tmp_path: Path) -> Non
     assert store.robots_where(lambda _f, r: r == "a", fleet="f1") == [("f1", "a")]
     store.close()
     # A query's selector names a fleet and a robot only where it holds no wildcard.
-    assert named_fleet_and_robot("lessmap/v3/f1/b/state") == ("f1", "b")
-    assert named_fleet_and_robot("lessmap/v3/f1/*/areas") == ("f1", None)
-    assert named_fleet_and_robot("lessmap/v3/*/b/state") == (None, None)
-    assert named_fleet_and_robot("lessmap/v3/**") == (None, None)
+    assert named_fleet_and_robot("lessmap/v4/f1/b/state") == ("f1", "b")
+    assert named_fleet_and_robot("lessmap/v4/f1/*/areas") == ("f1", None)
+    assert named_fleet_and_robot("lessmap/v4/*/b/state") == (None, None)
+    assert named_fleet_and_robot("lessmap/v4/**") == (None, None)
 
 
 def test_a_corrupt_store_file_is_moved_aside(tmp_path: Path) -> None:

@@ -7,7 +7,7 @@ import random
 import pytest
 
 from lessmap.runtime.ownership import Ownership
-from lessmap.runtime.store import SessionRecord
+from lessmap.runtime.record import SessionRecord
 from lessmap_schemas.partition import PARTITIONS, owner_and_standby, partition_of
 
 

@@ -39,6 +39,7 @@ def state(closed: int, features: int) -> SessionState:
         fleet="f",
         robot="r",
         session="s",
+        incarnation=0,
         instance="i",
         epoch=1,
         open=True,

@@ -18,6 +18,7 @@ def transition(robot: str, session: str, boundary: int, opened: int) -> Transiti
         fleet="f",
         robot=robot,
         session=session,
+        incarnation=0,
         seq=boundary + 2,
         boundary_seq=boundary,
         stamp_s=1.0,

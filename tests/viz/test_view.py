@@ -241,6 +241,7 @@ def test_a_view_that_cannot_read_frames_says_so(
         fleet=fleet_name,
         robot="amr1",
         session="s1",
+        incarnation=0,
         seq=20,
         boundary_seq=15,
         stamp_s=1.0,

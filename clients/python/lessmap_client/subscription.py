@@ -56,7 +56,8 @@ class Subscription(Generic[T]):
     epoch is null is never fenced) and drops an event with a lower one, the late event of an
     instance that no longer owns the robot's partition; ``dropped_stale`` counts them.
 
-    Transitions are then de-duplicated by identity ``(fleet, robot, session, closed.id)``: the
+    Transitions are then de-duplicated by identity
+    ``(fleet, robot, session, incarnation, closed.id)``: the
     history recovered on joining and the live stream may overlap, and a new owner of a
     partition computes the transitions after its checkpoint again; ``duplicates`` counts them.
     """
@@ -86,7 +87,7 @@ class Subscription(Generic[T]):
         self.undecodable = 0  # payloads that were not valid messages (logged, skipped)
         self.duplicates = 0  # transitions skipped as repeats
         self.dropped_stale = 0  # events skipped for an epoch below the robot's highest
-        self._seen: OrderedDict[tuple[str, str, str, int], None] = OrderedDict()
+        self._seen: OrderedDict[tuple[str, str, str, int, int], None] = OrderedDict()
         self._epochs: OrderedDict[tuple[str, str], int] = OrderedDict()
         self._handles: list[Handle] = []
         self._dispatcher: threading.Thread | None = None
@@ -216,7 +217,7 @@ class Subscription(Generic[T]):
         return False
 
     def _is_repeat(self, t: Transition) -> bool:
-        identity = (t.fleet, t.robot, t.session, t.closed.id)
+        identity = (t.fleet, t.robot, t.session, t.incarnation, t.closed.id)
         if identity in self._seen:
             return True
         self._seen[identity] = None

@@ -85,7 +85,7 @@ class FakeBus:
     for history, and queries answer from what ``set_state``/``set_submap``/``set_health``
     stored. The fake is no service: publishing frames produces no transitions by itself.
 
-    Contract v3: robots put their frames on ``lessmap/v3/<fleet>/<robot>/frames/<partition>``;
+    Contract v4: robots put their frames on ``lessmap/v4/<fleet>/<robot>/frames/<partition>``;
     a frames key naming another partition reaches no service and is counted in
     ``misrouted_sent``. The bus's ``instances`` are the live service instances (their liveliness
     tokens): robot publishers follow them (``status.owner``), ``coverage()`` ranks them. Events
@@ -382,6 +382,7 @@ def make_transition(
     closed_id: int = 0,
     seq: int | None = None,
     session: str = "s0",
+    incarnation: int = 0,
     reason: Literal["SPECTRAL", "DISCONNECTED"] = "SPECTRAL",
     closed_features: Sequence[int] = (1, 2, 3),
     opened_features: Sequence[int] = (3, 4, 5),
@@ -402,6 +403,7 @@ def make_transition(
         fleet=fleet,
         robot=robot,
         session=session,
+        incarnation=incarnation,
         seq=detect,
         boundary_seq=boundary,
         stamp_s=float(detect),
@@ -465,6 +467,7 @@ def make_state(
         fleet=fleet,
         robot=robot,
         session=session,
+        incarnation=0,
         instance=instance,
         epoch=epoch,
         open=open,

@@ -6,7 +6,7 @@
 //! 1. payload size, before a byte is unpacked (`max_payload_bytes`);
 //! 2. msgpack, every length bounded while reading (arrays, strings, maps, nesting), no `bin`
 //!    or extension values, string map keys, nothing after the value;
-//! 3. envelope: a map, a `type` accepted here, `v == 3` (`WIRE_VERSION`);
+//! 3. envelope: a map, a `type` accepted here, `v == 4` (`WIRE_VERSION`);
 //! 4. `Frame.features` length;
 //! 5. the fields, by serde (types, unknown and missing fields), then ranges and names.
 //!
@@ -53,7 +53,7 @@ impl Default for WireLimits {
 /// Longest string anywhere, in UTF-8 bytes (`max_detail_len`).
 pub const MAX_DETAIL_LEN: usize = 1024;
 
-/// The Zenoh encoding string of a message type, e.g. `application/msgpack;lessmap.Frame/3`.
+/// The Zenoh encoding string of a message type, e.g. `application/msgpack;lessmap.Frame/4`.
 pub fn encoding<M: Message>() -> String {
     format!("{MEDIA_TYPE};lessmap.{}/{WIRE_VERSION}", M::TYPE)
 }

@@ -39,11 +39,15 @@ pub enum ErrorCode {
     SessionClosed,
     /// The service failed on valid input.
     Internal,
+    /// The service's state store stopped taking checkpoints (kept in memory, retried).
+    DurabilityLost,
+    /// The state store takes checkpoints again; open sessions were checkpointed anew.
+    DurabilityBack,
 }
 
 impl ErrorCode {
     /// Every code, in the contract's order.
-    pub const ALL: [ErrorCode; 13] = [
+    pub const ALL: [ErrorCode; 15] = [
         ErrorCode::Malformed,
         ErrorCode::Invalid,
         ErrorCode::UnknownType,
@@ -57,6 +61,8 @@ impl ErrorCode {
         ErrorCode::GraphLimit,
         ErrorCode::SessionClosed,
         ErrorCode::Internal,
+        ErrorCode::DurabilityLost,
+        ErrorCode::DurabilityBack,
     ];
 
     /// The code as it is written on the wire, e.g. `"SEQ_GAP"`.
@@ -75,6 +81,8 @@ impl ErrorCode {
             ErrorCode::GraphLimit => "GRAPH_LIMIT",
             ErrorCode::SessionClosed => "SESSION_CLOSED",
             ErrorCode::Internal => "INTERNAL",
+            ErrorCode::DurabilityLost => "DURABILITY_LOST",
+            ErrorCode::DurabilityBack => "DURABILITY_BACK",
         }
     }
 

@@ -1,6 +1,6 @@
 //! A Rust client of lessmap, the online environment-segmentation service, on Eclipse Zenoh.
 //!
-//! It speaks the wire contract v3 (`schemas/README.md` of the lessmap repository): the typed
+//! It speaks the wire contract v4 (`schemas/README.md` of the lessmap repository): the typed
 //! messages and their msgpack codec ([`messages`], [`codec`]), names, keys and partitions
 //! ([`names`]), a robot publisher ([`RobotPublisher`]; [`close_all`] ends many with one shared
 //! wait, [`closing`]) and fleet subscriptions ([`subscription`]) and queries ([`query`]), all

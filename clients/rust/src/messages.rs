@@ -1,4 +1,4 @@
-//! The messages of the wire contract v3 (section 5), field for field: those robots put and
+//! The messages of the wire contract v4 (section 5), field for field: those robots put and
 //! the service publishes here, the replies of its queryables in `messages/replies.rs`.
 //!
 //! Invariants of this file:
@@ -177,7 +177,7 @@ impl<'de> Deserialize<'de> for Reason {
 
 /// The robot left one area for another (service -> apps, `transitions` key).
 ///
-/// Identified by `(fleet, robot, session, closed.id)`.
+/// Identified by `(fleet, robot, session, incarnation, closed.id)`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Transition {
@@ -187,6 +187,9 @@ pub struct Transition {
     pub robot: String,
     /// Session the frames belong to.
     pub session: String,
+    /// First seq of the history the decision stands on (0 when nothing was lost); a new
+    /// value after the service lost state.
+    pub incarnation: u64,
     /// Detection frame: the last frame covered by this decision.
     pub seq: u64,
     /// Estimated first frame in the new area; `boundary_seq <= seq`.
@@ -230,7 +233,7 @@ impl Message for Transition {
 
     fn validate(&self) -> Result<(), WireError> {
         check!(self, names: fleet, robot, session);
-        check!(self, "Transition", seq: seq, boundary_seq);
+        check!(self, "Transition", seq: seq, boundary_seq, incarnation);
         check!(self, "Transition", finite: stamp_s);
         for value in [self.ncut, self.lambda2].into_iter().flatten() {
             finite(value, "Transition.ncut/lambda2")?;
@@ -247,6 +250,12 @@ impl Message for Transition {
             format!(
                 "boundary_seq {} is after seq {}",
                 self.boundary_seq, self.seq
+            )
+        })?;
+        ensure(self.incarnation <= self.closed.first_seq, || {
+            format!(
+                "incarnation {} is after closed.first_seq {}",
+                self.incarnation, self.closed.first_seq
             )
         })?;
         let spectral = self.reason == Reason::Spectral;
@@ -273,6 +282,7 @@ wire_map!(
         fleet,
         robot,
         session,
+        incarnation,
         seq,
         boundary_seq,
         stamp_s,

@@ -7,10 +7,10 @@ use sha2::{Digest, Sha256};
 
 use crate::error::{ErrorCode, WireError};
 
-/// Value of the `v` field of every message and of the `v3` key chunk.
-pub const WIRE_VERSION: u64 = 3;
+/// Value of the `v` field of every message and of the `v4` key chunk.
+pub const WIRE_VERSION: u64 = 4;
 /// First two chunks of every key; the version chunk is `v` followed by [`WIRE_VERSION`].
-pub const KEY_PREFIX: &str = "lessmap/v3";
+pub const KEY_PREFIX: &str = "lessmap/v4";
 /// Number of partitions; fixed by the contract version.
 pub const PARTITIONS: u16 = 256;
 /// Longest fleet, robot, session or instance name (a format bound).
@@ -117,7 +117,7 @@ pub mod keys {
         ))
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/frames/<p>`: where a robot puts `Frame` and `SessionEnd`.
+    /// `lessmap/v4/<fleet>/<robot>/frames/<p>`: where a robot puts `Frame` and `SessionEnd`.
     ///
     /// With a wildcard fleet or robot the partition chunk is a wildcard too.
     pub fn frames(fleet: &str, robot: &str) -> Result<String, WireError> {
@@ -128,27 +128,27 @@ pub mod keys {
         Ok(format!("{key}/{}", partition_of(fleet, robot)))
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/transitions` (`*` allowed for either name).
+    /// `lessmap/v4/<fleet>/<robot>/transitions` (`*` allowed for either name).
     pub fn transitions(fleet: &str, robot: &str) -> Result<String, WireError> {
         robot_key(fleet, robot, "transitions")
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/errors` (`*` allowed for either name).
+    /// `lessmap/v4/<fleet>/<robot>/errors` (`*` allowed for either name).
     pub fn errors(fleet: &str, robot: &str) -> Result<String, WireError> {
         robot_key(fleet, robot, "errors")
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/state`, answered with a `SessionState`.
+    /// `lessmap/v4/<fleet>/<robot>/state`, answered with a `SessionState`.
     pub fn state(fleet: &str, robot: &str) -> Result<String, WireError> {
         robot_key(fleet, robot, "state")
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/areas`, answered with an `AreaGraph`.
+    /// `lessmap/v4/<fleet>/<robot>/areas`, answered with an `AreaGraph`.
     pub fn areas(fleet: &str, robot: &str) -> Result<String, WireError> {
         robot_key(fleet, robot, "areas")
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/submaps/<id>`, answered with a `Submap`.
+    /// `lessmap/v4/<fleet>/<robot>/submaps/<id>`, answered with a `Submap`.
     pub fn submap(fleet: &str, robot: &str, submap_id: u64) -> Result<String, WireError> {
         Ok(format!(
             "{}/{submap_id}",
@@ -156,23 +156,23 @@ pub mod keys {
         ))
     }
 
-    /// `lessmap/v3/<fleet>/<robot>/submaps/*`: every submap of the robot's session.
+    /// `lessmap/v4/<fleet>/<robot>/submaps/*`: every submap of the robot's session.
     pub fn submaps(fleet: &str, robot: &str) -> Result<String, WireError> {
         Ok(format!("{}/{ANY}", robot_key(fleet, robot, "submaps")?))
     }
 
-    /// `lessmap/v3/@/instances/<instance>`: the liveliness token of a service instance.
+    /// `lessmap/v4/@/instances/<instance>`: the liveliness token of a service instance.
     pub fn instance_token(instance: &str) -> Result<String, WireError> {
         validate_name(instance, "instance")?;
         Ok(format!("{KEY_PREFIX}/@/instances/{instance}"))
     }
 
-    /// `lessmap/v3/@/instances/*`: every instance token.
+    /// `lessmap/v4/@/instances/*`: every instance token.
     pub fn instances() -> String {
         format!("{KEY_PREFIX}/@/instances/{ANY}")
     }
 
-    /// `lessmap/v3/@/health/<instance>` (`*` for every instance), answered with `Health`.
+    /// `lessmap/v4/@/health/<instance>` (`*` for every instance), answered with `Health`.
     pub fn health(instance: &str) -> Result<String, WireError> {
         Ok(format!(
             "{KEY_PREFIX}/@/health/{}",
@@ -194,16 +194,16 @@ mod tests {
     fn robot_keys_take_names_or_whole_chunk_wildcards() {
         assert_eq!(
             keys::areas("warehouse", "amr-7").unwrap(),
-            "lessmap/v3/warehouse/amr-7/areas"
+            "lessmap/v4/warehouse/amr-7/areas"
         );
-        assert_eq!(keys::areas("*", "*").unwrap(), "lessmap/v3/*/*/areas");
+        assert_eq!(keys::areas("*", "*").unwrap(), "lessmap/v4/*/*/areas");
         assert_eq!(
             keys::areas("warehouse", "amr/7").unwrap_err().code,
             ErrorCode::BadName
         );
         assert_eq!(
             keys::state("warehouse", "amr-7").unwrap(),
-            "lessmap/v3/warehouse/amr-7/state"
+            "lessmap/v4/warehouse/amr-7/state"
         );
     }
 }

@@ -10,7 +10,7 @@
 //! * Fencing (contract section 2a): per robot, the highest `epoch` seen on a `Transition` or
 //!   an `Error` is kept, and an event with a lower one (a deposed owner's late event) is
 //!   dropped (`dropped_stale`), before transitions are de-duplicated by identity
-//!   `(fleet, robot, session, closed.id)` (`duplicates`).
+//!   `(fleet, robot, session, incarnation, closed.id)` (`duplicates`).
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::marker::PhantomData;
@@ -18,6 +18,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// What a transition is identified by: (fleet, robot, session, incarnation, closed id).
+type Identity = (String, String, String, u64, u64);
 
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
@@ -41,7 +44,7 @@ pub trait Event: Message {
     fn fence(&self) -> Option<(&str, &str, u64)>;
 
     /// The identity repeats are dropped by, if the event has one.
-    fn identity(&self) -> Option<(String, String, String, u64)> {
+    fn identity(&self) -> Option<Identity> {
         None
     }
 }
@@ -51,11 +54,12 @@ impl Event for Transition {
         Some((&self.fleet, &self.robot, self.epoch))
     }
 
-    fn identity(&self) -> Option<(String, String, String, u64)> {
+    fn identity(&self) -> Option<Identity> {
         Some((
             self.fleet.clone(),
             self.robot.clone(),
             self.session.clone(),
+            self.incarnation,
             self.closed.id,
         ))
     }
@@ -84,8 +88,8 @@ pub struct Subscription<T> {
     entity: Option<Entity>,
     epochs: HashMap<(String, String), u64>,
     epoch_order: VecDeque<(String, String)>,
-    seen: HashSet<(String, String, String, u64)>,
-    seen_order: VecDeque<(String, String, String, u64)>,
+    seen: HashSet<Identity>,
+    seen_order: VecDeque<Identity>,
     undecodable: u64,
     duplicates: u64,
     dropped_stale: u64,

@@ -33,6 +33,7 @@ fn session_state(
         fleet: fleet.into(),
         robot: robot.into(),
         session: session.into(),
+        incarnation: 0,
         instance: "fake-a".into(),
         epoch: 1,
         open,

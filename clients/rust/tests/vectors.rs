@@ -223,7 +223,7 @@ fn state_vector(name: &str) -> SessionState {
 }
 
 #[test]
-fn v3_fields_decode_to_their_types() {
+fn v4_fields_decode_to_their_types() {
     let recognised: Transition = valid_vector("recognised revisit");
     assert_eq!(recognised.reason, Reason::Recognised);
     assert!(recognised.revisit && recognised.ncut.is_none() && recognised.lambda2.is_none());

@@ -186,6 +186,16 @@ class ServiceMetrics:
             "lessmap_sessions_evicted", "Idle sessions moved to the state store", registry=r
         )
         self.sessions = Gauge("lessmap_sessions", "Sessions in memory", registry=r)
+        self.store_durable = Gauge(
+            "lessmap_store_durable",
+            "1 while checkpoints reach the state store's file, 0 while durability is lost",
+            registry=r,
+        )
+        self.store_losses = Counter(
+            "lessmap_store_durability_lost",
+            "Times the state store stopped taking checkpoints (write error, file lost)",
+            registry=r,
+        )
         self.queue_depth = Gauge(
             "lessmap_queue_depth", "Messages waiting in the shard queues", registry=r
         )

@@ -42,8 +42,9 @@ if TYPE_CHECKING:
 
     from lessmap.core.segmenter import SegmentChange
     from lessmap.runtime.metrics import ServiceMetrics
+    from lessmap.runtime.record import SessionRecord
     from lessmap.runtime.sessions.model import Outcome, Rejection, RobotSession
-    from lessmap.runtime.store import CheckpointStore, SessionRecord
+    from lessmap.runtime.store import CheckpointStore
     from lessmap_schemas.errors import WireError
 
 log = logging.getLogger(__name__)
@@ -248,6 +249,33 @@ class Outbox:
             epoch=None,
         )
         self._put(self._service_errors_key, encode(error), _ERROR_ENCODING)
+
+    def report_store_changes(self) -> None:
+        """Publish each change of the store's durability once (shard 0 calls it each loop).
+
+        An ``Error`` on the instance's ``@/errors`` key, like any fault of the instance
+        rather than of one robot; the gauge and the counter follow it.
+        """
+        if self._store is None or self._store.path is None:
+            return
+        health = self._store.health
+        changes = health.take_changes()
+        self.metrics.store_durable.set(0 if health.lost else 1)
+        for lost, detail in changes:
+            if lost:
+                self.metrics.store_losses.inc()
+            error = Error(
+                fleet=None,
+                robot=None,
+                session=None,
+                code=ErrorCode.DURABILITY_LOST if lost else ErrorCode.DURABILITY_BACK,
+                detail=_detail(detail, 0),
+                seq=None,
+                stamp_s=time.time(),
+                instance=self._instance,
+                epoch=None,
+            )
+            self._put(self._service_errors_key, encode(error), _ERROR_ENCODING)
 
     # -- puts --------------------------------------------------------------------------------
 

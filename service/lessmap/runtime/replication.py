@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from lessmap.runtime.store import SessionRecord
+from lessmap.runtime.record import SessionRecord
 from lessmap_schemas import keys
 from lessmap_schemas.errors import WireError
 from lessmap_schemas.partition import partition_of

@@ -107,6 +107,7 @@ class Shard:
             target=self._run, name=f"lessmap-shard-{index}", daemon=True
         )
         self._last_sweep_s = time.monotonic()
+        self._store_heals = 0  # the table's ``store_heals`` when this shard last checkpointed
         self.open_sessions = 0  # sessions in memory, as the worker last saw them (health)
 
     # -- receive path ----------------------------------------------------------------------
@@ -292,6 +293,7 @@ class Shard:
                     # A bug must not kill the shard: log it, keep serving the other sessions.
                     log.exception("shard %d failed in a round", self.index)
             now = time.monotonic()
+            self._follow_store(now)
             if self._table.holds:
                 self._step(now, self._table.release_overdue, now)
             if now - self._last_sweep_s >= _IDLE_SWEEP_S:
@@ -300,6 +302,15 @@ class Shard:
             with self._ready:
                 if self._abandon or (inbound.stopping and not inbound.queue and not self._lanes):
                     return
+
+    def _follow_store(self, now: float) -> None:
+        """Checkpoint every session again once the store healed; shard 0 reports the changes."""
+        heals = self._table.store_heals
+        if heals != self._store_heals:
+            self._store_heals = heals
+            self._step(now, self._table.checkpoint_open, now)
+        if self.index == 0:
+            self._outbox.report_store_changes()
 
     def _close_sessions(self) -> None:
         """Checkpoint (with a store) or close every session at the stop, and publish that."""

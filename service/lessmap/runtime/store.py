@@ -8,8 +8,12 @@ Rules of this file:
 2. ``save`` never blocks on the disk: it replaces the robot's pending record (the latest
    wins) and wakes the writer thread, which commits everything pending in one transaction.
 3. ``load`` sees what ``save`` gave, written or not (the pending dict first, then the file).
-4. A store that cannot be opened or read is moved aside once and a fresh one is created; a
-   write that fails is logged and the store goes memory-only. The service never dies of it.
+4. A store that cannot be opened or read is moved aside and a fresh one is created. A write
+   that fails loses durability: the records stay pending in memory and the writer retries
+   with backoff; a file deleted, replaced or overwritten while open is noticed
+   (``store_file.py``) and rebuilt. Each loss and each heal is counted and reported once
+   (``take_changes``); ``heals`` tells the shards to checkpoint their sessions again.
+   The service never dies of it.
 5. Retention: rows not updated for ``retention_s`` are deleted, and while the file holds more
    than ``max_bytes`` the oldest rows of sessions no longer in memory go first.
 """
@@ -22,13 +26,19 @@ import logging
 import sqlite3
 import threading
 import time
-import zlib
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, BinaryIO
 
-import msgpack
-
 from lessmap.runtime.memory import release_free_memory, trim_heap
+from lessmap.runtime.record import RobotKey, SessionRecord
+from lessmap.runtime.store_file import (
+    CHECK_EVERY_S,
+    StoreHealth,
+    file_id,
+    file_problem,
+    move_aside,
+    prune,
+    reopen,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -36,95 +46,13 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-RobotKey = tuple[str, str]  # (fleet, robot)
 
 STORE_FILE = "sessions.sqlite3"
 LOCK_FILE = "instance.lock"
 _SCHEMA_VERSION = 2  # 2: records carry the partition epoch (wire contract v2)
 _PRUNE_EVERY_S = 30.0
-_WIRE_VERSION = 2  # of a record shipped between instances (SessionRecord.to_bytes); 2: zlib
 _RELEASE_EVERY_S = 1.0  # memory given back at most this often (a full collection: milliseconds)
 _TRIM_AFTER_RECORDS = 64  # evicted sessions written that call for a plain heap trim in between
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SessionRecord:
-    """What the store keeps of one robot's session."""
-
-    fleet: str
-    robot: str
-    session: str
-    status: str  # "open" | "evicted" | "closed"
-    last_seq: int | None  # highest seq received when the record was taken
-    meta: dict[str, Any]  # counters, gap ranges, closed session ids, final state (JSON)
-    snapshot: bytes | None  # lessmap.core.paper.snapshot bytes; None once closed
-    updated_s: float  # wall clock (time.time) of the record
-
-    @property
-    def key(self) -> RobotKey:
-        """(fleet, robot)."""
-        return (self.fleet, self.robot)
-
-    @property
-    def epoch(self) -> int:
-        """Partition epoch of the instance that wrote the record (1 if it had none)."""
-        return int(self.meta.get("epoch", 1))
-
-    def newer_than(self, other: SessionRecord | None) -> bool:
-        """True when this record supersedes ``other`` (a higher epoch, then a higher seq)."""
-        if other is None:
-            return True
-        mine = (self.epoch, -1 if self.last_seq is None else self.last_seq)
-        theirs = (other.epoch, -1 if other.last_seq is None else other.last_seq)
-        return mine > theirs
-
-    def to_bytes(self) -> bytes:
-        """Serialize for shipping to another instance (service-internal, msgpack)."""
-        return bytes(
-            msgpack.packb(
-                {
-                    "ckpt": _WIRE_VERSION,
-                    "fleet": self.fleet,
-                    "robot": self.robot,
-                    "session": self.session,
-                    "status": self.status,
-                    "last_seq": self.last_seq,
-                    "meta": json.dumps(self.meta),
-                    # zlib level 1: most bytes gone for little CPU (docs/tuning/checkpoints.md).
-                    "snapshot": None if self.snapshot is None else zlib.compress(self.snapshot, 1),
-                    "updated_s": self.updated_s,
-                },
-                use_bin_type=True,
-            )
-        )
-
-    @classmethod
-    def from_bytes(cls, data: bytes) -> SessionRecord:
-        """Read a shipped record; ValueError when it is not one."""
-        try:
-            obj = msgpack.unpackb(data, raw=False, strict_map_key=True)
-            if not isinstance(obj, dict) or obj.get("ckpt") != _WIRE_VERSION:
-                msg = f"not a version-{_WIRE_VERSION} checkpoint record"
-                raise ValueError(msg)
-            record = cls(
-                fleet=str(obj["fleet"]),
-                robot=str(obj["robot"]),
-                session=str(obj["session"]),
-                status=str(obj["status"]),
-                last_seq=None if obj["last_seq"] is None else int(obj["last_seq"]),
-                meta=json.loads(obj["meta"]),
-                snapshot=None
-                if obj["snapshot"] is None
-                else zlib.decompress(bytes(obj["snapshot"])),
-                updated_s=float(obj["updated_s"]),
-            )
-        except (KeyError, TypeError, ValueError, msgpack.UnpackException, zlib.error) as exc:
-            msg = f"unreadable checkpoint record: {exc}"
-            raise ValueError(msg) from exc
-        if record.status not in ("open", "evicted", "closed") or not isinstance(record.meta, dict):
-            msg = f"unreadable checkpoint record: status {record.status!r}"
-            raise ValueError(msg)
-        return record
 
 
 class StoreError(RuntimeError):
@@ -166,10 +94,13 @@ class CheckpointStore:
         self.problems: list[str] = []  # what went wrong on open, for the service to report
         self.writes = 0  # records committed (metric)
         self.write_seconds = 0.0
+        self.health = StoreHealth(self.path)  # rule 4
+        self._file_id: tuple[int, int] | None = None  # (device, inode) of the open file
+        self._checked_s = 0.0
 
     @property
     def durable(self) -> bool:
-        """True when records reach a file."""
+        """True when a file is open (it may be refusing writes: ``health.lost``)."""
         return self._db is not None
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -208,19 +139,17 @@ class CheckpointStore:
         try:
             self._db = self._connect()
         except sqlite3.DatabaseError as exc:
-            aside = self.path.with_name(f"{self.path.name}.corrupt-{int(self._clock())}")
-            problem = f"state store {self.path} is unreadable ({exc}); moved to {aside.name}"
+            aside = move_aside(self.path, f"corrupt-{int(self._clock())}")
+            problem = f"state store {self.path} is unreadable ({exc}); moved to {aside}"
             self.problems.append(problem + ", starting with an empty store")
             log.error("%s; starting with an empty store", problem)
-            for suffix in ("", "-wal", "-shm"):
-                part = self.path.with_name(self.path.name + suffix)
-                if part.exists():
-                    part.replace(aside.with_name(aside.name + suffix))
             try:
                 self._db = self._connect()
             except sqlite3.DatabaseError as again:
                 msg = f"state store {self.path}: {again} (give --state-dir another folder)"
                 raise StoreError(msg) from again
+        self._file_id = file_id(self.path)
+        self._checked_s = time.monotonic()
         self._thread = threading.Thread(target=self._run, name="lessmap-store", daemon=True)
         self._thread.start()
 
@@ -414,33 +343,45 @@ class CheckpointStore:
         return [_record(row) for row in rows]
 
     def flush(self, timeout_s: float = 10.0) -> bool:
-        """Wait until everything saved so far is committed to the file; False on timeout."""
+        """Wait until everything saved so far is committed to the file.
+
+        False on timeout, or at once while durability is lost (``health.lost``).
+        """
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while (self._pending or self._in_flight) and self._db is not None:
                 remaining = deadline - time.monotonic()
-                if remaining <= 0:
+                if remaining <= 0 or self.health.lost:
                     return False
                 self._cond.notify()
                 self._cond.wait(min(remaining, 0.05))
-        return True
+            return not (self.health.lost and self._pending)
 
     # -- writer thread -----------------------------------------------------------------------
 
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not self._pending and not self._stopping:
+                health = self.health
+                if not self._stopping and (
+                    not self._pending or health.backing_off(time.monotonic())
+                ):
                     self._cond.wait(timeout=self._idle_wait_s())
-                    if not self._pending:
-                        break
-                batch, self._pending = self._pending, {}
-                # Readable until committed: ``load`` must never fall back to an older row.
-                self._writing = batch
-                self._batches_taken += 1
-                self._in_flight = bool(batch)
                 stopping = self._stopping
-            if batch:
+                retry = health.lost and (stopping or not health.backing_off(time.monotonic()))
+                batch: dict[RobotKey, SessionRecord | None] = {}
+                if self._pending and (not health.lost or retry):
+                    batch, self._pending = self._pending, {}
+                    # Readable until committed: ``load`` must never fall back to an older row.
+                    self._writing = batch
+                    self._in_flight = True
+                self._batches_taken += 1
+            if not health.lost:
+                self._watch_file(before_write=bool(batch))
+                retry = health.lost  # the file is gone: rebuilt at once, the batch with it
+            if retry:
+                self._retry(batch)
+            elif batch:
                 self._write(batch)
             # Drop the written records now: kept until the next round, a batch of evicted
             # sessions (their snapshots) would stay in memory while the writer waits.
@@ -466,12 +407,20 @@ class CheckpointStore:
                 trim_heap()
                 self._evicted_since_trim = 0
             now = self._clock()
-            if now - self._last_prune_s >= _PRUNE_EVERY_S:
+            if now - self._last_prune_s >= _PRUNE_EVERY_S and not health.lost:
                 self._last_prune_s = now
                 self._prune(now)
             if stopping:
                 with self._cond:
                     if not self._pending:
+                        return
+                    if health.lost:
+                        log.error(
+                            "state store %s: %d checkpoint(s) not written at the stop (%s)",
+                            self.path,
+                            len(self._pending),
+                            health.lost_reason,
+                        )
                         return
 
     def _release_due(self) -> bool:
@@ -484,10 +433,14 @@ class CheckpointStore:
         return True
 
     def _idle_wait_s(self) -> float:
-        """How long the idle writer may wait: until a requested release is due, or pruning."""
+        """How long the idle writer may wait: a due release, a retry, or a look at the file."""
+        now = time.monotonic()
+        wait_s = CHECK_EVERY_S
+        if self.health.lost:
+            wait_s = self.health.retry_at_s - now
         if self._release_after is not None and self._batches_done >= self._release_after:
-            return max(0.0, self._last_release_s + _RELEASE_EVERY_S - time.monotonic())
-        return _PRUNE_EVERY_S
+            wait_s = min(wait_s, self._last_release_s + _RELEASE_EVERY_S - now)
+        return max(0.0, wait_s)
 
     def _shrink_cache(self) -> None:
         """Free SQLite's page cache (the file's pages are read back from the OS on demand).
@@ -504,7 +457,18 @@ class CheckpointStore:
             except sqlite3.Error as exc:
                 log.warning("state store %s: could not shrink the cache: %s", self.path, exc)
 
-    def _write(self, batch: dict[RobotKey, SessionRecord | None]) -> None:
+    def _write(self, batch: dict[RobotKey, SessionRecord | None]) -> bool:
+        """Commit a batch; on failure durability is lost and the batch waits for a retry."""
+        try:
+            self._commit(batch)
+        except (sqlite3.Error, OSError) as exc:
+            self._lose(f"write failed ({exc})", batch)
+            if getattr(exc, "sqlite_errorname", "") != "SQLITE_FULL":
+                self._close_db()  # the retry opens the file again (SQLite keeps a full disk's)
+            return False
+        return True
+
+    def _commit(self, batch: dict[RobotKey, SessionRecord | None]) -> None:
         started = time.perf_counter()
         rows = [
             (
@@ -521,55 +485,89 @@ class CheckpointStore:
             if r is not None
         ]
         gone = [key for key, r in batch.items() if r is None]
-        try:
-            with self._db_lock:
-                if self._db is None:
-                    return
-                self._db.execute("BEGIN")
-                self._db.executemany(
+        with self._db_lock:
+            db = self._db
+            if db is None:
+                msg = "no open file"
+                raise sqlite3.OperationalError(msg)
+            try:
+                db.execute("BEGIN")
+                if not batch:  # a probe: something must reach the file
+                    db.execute("INSERT OR REPLACE INTO info VALUES ('probed_s', ?)", (time.time(),))
+                db.executemany(
                     "INSERT OR REPLACE INTO sessions VALUES (?, ?, ?, ?, ?, ?, ?, ?)", rows
                 )
-                self._db.executemany("DELETE FROM sessions WHERE fleet = ? AND robot = ?", gone)
-                self._db.execute("COMMIT")
-        except sqlite3.Error as exc:
-            log.error("state store %s: write failed (%s); continuing memory-only", self.path, exc)
-            with self._db_lock:
-                if self._db is not None:
-                    self._db.close()
-                    self._db = None
-            return
+                db.executemany("DELETE FROM sessions WHERE fleet = ? AND robot = ?", gone)
+                db.execute("COMMIT")
+            except sqlite3.Error:
+                if db.in_transaction:
+                    db.execute("ROLLBACK")
+                raise
         self.writes += len(batch)
         self.write_seconds += time.perf_counter() - started
+
+    # -- durability: lost, retried, back (rule 4) --------------------------------------------
+
+    def _watch_file(self, *, before_write: bool) -> None:
+        """Lose durability when the open file was deleted, replaced or overwritten.
+
+        Before every write (a record written to a lost file is lost with it) and at least
+        every ``CHECK_EVERY_S``.
+        """
+        now = time.monotonic()
+        if self.path is None or self._db is None:
+            return
+        if not before_write and now - self._checked_s < CHECK_EVERY_S:
+            return
+        self._checked_s = now
+        problem = file_problem(self.path, self._file_id)
+        if problem is not None:
+            self._lose(problem, {}, now=True)  # rebuilt at once: nothing to wait for
+
+    def _lose(
+        self, reason: str, batch: dict[RobotKey, SessionRecord | None], *, now: bool = False
+    ) -> None:
+        """Keep a batch that did not reach the file pending; the next retry is scheduled."""
+        with self._cond:
+            self._pending = batch | self._pending  # records saved meanwhile are newer
+        self.health.lose(reason, time.monotonic(), retry_now=now)
+
+    def _retry(self, batch: dict[RobotKey, SessionRecord | None]) -> None:
+        """Open a healthy file (rebuilt if it is gone or damaged), then write what is pending."""
+        assert self.path is not None
+        try:
+            problem = file_problem(self.path, self._file_id) if self._db is not None else None
+            if self._db is None or problem is not None:
+                with self._db_lock:
+                    old, self._db = self._db, None
+                db = reopen(self.path, old, problem, self._connect, int(self._clock()))
+                with self._db_lock:
+                    self._db = db
+                self._file_id = file_id(self.path)
+                self._checked_s = time.monotonic()
+        except (sqlite3.Error, OSError) as exc:
+            self._lose(f"the file cannot be opened again ({exc})", batch)
+            return
+        # The batch itself is the probe: a full disk may take a small write and not it.
+        if self._write(batch):
+            self.health.heal(time.monotonic())
+
+    def _close_db(self) -> None:
+        with self._db_lock:
+            db, self._db = self._db, None
+        if db is not None:
+            try:
+                db.close()
+            except sqlite3.Error as exc:
+                log.debug("state store %s: closing a failed file: %s", self.path, exc)
 
     def _prune(self, now: float) -> None:
         try:
             with self._db_lock:
-                if self._db is None:
-                    return
-                self._db.execute(
-                    "DELETE FROM sessions WHERE updated_s < ?", (now - self.retention_s,)
-                )
-                while self._size_bytes() > self.max_bytes:
-                    deleted = self._db.execute(
-                        "DELETE FROM sessions WHERE rowid IN (SELECT rowid FROM sessions"
-                        " WHERE status != 'open' ORDER BY updated_s LIMIT 64)"
-                    ).rowcount
-                    if not deleted:
-                        log.warning(
-                            "state store %s holds more than %d bytes of open sessions",
-                            self.path,
-                            self.max_bytes,
-                        )
-                        break
+                if self._db is not None:
+                    prune(self._db, now - self.retention_s, self.max_bytes, self.path)
         except sqlite3.Error as exc:
             log.error("state store %s: pruning failed: %s", self.path, exc)
-
-    def _size_bytes(self) -> int:
-        assert self._db is not None
-        (pages,) = self._db.execute("PRAGMA page_count").fetchone()
-        (free,) = self._db.execute("PRAGMA freelist_count").fetchone()
-        (size,) = self._db.execute("PRAGMA page_size").fetchone()
-        return int((pages - free) * size)
 
 
 def _record(row: tuple[Any, ...]) -> SessionRecord:

@@ -58,6 +58,8 @@ pub struct SessionState {
     pub robot: String,
     /// The robot's current (latest) session.
     pub session: String,
+    /// First seq of the history the service holds (0 when nothing was lost).
+    pub incarnation: u64,
     /// Service instance holding it.
     pub instance: String,
     /// Ownership epoch of the robot's partition at that instance.
@@ -100,6 +102,7 @@ impl Message for SessionState {
         check!(self, names: fleet, robot, session, instance);
         check!(self, "SessionState", positive: epoch);
         check!(self, "SessionState", seq?: last_seq);
+        check!(self, "SessionState", seq: incarnation);
         check!(
             self,
             "SessionState",
@@ -127,6 +130,7 @@ wire_map!(
         fleet,
         robot,
         session,
+        incarnation,
         instance,
         epoch,
         open,

@@ -6,6 +6,8 @@ Invariants:
    reaches the core (``seq.py``), and the second copy of a cached frame is not counted.
 2. A refused frame counts as received and rejected, never also missing.
 3. A session is decided once every ``decide_every`` applied frames and after the last.
+4. A new incarnation (``seq.py``, invariant 6) starts the segmenter afresh: its submaps and
+   areas then stand on the frames from the incarnation on, as any replay from there has.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from lessmap_schemas.errors import ErrorCode
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
+    from lessmap.core.segmenter import Segmenter
     from lessmap.runtime.sessions.limits import Budgets
     from lessmap.runtime.sessions.model import Outcome, RobotSession
     from lessmap.runtime.sessions.seq import CacheMarks
@@ -34,9 +37,11 @@ class Applier:
         marks: CacheMarks,
         clock: Callable[[], float],
         decide_every: int,
+        fresh: Callable[[RobotSession], Segmenter],
     ) -> None:
         self._budgets = budgets
         self._marks = marks
+        self._fresh = fresh  # a new segmenter for a session (invariant 4)
         self._clock = clock  # only times decisions; activity time is passed in
         self.decide_every = decide_every  # lowered per turn by the table
 
@@ -60,8 +65,14 @@ class Applier:
             return False
         # From here on the seq counts as received, applied or not: a refused frame is
         # rejected once, never also reported missing.
+        incarnation = session.incarnation
         gap = session.advance(seq)
         if gap is not None:
+            if session.incarnation != incarnation:  # invariant 4
+                session.applied_before += session.segmenter.frames_applied
+                session.transitions_before += session.segmenter.transitions
+                session.segmenter = self._fresh(session)
+                self._budgets.set_edges(session, 0)
             report_gap(session, gap, seq, out)
         refusal = self._budgets.refusal(session, frame)
         if refusal is not None:

@@ -19,14 +19,15 @@ from __future__ import annotations
 import logging
 import sqlite3
 import zlib
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from lessmap.core import GraphError
 from lessmap.core.segmenter import segmenter_from_bytes
+from lessmap.runtime.record import SessionRecord
 from lessmap.runtime.sessions.model import RobotSession
 from lessmap.runtime.sessions.wire import session_state, wire_area_graph
-from lessmap.runtime.store import SessionRecord
 from lessmap_schemas.errors import ErrorCode
+from lessmap_schemas.keys import WIRE_VERSION
 from lessmap_schemas.messages import AreaGraph, Frame, SessionEnd, SessionState
 
 if TYPE_CHECKING:
@@ -203,7 +204,7 @@ class Durability:
         record = self._load(key)
         if record is None or "state" not in record.meta:
             return None
-        return SessionState.model_validate(record.meta["state"])
+        return SessionState.model_validate(current_version(record.meta["state"], incarnation=0))
 
     def stored_area_graph(self, key: RobotKey) -> AreaGraph | None:
         """The area graph of a robot's record: a closed one's, or an evicted one's snapshot."""
@@ -211,7 +212,7 @@ class Durability:
         if record is None:
             return None
         if "area_graph" in record.meta:  # closed
-            return AreaGraph.model_validate(record.meta["area_graph"])
+            return AreaGraph.model_validate(current_version(record.meta["area_graph"]))
         if record.snapshot is None:
             return None
         fleet, robot = key
@@ -240,6 +241,15 @@ class Durability:
         if isinstance(message, SessionEnd):
             return True
         return record.last_seq is None or message.seq > record.last_seq
+
+
+def current_version(message: dict[str, Any], **added: object) -> dict[str, Any]:
+    """A message a record kept, as this contract version writes it.
+
+    Records outlive upgrades: a message kept under an older contract lacks the fields added
+    since, given here with the value they mean for it (``added``).
+    """
+    return {**added, **message, "v": WIRE_VERSION}
 
 
 def evictable(sessions: Iterable[tuple[RobotKey, RobotSession]], now_s: float) -> list[RobotKey]:

@@ -9,7 +9,7 @@ from lessmap.runtime.sessions.seq import RobotKey, SeqState
 
 if TYPE_CHECKING:
     from lessmap.core.segmenter import SegmentChange, Segmenter
-    from lessmap.runtime.store import SessionRecord
+    from lessmap.runtime.record import SessionRecord
     from lessmap_schemas.errors import ErrorCode
     from lessmap_schemas.messages import Frame, SessionEnd, SessionState
 

@@ -11,6 +11,10 @@ Invariants (the ordering contract, schemas/README.md; ``table.py`` applies them)
 4. A frame taken from a robot's cache and also put by the robot counts once: the second of
    the two copies uses up its mark (``CacheMarks``) and is dropped uncounted.
 5. A closed session id is never reopened (``ClosedIds``, a few per robot).
+6. ``incarnation`` is the first seq of the history held. It changes only when the first
+   seq received after a fresh start or a resume (``at_origin``) follows a gap: the frames
+   before it were lost here, so what comes next must not reuse the identities published
+   from them (schemas/README.md, section 6).
 """
 
 from __future__ import annotations
@@ -48,6 +52,12 @@ class SeqState:
     last_seen_seq: int | None = None  # highest seq received, applied or refused
     gaps: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=GAPS_KEPT))
     restored_seq: int | None = None  # last_seen_seq of the checkpoint it resumed from
+    incarnation: int = 0  # invariant 6
+    at_origin: bool = True  # nothing received since a fresh start or a resume
+    # Frames applied and transitions published in earlier incarnations (their segmenter is
+    # gone; the session's counters still count them).
+    applied_before: int = 0
+    transitions_before: int = 0
 
     @property
     def expected_seq(self) -> int:
@@ -71,10 +81,19 @@ class SeqState:
         return Repeat.DUPLICATE
 
     def advance(self, seq: int) -> tuple[int, int] | None:
-        """Take a seq above the last received; return the gap it reveals, if any."""
+        """Take a seq above the last received; return the gap it reveals, if any.
+
+        A gap right after a fresh start or a resume begins a new incarnation at ``seq``
+        (invariant 6); the caller then starts the segmenter afresh (``lost_history``).
+        """
         expected = self.expected_seq
         self.last_seen_seq = seq
-        return self.count_gap(expected, seq - 1) if seq > expected else None
+        at_origin, self.at_origin = self.at_origin, False
+        if seq <= expected:
+            return None
+        if at_origin:
+            self.incarnation = seq
+        return self.count_gap(expected, seq - 1)
 
     def count_gap(self, first: int, last: int) -> tuple[int, int]:
         """Count seqs ``first..last`` as missing and remember the range."""
@@ -90,6 +109,8 @@ class SeqState:
             "frames_rejected": self.frames_rejected,
             "last_seen_seq": self.last_seen_seq,
             "gaps": [list(g) for g in self.gaps],
+            "incarnation": self.incarnation,
+            "before": [self.applied_before, self.transitions_before],
         }
 
     def restore_counters(self, meta: dict[str, Any]) -> None:
@@ -100,6 +121,9 @@ class SeqState:
         seen = meta["last_seen_seq"]
         self.last_seen_seq = self.restored_seq = None if seen is None else int(seen)
         self.gaps.extend((int(lo), int(hi)) for lo, hi in meta["gaps"])
+        self.incarnation = int(meta.get("incarnation", 0))
+        self.applied_before, self.transitions_before = map(int, meta.get("before", (0, 0)))
+        self.at_origin = True  # what the service published after this record may be lost
 
 
 def take_from_gaps(gaps: deque[tuple[int, int]], seq: int) -> bool:

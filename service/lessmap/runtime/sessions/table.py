@@ -76,7 +76,13 @@ class SessionTable:
         )
         self._holds = Holds(catchup or CatchupPolicy())
         self._marks = CacheMarks()
-        self._apply = Applier(self._budgets, self._marks, clocks.decisions, limits.max_batch_frames)
+        self._apply = Applier(
+            self._budgets,
+            self._marks,
+            clocks.decisions,
+            limits.max_batch_frames,
+            lambda session: segmenting.new_segmenter(session.fleet),
+        )
         self._closed = ClosedIds(4 * limits.max_sessions)
         # Least recently active first: a full shard evicts from the front.
         self._open: OrderedDict[RobotKey, RobotSession] = OrderedDict()
@@ -426,6 +432,20 @@ class SessionTable:
             self._budgets.set_edges(session, session.segmenter.memory_edges)
             out.resumed.append(session)
         return session
+
+    @property
+    def store_heals(self) -> int:
+        """How often the store came back after losing durability (0 without a store)."""
+        store = self._store
+        return 0 if store is None else store.health.heals
+
+    def checkpoint_open(self, now_s: float) -> Outcome:
+        """Checkpoint every open session: the store healed, its file may hold none of them."""
+        out = Outcome()
+        if self._store is not None:
+            for session in list(self._open.values()):
+                self._durability.checkpoint(session, "open", now_s, out, self._closed)
+        return out
 
     def expire_idle(self, now_s: float) -> Outcome:
         """Evict (with a store) or close (without) every session idle past the timeout."""
