@@ -24,6 +24,7 @@ def a_transition() -> Transition:
         fleet="warehouse",
         robot="amr-7",
         session="run-1",
+        incarnation=7,
         seq=42,
         boundary_seq=38,
         stamp_s=12.5,

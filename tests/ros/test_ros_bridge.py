@@ -186,8 +186,12 @@ def test_rmw_zenoh_topics_become_frames_and_transitions(
     # that one was still in transit (Zenoh keeps the order of each key, not across keys, and
     # on a loaded machine odometry fell 4 messages behind the detections): always a pose the
     # robot really sent, never one from after the next frame.
+    # A frame goes without a pose only until the first odometry has reached the bridge (under
+    # load that can take a few frames): once a pose is known, every frame carries one.
     posed = [f for f in frames_seen if f.pose is not None]
-    assert len(posed) >= len(frames_seen) - 3
+    assert posed, "no frame of amr1 carried a pose"
+    unposed = [f.seq for f in frames_seen if f.pose is None]
+    assert all(seq < min(f.seq for f in posed) for seq in unposed), unposed
     exact = 0
     for frame in posed:
         assert frame.pose is not None

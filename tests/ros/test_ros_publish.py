@@ -46,6 +46,7 @@ def a_transition(
         fleet="warehouse",
         robot=robot,
         session="run-1",
+        incarnation=7,
         seq=42,
         boundary_seq=38,
         stamp_s=1_700_000_000.25,
@@ -195,7 +196,15 @@ def test_transitions_reach_a_ros_2_subscriber_decoded_by_rosbags(
         assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1_700_000_000, 250_000_000)
         for field in ("fleet", "robot", "session", "seq", "boundary_seq", "reason", "area"):
             assert getattr(msg, field) == getattr(t, field), field
-        for field in ("left_area", "revisit", "batch_frames", "instance", "partition", "epoch"):
+        for field in (
+            "incarnation",
+            "left_area",
+            "revisit",
+            "batch_frames",
+            "instance",
+            "partition",
+            "epoch",
+        ):
             assert getattr(msg, field) == getattr(t, field), field
         for name in ("ncut", "lambda2"):
             value = getattr(t, name)

@@ -67,6 +67,7 @@ def transition_message(store: Typestore, t: Transition) -> Any:
         fleet=t.fleet,
         robot=t.robot,
         session=t.session,
+        incarnation=t.incarnation,
         seq=t.seq,
         boundary_seq=t.boundary_seq,
         reason=t.reason,

@@ -17,6 +17,7 @@ Invariants:
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -76,6 +77,9 @@ class RosPublisher:
         self._namespace_of = namespace_of
         self._zid = str(session.zid())
         self._topics: dict[str, _Topic] = {}
+        # publish runs on a Zenoh callback thread: close waits for it and then refuses it
+        self._lock = threading.Lock()
+        self._closed = False
         self.node_token = rmw.node_token(domain, self._zid, NODE_ID, "", node)
         self._node_token = session.liveliness().declare_token(self.node_token)
 
@@ -83,11 +87,15 @@ class RosPublisher:
         """Put ``t`` on its robot's transitions topic and its area change on the area topic."""
         namespace = self._namespace_of(t.robot)
         stamp_ns = time.time_ns()
-        for suffix, payload in messages_of(self._store, t).items():
-            topic = self._topic(f"{namespace}/{suffix}", TOPICS[suffix])
-            topic.publisher.put(payload, attachment=rmw.attachment(topic.sent, stamp_ns, topic.gid))
-            topic.sent += 1
-        self.published += 1
+        with self._lock:
+            if self._closed:
+                return
+            for suffix, payload in messages_of(self._store, t).items():
+                topic = self._topic(f"{namespace}/{suffix}", TOPICS[suffix])
+                attachment = rmw.attachment(topic.sent, stamp_ns, topic.gid)
+                topic.publisher.put(payload, attachment=attachment)
+                topic.sent += 1
+            self.published += 1
 
     def tokens(self) -> list[str]:
         """Return the liveliness tokens declared: the node's, then its publishers'."""
@@ -95,6 +103,10 @@ class RosPublisher:
 
     def close(self) -> None:
         """Undeclare every publisher and token (the ROS graph sees them leave)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
         for topic in self._topics.values():
             topic.token.undeclare()
             topic.publisher.undeclare()
