@@ -383,7 +383,7 @@ def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
     if spec.dest == "mode":
         return "peer", "peer"
     if default is None:
-        samples = {"metrics_port": 9464, "ncut_min": 0.3, "lambda2_min": 0.1}
+        samples = {"metrics_port": 9464, "ncut_min": 0.3, "lambda2_min": 0.1, "workers": 3}
         if spec.dest in samples:
             return str(samples[spec.dest]), samples[spec.dest]
         return "zenoh.json5", Path("zenoh.json5")

@@ -156,9 +156,16 @@ class Service:
         queries.start()
         # Metrics before any declaration: frames can arrive as soon as a partition is taken.
         if s.metrics_port is not None:
-            server, _thread = start_http_server(
-                s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
-            )
+            try:
+                server, _thread = start_http_server(
+                    s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
+                )
+            except OSError as exc:
+                msg = (
+                    f"cannot serve metrics on {s.metrics_addr}:{s.metrics_port}: "
+                    f"{exc.strerror or exc}; choose another --metrics-port"
+                )
+                raise ConfigError(msg) from exc
             self._metrics_server = server
             self.metrics_port = server.server_port
         any_robot = f"{keys.KEY_PREFIX}/*/*"

@@ -104,7 +104,7 @@ class Supervisor:
                 assert slot.process is not None
                 if slot.process.poll() is not None:
                     log.error(
-                        "worker %s exited with %s before it served: stopping",
+                        "worker %s %s before it served: stopping",
                         slot.tag,
                         describe_exit(slot.process.returncode),
                     )
