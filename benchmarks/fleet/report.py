@@ -359,7 +359,8 @@ def format_report(r: LoadReport) -> str:
         f"for {s.duration_s:g} s; {s.generators} generator process(es); seed {s.seed}",
         f"machine: {r.cpus} CPUs, load average {r.load_before[0]:.2f} before, "
         f"{r.load_after[0]:.2f} after (1 min)",
-        f"service: {s.instances} instance(s); {_own(s.workers)} shard(s), max batch frames "
+        f"service: {s.instances} instance(s) x {s.serve_workers} worker(s); {_own(s.shards)} "
+        "shard(s), max batch frames "
         f"{_own(s.max_batch_frames)}, batch linger {_own(s.batch_linger_ms)} ms, "
         f"{'memory only' if s.memory_only else 'session checkpoints on'}, "
         f"method {s.method or DEFAULT_METHOD}"
