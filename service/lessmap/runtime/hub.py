@@ -56,6 +56,7 @@ def serve_workers(
     count = worker_count(settings)
     if not settings.memory_only:
         gather_checkpoints(settings, count)
+    hub = hub_config(settings, zenoh_cfg)
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -63,7 +64,6 @@ def serve_workers(
         stop.set()
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
-    hub = hub_config(settings, zenoh_cfg)
     router: zenoh.Session | None = None
     folder = Path(tempfile.mkdtemp(prefix="lessmap-workers-"))
     try:
