@@ -7,6 +7,7 @@ offline baseline times the core alone, in this process, on the same streams.
 from __future__ import annotations
 
 import contextlib
+import http.client
 import math
 import os
 import re
@@ -43,6 +44,20 @@ def free_port() -> int:
         sock.bind(("127.0.0.1", 0))
         port: int = sock.getsockname()[1]
     return port
+
+
+def free_ports(count: int) -> int:
+    """The first of ``count`` consecutive TCP ports on 127.0.0.1 that were free a moment ago."""
+    while True:
+        first = free_port()
+        with contextlib.ExitStack() as held:
+            try:
+                for port in range(first + 1, first + count):
+                    sock = held.enter_context(socket.socket())
+                    sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return first
 
 
 def stop_process(process: subprocess.Popen[bytes], timeout_s: float = 20.0) -> int | None:
@@ -215,7 +230,8 @@ class ServiceProcess:
         self, spec: LoadSpec, log_path: Path, index: int = 0, connect: str | None = None
     ) -> None:
         self.index = index
-        self.metrics_port = free_port()
+        # `--workers N` serves metrics on N ports from this one: all of them free.
+        self.metrics_port = free_ports(spec.serve_workers)
         self.instance = f"bench-{os.getpid()}-{index}"
         args = [sys.executable, "-m", "lessmap", "serve"]
         if connect is None:
@@ -361,7 +377,9 @@ class WorkerView:
             try:
                 self.metrics_text()
                 return
-            except OSError:
+            except (OSError, http.client.HTTPException):
+                # HTTPException: before the worker listens, a connection to the free port
+                # can meet itself (a TCP self-connect) and read its own request back.
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.1)

@@ -243,6 +243,14 @@ class LoadReport:
             and (self.rss_flat or self.takeover is not None)
         )
 
+    def meets_latency_bar(self) -> bool:
+        """Every frame applied and p99 receipt -> decision <= 250 ms (RSS not judged)."""
+        return (
+            self.drained
+            and self.lost == 0
+            and self.service_latency[1].quantile(0.99) <= _QUEUE_P99_TARGET_S
+        )
+
     def as_dict(self) -> dict[str, Any]:
         """The report as JSON-ready data (seconds, KiB)."""
         rss = self.rss_growth()
