@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 import re
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from typing import TYPE_CHECKING
 
@@ -16,7 +19,7 @@ from lessmap.config.settings import load_settings
 from lessmap.errors import ConfigError
 from lessmap.runtime.hub import gather_checkpoints, hub_config
 from lessmap.runtime.store import CheckpointStore, SessionRecord
-from lessmap.runtime.supervisor import RestartPolicy, describe_exit
+from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, Supervisor, describe_exit
 from lessmap.runtime.workers import (
     WorkerRole,
     read_worker_file,
@@ -152,3 +155,34 @@ def test_a_worker_that_cannot_start_stops_the_service(tmp_path: Path) -> None:
     assert re.search(r"worker w\d exited with code 1 before it served", done.stderr)
     assert "lessmap serve: " in done.stderr  # the worker's own one-line reason
     assert "Traceback" not in done.stderr
+
+
+def test_a_worker_dying_past_the_restart_budget_stops_the_supervisor(tmp_path: Path) -> None:
+    settings = load_settings(
+        mode="router",
+        listen=(f"tcp/127.0.0.1:{free_port()}",),
+        memory_only=True,
+        instance="budget",
+    )
+    folder = tmp_path / "files"
+    folder.mkdir()
+    zenoh_cfg = ("scouting/multicast/enabled:false",)
+    supervisor = Supervisor(
+        [worker_settings(settings, 0, None)],
+        LaunchSpec(folder, zenoh_cfg=zenoh_cfg),
+        RestartPolicy(max_restarts=0, ready_timeout_s=60.0, stop_timeout_s=20.0),
+    )
+    stop = threading.Event()
+    try:
+        assert supervisor.start(stop)
+        process = supervisor.slots[0].process
+        assert process is not None
+        os.kill(process.pid, signal.SIGKILL)
+        timer = threading.Timer(30.0, stop.set)  # a bound on the wait: never reached
+        timer.start()
+        assert supervisor.watch(stop) is False
+        timer.cancel()
+        assert not stop.is_set()
+    finally:
+        supervisor.stop()
+    assert supervisor.slots[0].process is None

@@ -1,19 +1,17 @@
 """The parent of ``serve --workers N``: start the worker processes, restart them, stop them.
 
-Each worker is ``python -m lessmap serve --worker-file F``, an ordinary instance; the
-partitions move between workers by the instances' own ownership and hand-over.
+Each worker is ``python -m lessmap serve --worker-file F``, an ordinary instance.
 
 Invariants:
 
 1. Workers start one after the other, each once the previous one serves: every join is a
    hand-over from running instances, never a race of instances that each think they are
    alone.
-2. A worker that dies is started again after a back-off (doubling from
-   ``first_backoff_s``); meanwhile the others take its partitions over. More than
-   ``max_restarts`` deaths of one worker within ``window_s`` stop the whole service.
-3. Every worker is in a process group of its own (a terminal's Ctrl-C reaches the parent
-   only), dies with the parent (``workers.die_with_parent``), and is stopped, or killed
-   after ``stop_timeout_s``, by its PID.
+2. A worker that dies is started again after a back-off (doubling); meanwhile the others
+   take its partitions over. More than ``max_restarts`` deaths of one worker within
+   ``window_s`` stop the whole service.
+3. Every worker has a process group of its own (a terminal's Ctrl-C reaches the parent
+   only), dies with the parent, and is stopped, or killed after ``stop_timeout_s``, by PID.
 """
 
 from __future__ import annotations
