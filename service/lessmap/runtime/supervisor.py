@@ -44,7 +44,10 @@ _TICK_S = 0.1
 class RestartPolicy:
     """How the parent starts, restarts and stops its workers."""
 
-    first_backoff_s: float = 0.5
+    # The worker's return moves its partitions a second time, by hand-over: sessions still
+    # waiting for a catch-up at the survivor then need the robots' caches again. Long enough
+    # for the take-over and a catch-up (catchup_wait_s, 2 s) to end first.
+    first_backoff_s: float = 5.0
     max_backoff_s: float = 30.0
     max_restarts: int = 5  # deaths of one worker within window_s before the service stops
     window_s: float = 300.0
