@@ -17,7 +17,7 @@ import pytest
 
 from lessmap.config.settings import load_settings
 from lessmap.errors import ConfigError
-from lessmap.runtime.hub import gather_checkpoints, hub_config
+from lessmap.runtime.hub import gather_checkpoints, hub_config, serve_workers
 from lessmap.runtime.store import CheckpointStore, SessionRecord
 from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, Supervisor, describe_exit
 from lessmap.runtime.workers import (
@@ -186,3 +186,9 @@ def test_a_worker_dying_past_the_restart_budget_stops_the_supervisor(tmp_path: P
     finally:
         supervisor.stop()
     assert supervisor.slots[0].process is None
+
+
+def test_metrics_ports_past_the_last_port_are_one_line() -> None:
+    settings = load_settings(metrics_port=65535, workers=2, memory_only=True)
+    with pytest.raises(ConfigError, match="ports up to 65536"):
+        serve_workers(settings)

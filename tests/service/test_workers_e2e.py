@@ -164,7 +164,13 @@ def test_kill_9_of_a_worker_loses_nothing_and_it_is_restarted(
     assert by_robot == {r: ts for r, ts in expected.items() if ts}
     log = service.log()
     assert f"worker {tag} (pid {victim}) was killed by SIGKILL" in log
-    wait_until(lambda: "serves again" in service.log(), 60.0, f"{tag} restarted", service.log)
+    serves = f"worker {tag} (pid "  # "worker w1 (pid N) serves", after the kill's line
+    wait_until(
+        lambda: serves in service.log().rsplit("was killed by SIGKILL", 1)[1],
+        60.0,
+        f"{tag} serving again",
+        service.log,
+    )
     assert workers_of(service.process.pid)[tag] != victim
     assert not alive(victim)
     assert service.terminate() == 0

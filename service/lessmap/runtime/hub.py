@@ -39,6 +39,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+_MAX_PORT = 65535
+
 
 def serve_workers(
     settings: ServiceSettings,
@@ -54,6 +56,10 @@ def serve_workers(
         ConfigError: the router could not open, or a state directory is in use.
     """
     count = worker_count(settings)
+    port = settings.metrics_port
+    if port and port + count - 1 > _MAX_PORT:
+        msg = f"--metrics-port {port}: {count} workers need ports up to {port + count - 1}"
+        raise ConfigError(msg)
     if not settings.memory_only:
         gather_checkpoints(settings, count)
     hub = hub_config(settings, zenoh_cfg)

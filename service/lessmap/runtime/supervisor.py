@@ -133,7 +133,7 @@ class Supervisor:
                     slot.due_s = None
                     self._spawn(slot)
                 if slot.process is not None and not slot.serving and self._check_ready(slot):
-                    log.info("worker %s (pid %d) serves again", slot.tag, slot.process.pid)
+                    log.info("worker %s (pid %d) serves", slot.tag, slot.process.pid)
         return True
 
     def stop(self) -> bool:
