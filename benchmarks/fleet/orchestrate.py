@@ -205,7 +205,12 @@ def run_load(
                     sampler.start(t0)
                     time.sleep(max(0.0, t0 - time.time()))
                     cpu_start = {i.pid: proc_cpu_s(i.pid) for i in services}
-                    router_start = proc_cpu_s(router.pid) if router is not None else math.nan
+                    # The router's CPU: `lessmap router`'s, or the parent's of `--workers N`
+                    # (it hosts the workers' router and supervises them).
+                    hub_pid = router.pid if router is not None else None
+                    if hub_pid is None and spec.serve_workers > 1:
+                        hub_pid = parents[0].pid
+                    router_start = proc_cpu_s(hub_pid) if hub_pid is not None else math.nan
                     meter = SocketMeter(router.port) if router is not None else None
                     if meter is not None:
                         meter.start()
@@ -220,7 +225,9 @@ def run_load(
                     cpu_load = {i.pid: proc_cpu_s(i.pid) - cpu_start[i.pid] for i in alive}
                     cpu_load_total = sum(cpu_load.values())
                     cpu_load_total += sum(f.cpu_load_s for f in figures.values())  # killed
-                    router_cpu = proc_cpu_s(router.pid) - router_start if router else math.nan
+                    router_cpu = (
+                        proc_cpu_s(hub_pid) - router_start if hub_pid is not None else math.nan
+                    )
                     router_bytes = meter.stop() if meter is not None else (0, 0)
                     say("load done; waiting for every session to close")
                     states, drained = _wait_closed(client, spec, 30.0 + 2 * spec.duration_s)
