@@ -107,7 +107,8 @@ start() {
         if [ $((i % 2)) -eq 1 ]; then first=$a second=$b; else first=$b second=$a; fi
         mkdir -p "$DIR/state/local-$i"
         # shellcheck disable=SC2086  # word splitting of the extra options is intended
-        launch "local-$i" serve -m client -e "$first" -e "$second" \
+        # One process per instance (--workers 1): the script shows instances sharing a fleet.
+        launch "local-$i" serve -m client -e "$first" -e "$second" --workers 1 \
             --instance "local-$i" --state-dir "$DIR/state/local-$i" ${LESSMAP_SERVE_ARGS:-}
     done
     echo "routers: $a (router-a), $b (router-b)"

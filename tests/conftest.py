@@ -118,11 +118,16 @@ def metric_value(text: str, name: str, **labels: str) -> float:
 def private_state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """Every ``lessmap serve`` a test starts keeps its session checkpoints under tmp_path.
 
+    And runs as one process (``LESSMAP_WORKERS=1``) unless the test gives ``--workers``.
+
     The default state directory is under ``$XDG_STATE_HOME``: without this, tests would
     share (and resume) each other's sessions and write into the user's home.
     """
     folder = tmp_path / "xdg-state"
     monkeypatch.setenv("XDG_STATE_HOME", str(folder))
+    # One process per ``lessmap serve`` unless a test asks for workers (tests of
+    # ``--workers N`` do): what the other tests observe is one instance.
+    monkeypatch.setenv("LESSMAP_WORKERS", "1")
     monkeypatch.delenv("LESSMAP_STATE_DIR", raising=False)
     monkeypatch.delenv("LESSMAP_MEMORY_ONLY", raising=False)
     return folder

@@ -46,3 +46,29 @@ def test_configure_installs_one_handler_of_the_chosen_format() -> None:
     finally:
         root.handlers[:], level = saved
         root.setLevel(level)
+
+
+def test_tagged_lines_name_the_worker_in_text_and_json() -> None:
+    import io
+
+    from lessmap.cli.logfmt import configure, tag_lines
+
+    root = logging.getLogger()
+    saved = (root.handlers[:], root.level)
+    try:
+        for fmt in ("text", "json"):
+            configure(logging.INFO, fmt)
+            stream = io.StringIO()
+            handler = root.handlers[0]
+            assert isinstance(handler, logging.StreamHandler)
+            handler.setStream(stream)
+            tag_lines("w1")
+            logging.getLogger("lessmap.x").info("took %d", 3)
+            line = stream.getvalue().strip()
+            if fmt == "json":
+                assert json.loads(line)["worker"] == "w1"
+            else:
+                assert line.endswith("INFO w1 lessmap.x: took 3")
+    finally:
+        root.handlers[:], level = saved
+        root.setLevel(level)

@@ -42,7 +42,9 @@ class LoadSpec:
     generators: int = 2
     rooms: int = 12
     fleet: str = "bench"
-    workers: int | None = None  # service shards (None: the service default)
+    shards: int | None = None  # service shards per instance (None: the service default)
+    # `serve --workers N`: one command, N instance processes on this host sharing the fleet.
+    serve_workers: int = 1
     max_batch_frames: int | None = None  # None: the service default (coalescing on)
     batch_linger_ms: float | None = None  # None: the service default
     # Service processes sharing the fleet by partition ownership: 1 = one instance that is

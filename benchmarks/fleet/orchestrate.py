@@ -56,6 +56,7 @@ from benchmarks.fleet.process import (
     ServiceProcess,
     SocketMeter,
     TransitionLog,
+    WorkerView,
     _finish_pyspy,
     _start_pyspy,
     load_average,
@@ -131,9 +132,9 @@ def run_load(
         msg = f"need robots, generators, rate and duration > 0, got {spec}"
         raise ValueError(msg)
     if spec.kill_after_s is not None and not (
-        spec.instances >= 2 and 0 < spec.kill_after_s < spec.duration_s - 2.0
+        spec.instances * spec.serve_workers >= 2 and 0 < spec.kill_after_s < spec.duration_s - 2.0
     ):
-        msg = "a kill needs --instances >= 2 and 0 < --kill-one-after < --duration - 2"
+        msg = "a kill needs two instances or workers and 0 < --kill-one-after < --duration - 2"
         raise ValueError(msg)
     spec = replace(spec, generators=min(spec.generators, spec.robots))
     spacing = calibrate_spacing(
@@ -147,7 +148,8 @@ def run_load(
         # ownership: a plain `lessmap router`, the instances joined to it as clients (each its
         # own name and state directory), and the generators and the fleet app on the router.
         router = RouterProcess(work / "router.log") if spec.instances > 1 else None
-        services: list[ServiceProcess] = []
+        parents: list[ServiceProcess] = []
+        services: list[ServiceProcess] | list[WorkerView] = []
         generators: list[subprocess.Popen[bytes]] = []
         pyspy: subprocess.Popen[bytes] | None = None
         watch: TakeoverWatch | None = None
@@ -157,10 +159,16 @@ def run_load(
                 router.wait_ready()
                 say(f"router pid {router.pid} on {router.endpoint}")
             connect = router.endpoint if router is not None else None
-            services = [
+            parents = [
                 ServiceProcess(spec, work / f"serve-{i}.log", index=i, connect=connect)
                 for i in range(spec.instances)
             ]
+            # `serve --workers N`: each worker process is measured as an instance of its own.
+            services = (
+                parents
+                if spec.serve_workers == 1
+                else [WorkerView(p, w) for p in parents for w in range(spec.serve_workers)]
+            )
             service = services[0]
             for instance in services:
                 instance.wait_ready()
@@ -197,7 +205,12 @@ def run_load(
                     sampler.start(t0)
                     time.sleep(max(0.0, t0 - time.time()))
                     cpu_start = {i.pid: proc_cpu_s(i.pid) for i in services}
-                    router_start = proc_cpu_s(router.pid) if router is not None else math.nan
+                    # The router's CPU: `lessmap router`'s, or the parent's of `--workers N`
+                    # (it hosts the workers' router and supervises them).
+                    hub_pid = router.pid if router is not None else None
+                    if hub_pid is None and spec.serve_workers > 1:
+                        hub_pid = parents[0].pid
+                    router_start = proc_cpu_s(hub_pid) if hub_pid is not None else math.nan
                     meter = SocketMeter(router.port) if router is not None else None
                     if meter is not None:
                         meter.start()
@@ -212,7 +225,9 @@ def run_load(
                     cpu_load = {i.pid: proc_cpu_s(i.pid) - cpu_start[i.pid] for i in alive}
                     cpu_load_total = sum(cpu_load.values())
                     cpu_load_total += sum(f.cpu_load_s for f in figures.values())  # killed
-                    router_cpu = proc_cpu_s(router.pid) - router_start if router else math.nan
+                    router_cpu = (
+                        proc_cpu_s(hub_pid) - router_start if hub_pid is not None else math.nan
+                    )
                     router_bytes = meter.stop() if meter is not None else (0, 0)
                     say("load done; waiting for every session to close")
                     states, drained = _wait_closed(client, spec, 30.0 + 2 * spec.duration_s)
@@ -250,8 +265,8 @@ def run_load(
                 stop_process(pyspy)
             for process in generators:
                 stop_process(process)
-            codes = stop_all([i.process for i in services])
-            for instance, code in zip(services, codes, strict=True):
+            codes = stop_all([i.process for i in parents])
+            for instance, code in zip(parents, codes, strict=True):
                 if code not in (0, None, -9):
                     say(f"service {instance.instance} exited with {code}: {instance.log_tail()}")
             if router is not None:
@@ -292,7 +307,9 @@ def run_load(
     return report
 
 
-def _wait_partitions(services: list[ServiceProcess], timeout_s: float) -> dict[str, int]:
+def _wait_partitions(
+    services: Sequence[ServiceProcess | WorkerView], timeout_s: float
+) -> dict[str, int]:
     """Wait until each instance owns its rendezvous share of the partitions; return it.
 
     Generators start only then, so no robot's first frames go to a partition nobody has
@@ -359,7 +376,7 @@ class _CheckpointTap:
 
 def _kill_one(
     spec: LoadSpec,
-    services: list[ServiceProcess],
+    services: Sequence[ServiceProcess | WorkerView],
     t0: float,
     cpu_start: dict[int, float],
     figures: dict[str, InstanceFigures],
@@ -597,7 +614,10 @@ def _build_report(
 
 
 def find_knee(
-    base: LoadSpec, robots: Sequence[int], log: IO[str] | None = None
+    base: LoadSpec,
+    robots: Sequence[int],
+    log: IO[str] | None = None,
+    meets: Callable[[LoadReport], bool] = LoadReport.passes,
 ) -> tuple[int | None, list[LoadReport]]:
     """Run increasing fleet sizes until one misses the bar; return the largest that met it."""
     reports: list[LoadReport] = []
@@ -608,7 +628,7 @@ def find_knee(
         if log is not None:
             log.write(knee_row(report) + "\n")
             log.flush()
-        if not report.passes():
+        if not meets(report):
             break
         knee = count
     return knee, reports
@@ -632,7 +652,22 @@ def add_fleet_options(parser: argparse.ArgumentParser) -> None:
         help="load generator processes (default 2)",
     )
     parser.add_argument("--rooms", type=int, default=12, help="rooms per building (12)")
-    parser.add_argument("--workers", type=int, help="service shards (default: its own, 1)")
+    parser.add_argument("--shards", type=int, help="service shards (default: its own, 1)")
+    parser.add_argument(
+        "--workers",
+        dest="serve_workers",
+        type=int,
+        default=1,
+        help="worker processes of each `lessmap serve --workers N` (default 1); each worker "
+        "is reported as an instance",
+    )
+    parser.add_argument(
+        "--compare-workers",
+        type=lambda t: [int(v) for v in t.split(",")],
+        metavar="N,M",
+        help="with --find-knee: find the knee for each of these --workers counts in one run "
+        "and print them side by side",
+    )
     parser.add_argument(
         "--instances",
         type=int,
@@ -717,7 +752,8 @@ def spec_from_args(args: argparse.Namespace) -> LoadSpec:
         seed=args.seed,
         generators=args.generators,
         rooms=args.rooms,
-        workers=args.workers,
+        shards=args.shards,
+        serve_workers=args.serve_workers,
         instances=args.instances,
         kill_after_s=args.kill_one_after,
         max_batch_frames=args.max_batch_frames,
@@ -732,6 +768,8 @@ def run_fleet(args: argparse.Namespace) -> int:
     """Run the fleet load benchmark; exit code 0 when the bar is met, 2 when missed."""
     log = None if args.quiet else sys.stderr
     spec = spec_from_args(args)
+    if args.find_knee and args.compare_workers:
+        return _compare_workers(spec, args, log)
     if args.find_knee:
         if log is not None:
             log.write(KNEE_HEADER + "\n")
@@ -755,6 +793,43 @@ def run_fleet(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(format_report(report))
     return 0 if report.passes() else 2
+
+
+def _compare_workers(spec: LoadSpec, args: argparse.Namespace, log: IO[str] | None) -> int:
+    """The knee of each ``--workers`` count of ``--compare-workers``, side by side."""
+    found: list[tuple[int, int | None, list[LoadReport]]] = []
+    for count in args.compare_workers:
+        if log is not None:
+            log.write(f"--workers {count}\n{KNEE_HEADER}\n")
+        knee, reports = find_knee(
+            replace(spec, duration_s=args.knee_duration, serve_workers=count),
+            args.knee_robots,
+            log=log,
+            meets=LoadReport.meets_latency_bar,
+        )
+        found.append((count, knee, reports))
+    if args.json:
+        runs = {
+            str(count): {"knee_robots": knee, "runs": [r.as_dict() for r in reports]}
+            for count, knee, reports in found
+        }
+        sys.stdout.write(_json({"workers": runs, "load_average_end": load_average()}) + "\n")
+        return 0
+    lines = []
+    for count, _knee, reports in found:
+        lines += [f"--workers {count}", KNEE_HEADER, *(knee_row(r) for r in reports)]
+    knees = ", ".join(
+        f"{knee if knee is not None else 'none'} robots with --workers {count}"
+        for count, knee, _ in found
+    )
+    one_min, five_min, _ = load_average()
+    lines.append(
+        f"knee (0 lost, p99 receipt -> decision <= 250 ms; the pass column adds flat RSS) "
+        f"at {spec.rate_hz:g} Hz x {spec.features} features: {knees} "
+        f"(load average at the end {one_min:.2f} / {five_min:.2f}, {os.cpu_count()} CPUs)"
+    )
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ offline baseline times the core alone, in this process, on the same streams.
 from __future__ import annotations
 
 import contextlib
+import http.client
 import math
 import os
 import re
@@ -43,6 +44,20 @@ def free_port() -> int:
         sock.bind(("127.0.0.1", 0))
         port: int = sock.getsockname()[1]
     return port
+
+
+def free_ports(count: int) -> int:
+    """The first of ``count`` consecutive TCP ports on 127.0.0.1 that were free a moment ago."""
+    while True:
+        first = free_port()
+        with contextlib.ExitStack() as held:
+            try:
+                for port in range(first + 1, first + count):
+                    sock = held.enter_context(socket.socket())
+                    sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return first
 
 
 def stop_process(process: subprocess.Popen[bytes], timeout_s: float = 20.0) -> int | None:
@@ -215,7 +230,8 @@ class ServiceProcess:
         self, spec: LoadSpec, log_path: Path, index: int = 0, connect: str | None = None
     ) -> None:
         self.index = index
-        self.metrics_port = free_port()
+        # `--workers N` serves metrics on N ports from this one: all of them free.
+        self.metrics_port = free_ports(spec.serve_workers)
         self.instance = f"bench-{os.getpid()}-{index}"
         args = [sys.executable, "-m", "lessmap", "serve"]
         if connect is None:
@@ -232,8 +248,10 @@ class ServiceProcess:
             "--instance",
             self.instance,
         ]
-        if spec.workers is not None:
-            args += ["--workers", str(spec.workers)]
+        if spec.shards is not None:
+            args += ["--shards", str(spec.shards)]
+        # Always given: the service's own default is one worker per core.
+        args += ["--workers", str(spec.serve_workers)]
         if spec.max_batch_frames is not None:
             args += ["--max-batch-frames", str(spec.max_batch_frames)]
         if spec.batch_linger_ms is not None:
@@ -288,6 +306,103 @@ class ServiceProcess:
         """The last lines the service logged."""
         text = self.log_path.read_text(encoding="utf-8", errors="replace")
         return "\n".join(text.splitlines()[-lines:])
+
+
+class _ByPid:
+    """``poll()`` of a process this one did not start (a worker of ``serve --workers N``)."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+
+    def poll(self) -> int | None:
+        try:
+            stat = Path(f"/proc/{self.pid}/stat").read_text()
+        except OSError:
+            return -9
+        return -9 if stat.rpartition(")")[2].split()[0] in {"Z", "X"} else None
+
+
+class WorkerView:
+    """One worker of a ``serve --workers N`` parent, seen as an instance of its own.
+
+    Its name is the parent's instance plus ``-w<index>``, its metrics port the parent's plus
+    the index; its PID comes from /proc once the parent has started it.
+    """
+
+    def __init__(self, parent: ServiceProcess, index: int) -> None:
+        self.parent = parent
+        self.index = index
+        self.instance = f"{parent.instance}-w{index}"
+        self.metrics_port = parent.metrics_port + index
+        self.endpoint = parent.endpoint
+        self.log_path = parent.log_path
+        self._pid: int | None = None
+
+    @property
+    def pid(self) -> int:
+        """The worker's PID (its worker file is named ``w<index>.json``)."""
+        if self._pid is None:
+            tag = f"w{self.index}.json".encode()
+            for child in _children(self.parent.pid):
+                with contextlib.suppress(OSError):
+                    if any(
+                        a.endswith(tag)
+                        for a in Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
+                    ):
+                        self._pid = child
+            if self._pid is None:
+                msg = f"worker {self.instance} has no process: {self.parent.log_tail()}"
+                raise RuntimeError(msg)
+        return self._pid
+
+    @property
+    def process(self) -> _ByPid:
+        """The worker's process, polled through /proc."""
+        return _ByPid(self.pid)
+
+    def metrics_text(self) -> str:
+        """The Prometheus exposition of the worker."""
+        url = f"http://127.0.0.1:{self.metrics_port}/metrics"
+        with urllib.request.urlopen(url, timeout=10) as response:
+            text: str = response.read().decode()
+        return text
+
+    def wait_ready(self, timeout_s: float = 90.0) -> None:
+        """Wait until the worker's metrics endpoint answers."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.parent.process.poll() is not None:
+                msg = f"lessmap serve exited with {self.parent.process.returncode}"
+                raise RuntimeError(msg + ": " + self.parent.log_tail())
+            try:
+                self.metrics_text()
+                return
+            except (OSError, http.client.HTTPException):
+                # HTTPException: before the worker listens, a connection to the free port
+                # can meet itself (a TCP self-connect) and read its own request back.
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+
+    def kill9(self) -> float:
+        """SIGKILL the worker by its PID (its parent starts it again); return when."""
+        os.kill(self.pid, signal.SIGKILL)
+        at = time.time()
+        deadline = time.monotonic() + 10.0
+        while self.process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return at
+
+    def log_tail(self, lines: int = 20) -> str:
+        """The last lines of the parent's log (the workers write to it too)."""
+        return self.parent.log_tail(lines)
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
 
 
 def stop_all(processes: list[subprocess.Popen[bytes]], timeout_s: float = 30.0) -> list[int | None]:

@@ -243,6 +243,14 @@ class LoadReport:
             and (self.rss_flat or self.takeover is not None)
         )
 
+    def meets_latency_bar(self) -> bool:
+        """Every frame applied and p99 receipt -> decision <= 250 ms (RSS not judged)."""
+        return (
+            self.drained
+            and self.lost == 0
+            and self.service_latency[1].quantile(0.99) <= _QUEUE_P99_TARGET_S
+        )
+
     def as_dict(self) -> dict[str, Any]:
         """The report as JSON-ready data (seconds, KiB)."""
         rss = self.rss_growth()
@@ -359,7 +367,8 @@ def format_report(r: LoadReport) -> str:
         f"for {s.duration_s:g} s; {s.generators} generator process(es); seed {s.seed}",
         f"machine: {r.cpus} CPUs, load average {r.load_before[0]:.2f} before, "
         f"{r.load_after[0]:.2f} after (1 min)",
-        f"service: {s.instances} instance(s); {_own(s.workers)} shard(s), max batch frames "
+        f"service: {s.instances} instance(s) x {s.serve_workers} worker(s); {_own(s.shards)} "
+        "shard(s), max batch frames "
         f"{_own(s.max_batch_frames)}, batch linger {_own(s.batch_linger_ms)} ms, "
         f"{'memory only' if s.memory_only else 'session checkpoints on'}, "
         f"method {s.method or DEFAULT_METHOD}"

@@ -27,9 +27,11 @@ from typing import TYPE_CHECKING, Any
 from benchmarks.fleet.report import parse_metrics
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import zenoh
 
-    from benchmarks.fleet.process import ServiceProcess
+    from benchmarks.fleet.process import ServiceProcess, WorkerView
 
 _TOOK = re.compile(r"took (\d+) partition\(s\) in (\d+) ms \((\d+) checkpoint")
 
@@ -86,8 +88,8 @@ class TakeoverWatch:
         session: zenoh.Session,
         fleet: str,
         moved: dict[str, int],
-        victim: ServiceProcess,
-        survivors: list[ServiceProcess],
+        victim: ServiceProcess | WorkerView,
+        survivors: Sequence[ServiceProcess | WorkerView],
         killed_at: float,
         partitions_moved: int,
         *,

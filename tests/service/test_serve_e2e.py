@@ -136,7 +136,7 @@ def test_five_robots_and_a_session_restart_match_offline(
     expected = offline_transitions(frames)
     expected_rerun = offline_transitions(rerun)[restarted]
 
-    service = start_service(serve, "--workers", "2")
+    service = start_service(serve, "--shards", "2")
     session = client_session(service.endpoint)
     with FleetClient(fleet_name, session=session) as client:
         publishers = {r: RobotPublisher(fleet_name, f"r{r}", session=session) for r in robots}

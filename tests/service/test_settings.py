@@ -57,7 +57,7 @@ def test_defaults() -> None:
     assert settings.profile == "laser"
     assert (settings.ncut_min, settings.lambda2_min) == (None, None)
     assert settings.seed_mode is SeedMode.SEED
-    assert settings.workers == 1
+    assert settings.shards == 1
     assert settings.max_batch_frames == 256
     assert settings.batch_linger_ms == 0.0  # latency first; lingering is opt-in
     assert settings.max_sessions == 10_000
@@ -89,7 +89,7 @@ def test_precedence_defaults_file_environment_overrides(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     config = write_config(
-        tmp_path, {"workers": 3, "queue_depth": 7, "error_burst": 9, "profile": "stereo"}
+        tmp_path, {"shards": 3, "queue_depth": 7, "error_burst": 9, "profile": "stereo"}
     )
     monkeypatch.setenv("LESSMAP_QUEUE_DEPTH", "70")
     monkeypatch.setenv("LESSMAP_ERROR_BURST", "90")
@@ -97,7 +97,7 @@ def test_precedence_defaults_file_environment_overrides(
     settings = load_settings(config, error_burst=900)
 
     assert settings.max_sessions == 10_000  # default: nobody set it
-    assert settings.workers == 3  # file beats default
+    assert settings.shards == 3  # file beats default
     assert settings.profile == "stereo"
     assert settings.queue_depth == 70  # environment beats file
     assert settings.error_burst == 900  # overrides beat everything
@@ -120,12 +120,12 @@ def test_nested_environment_variable_keeps_the_file_siblings(
 def test_file_values_without_environment(tmp_path: Path) -> None:
     config = write_config(
         tmp_path,
-        {"limits": {"max_payload_bytes": 4096}, "listen": ["tcp/127.0.0.1:7449"], "workers": 4},
+        {"limits": {"max_payload_bytes": 4096}, "listen": ["tcp/127.0.0.1:7449"], "shards": 4},
     )
     settings = load_settings(config)
     assert settings.limits.max_payload_bytes == 4096
     assert settings.listen == ("tcp/127.0.0.1:7449",)
-    assert settings.workers == 4
+    assert settings.shards == 4
     assert not settings.embedded
 
 
@@ -135,8 +135,8 @@ def test_file_values_without_environment(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("overrides", "field"),
     [
-        ({"workers": 0}, "workers"),
-        ({"workers": 65}, "workers"),
+        ({"shards": 0}, "shards"),
+        ({"shards": 65}, "shards"),
         ({"profile": "sonar"}, "profile"),
         ({"max_batch_frames": 0}, "max_batch_frames"),
         ({"batch_linger_ms": -1.0}, "batch_linger_ms"),
@@ -156,8 +156,8 @@ def test_invalid_override_names_the_field(overrides: dict[str, Any], field: str)
 
 
 def test_invalid_environment_value_names_the_field(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("LESSMAP_WORKERS", "many")
-    assert "workers" in config_error()
+    monkeypatch.setenv("LESSMAP_SHARDS", "many")
+    assert "shards" in config_error()
 
 
 def test_unknown_key_in_the_config_file(tmp_path: Path) -> None:
@@ -172,7 +172,7 @@ def test_invalid_value_in_the_config_file(tmp_path: Path) -> None:
 
 def test_bad_json_config_file(tmp_path: Path) -> None:
     path = tmp_path / "broken.json"
-    path.write_text('{"workers": 3,', encoding="utf-8")
+    path.write_text('{"shards": 3,', encoding="utf-8")
     message = config_error(path)
     assert str(path) in message
 
@@ -383,7 +383,7 @@ def other_value(spec: FlagSpec, tmp_path: Path) -> tuple[str, object]:
     if spec.dest == "mode":
         return "peer", "peer"
     if default is None:
-        samples = {"metrics_port": 9464, "ncut_min": 0.3, "lambda2_min": 0.1}
+        samples = {"metrics_port": 9464, "ncut_min": 0.3, "lambda2_min": 0.1, "workers": 3}
         if spec.dest in samples:
             return str(samples[spec.dest]), samples[spec.dest]
         return "zenoh.json5", Path("zenoh.json5")
@@ -447,7 +447,7 @@ def test_every_field_has_a_flag_and_an_environment_variable(
         "--ncut-min 0.3",
         "--lambda2-min 0.1",
         "--seed-mode fresh",
-        "--workers 2",
+        "--shards 2",
         "--metrics-port 9464",
         "--instance edge-1",
         "--fence-after-s 5",
@@ -469,35 +469,35 @@ def test_the_documented_flag_spellings(flag: str) -> None:
 
 
 def test_flags_beat_environment_beat_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    config = write_config(tmp_path, {"workers": 3, "queue_depth": 7, "error_burst": 9})
+    config = write_config(tmp_path, {"shards": 3, "queue_depth": 7, "error_burst": 9})
     monkeypatch.setenv("LESSMAP_QUEUE_DEPTH", "70")
     monkeypatch.setenv("LESSMAP_ERROR_BURST", "90")
     settings = serve_settings("--config", str(config), "--error-burst", "900")
-    assert (settings.workers, settings.queue_depth, settings.error_burst) == (3, 70, 900)
+    assert (settings.shards, settings.queue_depth, settings.error_burst) == (3, 70, 900)
     assert settings.config == config
 
 
 def test_the_config_file_may_come_from_the_environment(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("LESSMAP_CONFIG", str(write_config(tmp_path, {"workers": 5})))
-    assert load_settings().workers == 5
-    assert serve_settings("--workers", "6").workers == 6
+    monkeypatch.setenv("LESSMAP_CONFIG", str(write_config(tmp_path, {"shards": 5})))
+    assert load_settings().shards == 5
+    assert serve_settings("--shards", "6").shards == 6
 
 
 def test_a_toml_config_file(tmp_path: Path) -> None:
     path = tmp_path / "lessmap.toml"
-    path.write_text('workers = 4\nprofile = "stereo"\n[limits]\nmax_seq = 1000\n', "utf-8")
+    path.write_text('shards = 4\nprofile = "stereo"\n[limits]\nmax_seq = 1000\n', "utf-8")
     settings = load_settings(path)
-    assert (settings.workers, settings.profile, settings.limits.max_seq) == (4, "stereo", 1000)
+    assert (settings.shards, settings.profile, settings.limits.max_seq) == (4, "stereo", 1000)
 
 
 @pytest.mark.parametrize(
     ("source", "expected"),
     [
-        ("flag", "invalid setting workers = '0' from flag --workers: "),
-        ("environment", "invalid setting workers = '0' from environment LESSMAP_WORKERS: "),
-        ("file", "invalid setting workers = 0 from config file "),
+        ("flag", "invalid setting shards = '0' from flag --shards: "),
+        ("environment", "invalid setting shards = '0' from environment LESSMAP_SHARDS: "),
+        ("file", "invalid setting shards = 0 from config file "),
         ("nested flag", "invalid setting limits.max_seq = '0' from flag --limits-max-seq: "),
         ("nested environment", "from environment LESSMAP_LIMITS__MAX_SEQ: "),
     ],
@@ -507,11 +507,11 @@ def test_an_invalid_value_is_one_line_naming_setting_and_source(
 ) -> None:
     argv: list[str] = []
     if source == "flag":
-        argv = ["--workers", "0"]
+        argv = ["--shards", "0"]
     elif source == "environment":
-        monkeypatch.setenv("LESSMAP_WORKERS", "0")
+        monkeypatch.setenv("LESSMAP_SHARDS", "0")
     elif source == "file":
-        argv = ["--config", str(write_config(tmp_path, {"workers": 0}))]
+        argv = ["--config", str(write_config(tmp_path, {"shards": 0}))]
     elif source == "nested flag":
         argv = ["--limits-max-seq", "0"]
     else:

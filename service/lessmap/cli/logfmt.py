@@ -27,13 +27,38 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(entry, default=str)
 
 
+TEXT_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+class _Tag(logging.Filter):
+    """Adds ``worker`` to every record: which process of a ``serve --workers N`` logged it."""
+
+    def __init__(self, tag: str) -> None:
+        super().__init__()
+        self.tag = tag
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.worker = self.tag
+        return True
+
+
+def tag_lines(tag: str) -> None:
+    """Name the process in every log line: text after the level, JSON as a ``worker`` field."""
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(_Tag(tag))
+        if not isinstance(handler.formatter, JsonFormatter):
+            handler.setFormatter(
+                logging.Formatter(TEXT_FORMAT.replace("%(name)s", "%(worker)s %(name)s", 1))
+            )
+
+
 def configure(level: int, fmt: str) -> None:
     """Send logs to stderr in the chosen format ("text" or "json")."""
     handler = logging.StreamHandler()
     if fmt == "json":
         handler.setFormatter(JsonFormatter())
     else:
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        handler.setFormatter(logging.Formatter(TEXT_FORMAT))
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level)

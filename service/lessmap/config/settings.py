@@ -223,10 +223,21 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         1 << 30, ge=1 << 20, description="size bound of the store; oldest idle sessions go first"
     )
 
-    # -- receive path --
+    # -- processes and receive path --
+    # Each worker is an instance process of its own (its own GIL), sharing the partitions
+    # with the others through the instances' ownership and hand-over (runtime/supervisor.py).
+    workers: int | None = Field(
+        None,
+        ge=1,
+        le=256,
+        description="instance processes on this host, sharing the partitions (default: the "
+        "usable cores; 1 = one process, no supervisor)",
+    )
     # One shard by default: shards are threads sharing one GIL, so more shards isolate robots
     # from each other but do not add throughput (docs/tuning/service.md).
-    workers: int = Field(1, ge=1, le=64, description="shards (worker threads); a robot maps to one")
+    shards: int = Field(
+        1, ge=1, le=64, description="shards (threads) per worker; a robot maps to one"
+    )
     queue_depth: int = Field(50_000, ge=1, description="pending messages per shard")
     # A shard that wakes on a nearly empty queue may wait this long for more frames, so one
     # round serves several. Off by default: it saves CPU but costs latency; for CPU-tight

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
 import gc
 import logging
 import signal
 import threading
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -15,10 +17,15 @@ from lessmap.config.coexist import join_existing_router
 from lessmap.config.settings import add_settings_flags, settings_from_args
 from lessmap.runtime.memory import tune_allocator, use_system_malloc
 from lessmap.runtime.service import Service
+from lessmap.runtime.workers import (
+    die_with_parent,
+    read_worker_file,
+    signal_ready,
+    worker_count,
+)
 
 if TYPE_CHECKING:
-    import argparse
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
     from types import FrameType
 
     from lessmap.cli.flags import FlagSpec
@@ -41,24 +48,58 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="KEY:VALUE",
         help="Zenoh config override, VALUE in JSON5 (repeatable)",
     )
+    # Set by the parent of ``--workers N`` for each worker it starts: not for operators.
+    parser.add_argument("--worker-file", type=Path, help=argparse.SUPPRESS)
     parser.set_defaults(settings_flags=specs)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap serve`` with the settings its flags, environment and file give."""
+    if args.worker_file is not None:
+        return _run_worker(args.worker_file, own_process=getattr(args, "own_process", False))
     specs: list[FlagSpec] = args.settings_flags
     settings = settings_from_args(args, specs)
     if getattr(args, "own_process", False):
         # Before any thread or socket: CPython's objects on glibc's malloc (a restart of this
         # process, same PID), so evicted sessions' memory can go back to the system. Only
         # when this process is the command (never replace a Python program that called us).
+        # The workers of ``--workers N`` inherit the setting.
         use_system_malloc()
     # With no Zenoh option and 7447 already served (e.g. by ROS 2's rmw_zenohd): join it.
-    return serve(join_existing_router(settings), args.cfg or ())
+    settings = join_existing_router(settings)
+    if worker_count(settings) > 1:
+        from lessmap.cli.logfmt import tag_lines
+        from lessmap.runtime.hub import serve_workers
+
+        tag_lines("main")
+        return serve_workers(
+            settings, args.cfg or (), verbose=args.verbose, log_format=args.log_format
+        )
+    return serve(settings, args.cfg or ())
 
 
-def serve(settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> int:
+def _run_worker(path: Path, *, own_process: bool) -> int:
+    """Run one worker of ``--workers N`` from the file its parent wrote."""
+    from lessmap.cli.logfmt import tag_lines
+
+    role, settings, zenoh_cfg = read_worker_file(path)
+    tag_lines(role.tag)
+    if not die_with_parent(role.parent_pid):
+        log.warning("the parent (pid %d) is gone: not starting", role.parent_pid)
+        return 1
+    if own_process:
+        use_system_malloc()
+    return serve(settings, zenoh_cfg, on_ready=lambda: signal_ready(role))
+
+
+def serve(
+    settings: ServiceSettings,
+    zenoh_cfg: Sequence[str] = (),
+    on_ready: Callable[[], None] | None = None,
+) -> int:
     """Start the service, park the main thread until a stop signal, stop cleanly.
+
+    ``on_ready`` is called once the service serves (a worker tells its parent so).
 
     Returns:
         0 after a clean shutdown.
@@ -69,10 +110,12 @@ def serve(settings: ServiceSettings, zenoh_cfg: Sequence[str] = ()) -> int:
     # Each shard decides on its own thread; a multi-threaded BLAS under every one of them
     # oversubscribes the cores (a dense eigh went from 0.13 s to 7.9 s under load).
     with threadpool_limits(limits=1):
-        return _serve(settings, zenoh_cfg)
+        return _serve(settings, zenoh_cfg, on_ready)
 
 
-def _serve(settings: ServiceSettings, zenoh_cfg: Sequence[str]) -> int:
+def _serve(
+    settings: ServiceSettings, zenoh_cfg: Sequence[str], on_ready: Callable[[], None] | None
+) -> int:
     # Before Zenoh starts its runtime threads (each would take a malloc arena of its own).
     log.debug("malloc options set: %s", tune_allocator() or "none")
     zenoh.init_log_from_env_or("error")
@@ -90,6 +133,8 @@ def _serve(settings: ServiceSettings, zenoh_cfg: Sequence[str]) -> int:
     gc.freeze()
     try:
         service.start()
+        if on_ready is not None:
+            on_ready()
         # Park on an Event, not on a Zenoh receive: signals are handled between waits.
         while not stop.wait(0.5):
             pass

@@ -156,9 +156,16 @@ class Service:
         queries.start()
         # Metrics before any declaration: frames can arrive as soon as a partition is taken.
         if s.metrics_port is not None:
-            server, _thread = start_http_server(
-                s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
-            )
+            try:
+                server, _thread = start_http_server(
+                    s.metrics_port, addr=s.metrics_addr, registry=self.metrics.registry
+                )
+            except OSError as exc:
+                msg = (
+                    f"cannot serve metrics on {s.metrics_addr}:{s.metrics_port}: "
+                    f"{exc.strerror or exc}; choose another --metrics-port"
+                )
+                raise ConfigError(msg) from exc
             self._metrics_server = server
             self.metrics_port = server.server_port
         any_robot = f"{keys.KEY_PREFIX}/*/*"
@@ -184,7 +191,7 @@ class Service:
             s.instance,
             "embedded router on tcp/127.0.0.1:7447" if s.embedded else "joined Zenoh network",
             s.method,
-            s.workers,
+            s.shards,
             s.profile,
             len(ownership.owned()),
             PARTITIONS,
@@ -199,7 +206,7 @@ class Service:
             self._check_catchup_budget()
 
     def _build_shards(self, outbox: Outbox, caches: CacheQueries) -> list[Shard]:
-        """One session table and one worker per ``workers``, sharing the instance's budgets."""
+        """One session table and one worker per ``shards``, sharing the instance's budgets."""
         s = self.settings
         segmenting = Segmenting(
             params=s.partition_params(),
@@ -208,7 +215,7 @@ class Service:
             omits_empty_frames=s.omits_empty_frames,
         )
         limits = SessionLimits(
-            max_sessions=max(1, -(-s.max_sessions // s.workers)),
+            max_sessions=max(1, -(-s.max_sessions // s.shards)),
             max_nodes=s.max_nodes_per_session,
             max_batch_frames=s.max_batch_frames,
             idle_timeout_s=s.session_idle_timeout_s,
@@ -224,7 +231,7 @@ class Service:
             wait_s=s.catchup_wait_s,
         )
         identity = Identity(instance=s.instance, epoch_of=self.ownership.last_epoch)
-        ledger = EdgeLedger(s.workers, s.max_edges_total)
+        ledger = EdgeLedger(s.shards, s.max_edges_total)
         admission = SessionAdmission(s.new_sessions_per_s_per_fleet, s.new_sessions_burst)
         policy = ShardPolicy(
             queue_depth=s.queue_depth,
@@ -234,7 +241,7 @@ class Service:
             coalesce_after_s=s.coalesce_after_ms / 1000.0,
         )
         shards = []
-        for index in range(s.workers):
+        for index in range(s.shards):
             table = SessionTable(
                 segmenting,
                 limits,
