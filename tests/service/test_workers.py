@@ -18,7 +18,8 @@ import pytest
 from lessmap.config.settings import load_settings
 from lessmap.errors import ConfigError
 from lessmap.runtime.hub import gather_checkpoints, hub_config, serve_workers
-from lessmap.runtime.store import CheckpointStore, SessionRecord
+from lessmap.runtime.record import SessionRecord
+from lessmap.runtime.store import CheckpointStore
 from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, Supervisor, describe_exit
 from lessmap.runtime.workers import (
     WorkerRole,

@@ -8,8 +8,7 @@ area before it. Here the cut is local (``docs/design/rooms.md`` has the reasons)
 2. Cut: within-half minus across-half similarity, less what a steady walk gives; a peak of
    at least ``cut_min`` proposes a change at the newer half's first frame.
 3. Confirmation: each side holds ``min_side_features``; the newer half is not what the
-   area knew before the window (``known_share`` of its features), unless the cut reaches
-   ``sure_cut`` with ``sure_features`` features behind it.
+   area knew before the window (``known_share``), unless the cut is ``sure_cut``.
 4. Naming: the other area holding ``revisit_overlap`` of the newer half is entered again.
 5. Models: per-feature sightings of the segment and of each area, bounded by
    ``max_area_sightings``; every field round-trips through ``lessmap.core.rooms.snapshot``.
