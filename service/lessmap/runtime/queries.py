@@ -171,6 +171,7 @@ class QueryServer:
                 answers.append((fleet, robot, answer))
             return names, answers
 
+        shards = [lane for shard in shards for lane in shard.lanes]  # each lane has a table
         futures: list[Future[tuple[list[tuple[str, str]], RobotAnswers]]] = [
             shard.read(read) for shard in shards
         ]
@@ -277,7 +278,7 @@ class QueryServer:
             )
 
     def _reply_health(self, query: zenoh.Query) -> None:
-        shards = self._shards
+        shards = [lane for shard in self._shards for lane in shard.lanes]
         health = Health(
             instance=self._settings.instance,
             version=__version__,
