@@ -4,7 +4,7 @@
 ``lessmap router``; the router is killed -9 mid-replay and restarted on the same port.
 (b) Two linked routers, A and B: the robots, the recorder and instance ``inst-a`` on A,
 ``inst-b`` on B; router B is killed -9 mid-replay (``inst-b`` is cut off, the robots still
-reach ``inst-a``) and restarted later.
+reach ``inst-a``) and restarted later; (c) the same, cut longer than the robots' caches.
 
 Judged as the fault tests of round one (``test_failover_e2e.py``): every robot's frames
 applied (the replay exits 0), per (robot, seq) exactly the offline transition on the bus
@@ -203,14 +203,6 @@ def test_an_instance_cut_off_from_the_robots_is_replaced_and_publishes_nothing_s
         session.close()
 
 
-@pytest.mark.xfail(
-    reason="an owner cut off for longer than the robots' caches hold keeps its stale "
-    "in-memory session: when the cut heals, the other instance hands the partitions back "
-    "(with a fresh checkpoint), but the isolated one never lost ownership, so it goes on "
-    "from its own session, fetches what the caches still hold and counts the rest missing "
-    "(frames applied < offered; its transitions after the gap differ from offline)",
-    strict=True,
-)
 def test_a_cut_longer_than_the_robots_caches_loses_nothing(bare_site: Site) -> None:
     site = bare_site
     path = dataset("mrclam6.frames.jsonl")
