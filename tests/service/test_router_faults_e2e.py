@@ -1,7 +1,8 @@
 """The router dies, or one instance is cut off from it: real processes on loopback.
 
-(a) Two ``lessmap serve -m client`` instances and ``lessmap replay`` of mrclam6 through one
-``lessmap router``; the router is killed -9 mid-replay and restarted on the same port.
+(a) Two ``lessmap serve -m client`` instances and ``lessmap replay`` of mrclam6 (speed 20)
+through one ``lessmap router``; the router is killed -9 mid-replay and restarted on the same
+port.
 (b) Two linked routers, A and B: the robots, the recorder and instance ``inst-a`` on A,
 ``inst-b`` on B; router B is killed -9 mid-replay (``inst-b`` is cut off, the robots still
 reach ``inst-a``) and restarted later; (c) the same, cut longer than the robots' caches.
@@ -153,10 +154,12 @@ def test_router_killed_mid_replay_and_restarted_loses_nothing(bare_site: Site) -
     try:
         bus = BusRecorder(session)
         wait_until(lambda: covered(session, names), 60.0, "two instances to share out")
-        replay = start_replay(site, path, "40")
+        # Speed 20: ~50 frames/s a robot, so a cache of 1,000 frames holds 20 s: the outage,
+        # the router's restart and both instances' rejoin (they dropped their partitions).
+        replay = start_replay(site, path, "20")
         wait_until(lambda: len(bus.got) >= total // 3, 120.0, "a third of the transitions")
         kill_9(first)
-        time.sleep(2.0)  # the robots go on; their caches (1,000 frames) hold the outage
+        time.sleep(2.0)  # the robots go on; their caches hold the outage
         router(site, "router", site.endpoint)
         wait_until(lambda: covered(session, names), 60.0, "the instances back on the router")
         judge(site, replay, bus, session, expected)

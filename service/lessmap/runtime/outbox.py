@@ -60,7 +60,8 @@ _INTERNAL_ENCODING = zenoh.Encoding("application/octet-stream")  # checkpoints, 
 # copy; with BLOCK the router would stop forwarding this instance's puts to everyone.
 _DROP = zenoh.CongestionControl.DROP
 # Transitions on a priority nothing else of ours uses (so a blocking reply or a peer's
-# BLOCK traffic on DATA cannot hold them up), sent at once rather than batched.
+# BLOCK traffic on DATA cannot hold them up). Batched: a burst of one chunk's transitions
+# fits one batch, where express ones each took one of the queue's two slots and dropped.
 _TRANSITION_PRIORITY = zenoh.Priority.DATA_HIGH
 RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.released``)
 
@@ -309,7 +310,6 @@ class Outbox:
                 encoding=_TRANSITION_ENCODING,
                 congestion_control=_DROP,
                 priority=_TRANSITION_PRIORITY,
-                express=True,
                 cache=ext.CacheConfig(self._cache),
                 # Sequence numbers and heartbeats let an AdvancedSubscriber notice a missed
                 # transition and fetch it from the cache instead of silently skipping it.

@@ -171,7 +171,8 @@ class QueryServer:
                 answers.append((fleet, robot, answer))
             return names, answers
 
-        shards = [lane for shard in shards for lane in shard.lanes]  # each lane has a table
+        if known:  # each lane has a table; a stored robot is read once, from the store
+            shards = [lane for shard in shards for lane in shard.lanes]
         futures: list[Future[tuple[list[tuple[str, str]], RobotAnswers]]] = [
             shard.read(read) for shard in shards
         ]

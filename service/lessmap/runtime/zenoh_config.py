@@ -70,6 +70,14 @@ _ZENOH_DEFAULT_LISTEN = zenoh.Config().get_json("listen/endpoints")
 _LOOPBACK_LISTEN = {"router": "tcp/127.0.0.1:7447", "peer": "tcp/127.0.0.1:0"}
 
 
+_WAIT_BEFORE_DROP = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+_ZENOH_WAIT_BEFORE_DROP_US = 1000
+# How long a DROP message waits for room on a full link. Zenoh's 1 ms dropped transitions
+# and frames on a busy host whose sender thread was merely descheduled; a link that stays
+# full this long has a consumer that does not read.
+WAIT_BEFORE_DROP_US = 50_000
+
+
 def slow_consumer_qos() -> list[dict[str, object]]:
     """What a router does with lessmap puts toward a full link: drop, never wait.
 
@@ -99,6 +107,8 @@ def _safe_defaults(conf: zenoh.Config) -> None:
     """
     if not json.loads(conf.get_json("qos/network")):
         conf.insert_json5("qos/network", json.dumps(slow_consumer_qos()))
+    if json.loads(conf.get_json(_WAIT_BEFORE_DROP)) == _ZENOH_WAIT_BEFORE_DROP_US:
+        conf.insert_json5(_WAIT_BEFORE_DROP, str(WAIT_BEFORE_DROP_US))
     if json.loads(conf.get_json("scouting/multicast/enabled")) is None:
         conf.insert_json5("scouting/multicast/enabled", "false")
     if conf.get_json("listen/endpoints") == _ZENOH_DEFAULT_LISTEN:
