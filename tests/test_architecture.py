@@ -351,6 +351,8 @@ TABLE_MUTATORS = frozenset(
         "close_all",
         "hand_over",
         "note_from_cache",
+        "release_robot",
+        "adopt_robot",
     }
 )
 MAX_PARAMETERS = 8
@@ -384,6 +386,8 @@ def test_the_shard_worker_is_where_the_tables_change() -> None:
         "recover",
         "close_all",
         "hand_over",
+        "release_robot",  # a move to the heavy lane: released by one worker,
+        "adopt_robot",  # adopted by the other through a command on its inbox
     }
     table = ast.parse((SESSIONS / "table.py").read_text(encoding="utf-8"))
     methods = {

@@ -185,6 +185,15 @@ class ServiceSettings(BaseSettings, PartitionSettings):
         ge=1000,
         description="work per robot and scheduling round, in pair updates (fair scheduling)",
     )
+    # A decision holds its worker for as long as it takes; a robot whose decisions take long
+    # is served by a second worker per shard, so the others never wait for one
+    # (docs/design/heavy-robots.md).
+    heavy_decision_ms: float = Field(
+        20.0,
+        ge=0.0,
+        description="a robot whose decisions are estimated to take longer than this (ms) "
+        "moves to its shard's heavy lane, a worker of its own; 0 = no heavy lane",
+    )
 
     # -- durable sessions --
     # Checkpoints go to <state_dir>/sessions.sqlite3. A restarted instance resumes each

@@ -46,6 +46,7 @@ class ShardPolicy:
     linger_s: float = 0.0  # a round woken by one frame waits this long for more
     quantum: int = 5_000_000  # cost units per robot and round (deficit round robin)
     coalesce_after_s: float = 0.05  # a frame older than this: the shard is behind
+    heavy_of: int | None = None  # the index of the shard whose heavy lane this one is
 
 
 @dataclass(slots=True)

@@ -11,7 +11,8 @@ Invariants (schemas/README.md section 2a; ``docs/decisions/0003-shard-actor.md``
    its sessions (a command each), the release is announced.
 4. Joining while others run: hold the won partitions' frames, declare the token, wait for
    each release (bounded), then fetch and take, the held frames first (as probes).
-5. A process frozen past the fence drops every partition and rejoins as a joiner does.
+5. A process frozen past the fence drops every partition and rejoins as a joiner does; so
+   does a client without a router for as long (another instance may have taken over).
 """
 
 from __future__ import annotations
@@ -159,9 +160,19 @@ class Membership:
         self._control.put(("checkpoint", (str(sample.key_expr), sample.payload.to_bytes())))
 
     def _run_heartbeat(self) -> None:
+        cut_since: float | None = None  # since when a client has had no router
+        reported = False
         while not self._heartbeat_stop.wait(_HEARTBEAT_S):
             if self._ownership.tick():
                 self._control.put(("frozen", None))
+            if not self._without_router():
+                cut_since, reported = None, False
+                continue
+            now = time.monotonic()
+            cut_since = now if cut_since is None else cut_since
+            if not reported and now - cut_since > self._settings.fence_after_s:
+                reported = True  # invariant 5: once per cut
+                self._control.put(("cut off", None))
 
     def _run_control(self) -> None:
         while True:
@@ -179,6 +190,8 @@ class Membership:
                     self._replication.take_replica(*value)  # type: ignore[misc]
                 elif kind == "frozen":
                     self._after_freeze()
+                elif kind == "cut off":
+                    self._after_cut_off()
             except Exception:
                 # A bug must not stop ownership changes: log it, keep going.
                 log.exception("ownership change %s %s failed", kind, value)
@@ -223,6 +236,32 @@ class Membership:
         self._hand_over(sorted(self._ownership.owned()))
         self._replication.stop_standing_by()
         self._wait_for_router()
+        self._rejoin()
+
+    def _after_cut_off(self) -> None:
+        """No router past the fence: the others took this instance's partitions; drop them.
+
+        Kept, its sessions would go on from where the cut left them while the instance that
+        took over applied more: the partitions come back only as a joiner's do, from the
+        checkpoints of whoever held them meanwhile (docs/design/faults.md).
+        """
+        log.warning(
+            "%s had no router for more than %.1f s: every partition dropped (another "
+            "instance may have taken them over); rejoining when a router is back",
+            self._settings.instance,
+            self._settings.fence_after_s,
+        )
+        self._hand_over(sorted(self._ownership.owned()))
+        self._replication.stop_standing_by()
+        while self._without_router():  # unbounded: alone, it would take every partition
+            if self._heartbeat_stop.wait(0.1):
+                return
+        # The others' tokens reach a client just after its link is back.
+        if self._heartbeat_stop.wait(_LEAVE_CONFIRM_S):
+            return
+        self._rejoin()
+
+    def _rejoin(self) -> None:
         # Back as a joiner comes (invariant 5): the partitions won again were taken over
         # meanwhile; taken at once, they would resume from this instance's old checkpoints.
         change = self._ownership.set_live(self._live_instances(), arriving=True)

@@ -12,6 +12,8 @@ Invariants:
    implies the transitions it covers reached the router.
 4. Transitions go out through one ``AdvancedPublisher`` per robot with a cache, so a fleet
    app that joins late or misses samples recovers them; errors are rate-limited per robot.
+5. No put waits for a consumer: every put drops rather than blocks on a full link
+   (``docs/design/slow-consumers.md``); transitions travel at a priority of their own.
 """
 
 from __future__ import annotations
@@ -55,6 +57,13 @@ _TRANSITION_ENCODING = zenoh.Encoding(encoding(Transition))
 _ERROR_ENCODING = zenoh.Encoding(encoding(Error))
 _STATE_ENCODING = zenoh.Encoding(encoding(SessionState))
 _INTERNAL_ENCODING = zenoh.Encoding("application/octet-stream")  # checkpoints, releases
+# Invariant 5. A link that is full because one consumer does not read loses that consumer's
+# copy; with BLOCK the router would stop forwarding this instance's puts to everyone.
+_DROP = zenoh.CongestionControl.DROP
+# Transitions on a priority nothing else of ours uses (so a blocking reply or a peer's
+# BLOCK traffic on DATA cannot hold them up). Batched: a burst of one chunk's transitions
+# fits one batch, where express ones each took one of the queue's two slots and dropped.
+_TRANSITION_PRIORITY = zenoh.Priority.DATA_HIGH
 RELEASE_VERSION = 1  # of the service-internal release announcement (``keys.released``)
 
 
@@ -209,6 +218,7 @@ class Outbox:
                     keys.checkpoints(p, record.fleet, record.robot),
                     record.to_bytes(),
                     encoding=_INTERNAL_ENCODING,
+                    congestion_control=_DROP,  # the standby also fetches on a take-over
                 )
                 self.metrics.checkpoints_shipped.inc()
             except zenoh.ZError as exc:
@@ -219,7 +229,7 @@ class Outbox:
         payload = msgpack.packb({"released": RELEASE_VERSION, "epoch": epoch})
         try:
             key = keys.released(partition, self._instance)
-            self._session.put(key, payload, encoding=_INTERNAL_ENCODING)
+            self._session.put(key, payload, encoding=_INTERNAL_ENCODING, congestion_control=_DROP)
         except zenoh.ZError as exc:
             log.warning("could not announce the release of partition %d: %s", partition, exc)
 
@@ -326,7 +336,8 @@ class Outbox:
                 self._session,
                 keys.transitions(fleet, robot),
                 encoding=_TRANSITION_ENCODING,
-                congestion_control=zenoh.CongestionControl.BLOCK,
+                congestion_control=_DROP,
+                priority=_TRANSITION_PRIORITY,
                 cache=ext.CacheConfig(self._cache),
                 # Sequence numbers and heartbeats let an AdvancedSubscriber notice a missed
                 # transition and fetch it from the cache instead of silently skipping it.
@@ -372,7 +383,7 @@ class Outbox:
 
     def _put(self, key: str, payload: bytes, encoding_: zenoh.Encoding) -> None:
         try:
-            self._session.put(key, payload, encoding=encoding_)
+            self._session.put(key, payload, encoding=encoding_, congestion_control=_DROP)
         except zenoh.ZError:
             log.exception("could not put on %s", key)
 

@@ -171,6 +171,8 @@ class QueryServer:
                 answers.append((fleet, robot, answer))
             return names, answers
 
+        if known:  # each lane has a table; a stored robot is read once, from the store
+            shards = [lane for shard in shards for lane in shard.lanes]
         futures: list[Future[tuple[list[tuple[str, str]], RobotAnswers]]] = [
             shard.read(read) for shard in shards
         ]
@@ -277,7 +279,7 @@ class QueryServer:
             )
 
     def _reply_health(self, query: zenoh.Query) -> None:
-        shards = self._shards
+        shards = [lane for shard in self._shards for lane in shard.lanes]
         health = Health(
             instance=self._settings.instance,
             version=__version__,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -29,6 +30,7 @@ from lessmap.core.segmenter import Method
 from lessmap.errors import ConfigError
 from lessmap.runtime.budget import EdgeLedger, SessionAdmission
 from lessmap.runtime.caches import CacheQueries
+from lessmap.runtime.heavy import HeavyLane
 from lessmap.runtime.membership import Membership
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import EgressPolicy, Outbox
@@ -231,7 +233,7 @@ class Service:
             wait_s=s.catchup_wait_s,
         )
         identity = Identity(instance=s.instance, epoch_of=self.ownership.last_epoch)
-        ledger = EdgeLedger(s.shards, s.max_edges_total)
+        ledger = EdgeLedger(2 * s.shards, s.max_edges_total)  # a slot per table
         admission = SessionAdmission(s.new_sessions_per_s_per_fleet, s.new_sessions_burst)
         policy = ShardPolicy(
             queue_depth=s.queue_depth,
@@ -240,8 +242,8 @@ class Service:
             quantum=s.fair_quantum,
             coalesce_after_s=s.coalesce_after_ms / 1000.0,
         )
-        shards = []
-        for index in range(s.shards):
+
+        def shard(index: int, heavy: HeavyLane[Shard] | None, heavy_of: int | None) -> Shard:
             table = SessionTable(
                 segmenting,
                 limits,
@@ -251,17 +253,23 @@ class Service:
                 budgets=SharedBudgets(ledger=ledger, slot=index, admission=admission),
                 store=self.store,
             )
-            shards.append(
-                Shard(
-                    index,
-                    table,
-                    outbox,
-                    limits=s.limits.wire_limits(),
-                    policy=policy,
-                    request_catchup=caches.request_catchup,
-                    owns=self.ownership.owns,
-                )
+            return Shard(
+                index,
+                table,
+                outbox,
+                limits=s.limits.wire_limits(),
+                policy=replace(policy, heavy_of=heavy_of),
+                request_catchup=caches.request_catchup,
+                owns=self.ownership.owns,
+                heavy=heavy,
             )
+
+        shards = []
+        for index in range(s.shards):
+            heavy = None
+            if s.heavy_decision_ms > 0:  # its heavy lane: a shard of its own, fed by it
+                heavy = HeavyLane(shard(s.shards + index, None, index), s.heavy_decision_ms)
+            shards.append(shard(index, heavy, None))
         return shards
 
     def _replicates(self, fleet: str, robot: str) -> bool:

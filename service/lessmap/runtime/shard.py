@@ -12,20 +12,24 @@ Invariants (the why: ``docs/decisions/0003-shard-actor.md``, ``0004-fair-schedul
    frame; one over its share is coalesced by its own load, never because of another's.
 5. Catch-up queries go out through ``request_catchup`` (callbacks that only enqueue); their
    replies and end come back through the same FIFO, so the end follows its replies.
+6. A robot whose decisions take long is moved to the shard's heavy lane (``heavy.py``): a
+   second shard, fed by this worker, so no robot here waits for such a decision.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import operator
 import threading
 import time
-from collections import deque
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from lessmap.runtime.arrivals import Arrivals
 from lessmap.runtime.commands import CommandInbox
 from lessmap.runtime.fairness import Lane, Planned, ShardPolicy, coalescing_level, plan_turn
+from lessmap.runtime.heavy import and_heavy
 from lessmap.runtime.inbound import (
     CATCHUP_DONE,
     LIVE,
@@ -44,18 +48,17 @@ from lessmap_schemas.messages import Frame, SessionEnd
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from lessmap.runtime.heavy import HeavyLane
     from lessmap.runtime.outbox import Outbox
-    from lessmap.runtime.sessions.model import CatchupRequest
+    from lessmap.runtime.sessions.model import CatchupRequest, MovedRobot
     from lessmap.runtime.sessions.table import SessionTable
     from lessmap_schemas.limits import WireLimits
 
 log = logging.getLogger(__name__)
 
-_BATCH_MAX = 4096  # messages moved from the queue to the lanes per round
 _LINGER_BELOW = 64  # a queue this deep already makes a batch: no lingering
 _IDLE_SWEEP_S = 1.0
 _FLUSH_FRAMES = 64  # plain frames of several robots' turns handed to the table at once
-_KEYS_REMEMBERED = 65_536  # parsed robot keys kept (``_parse_key``)
 
 T = TypeVar("T")
 Turn = tuple[tuple[str, str], list[Frame | SessionEnd], int | None]
@@ -76,8 +79,10 @@ class Shard:
         policy: ShardPolicy,
         request_catchup: Callable[[Shard, CatchupRequest], None] | None = None,
         owns: Callable[[str, str], bool] | None = None,
+        heavy: HeavyLane[Shard] | None = None,
     ) -> None:
         self.index = index
+        self._heavy = heavy  # invariant 6
         # False for a robot whose partition this instance handed over: its queued frames are
         # left to the new owner (which fetches them from the robot's cache).
         self._owns = owns
@@ -92,7 +97,7 @@ class Shard:
         self._coalesce_after_s = policy.coalesce_after_s
         self._level = math.inf  # this round's ``coalescing_level``
         self._lanes: dict[tuple[str, str], Lane] = {}  # insertion order = round order
-        self._robot_of: dict[str, tuple[str, str]] = {}  # valid keys seen: (fleet, robot)
+        self._arrivals = Arrivals(self._inbound, self._lanes, heavy, outbox.reject_unattributed)
         # Seconds waited by the round's frames, for the latency histograms (``_round``).
         self._queue_waits: list[float] = []
         self._frame_waits: list[float] = []
@@ -104,7 +109,9 @@ class Shard:
         self._close_cause = "shutdown"  # why the sessions close when the worker ends
         self._sessions_closed = False
         self._thread = threading.Thread(
-            target=self._run, name=f"lessmap-shard-{index}", daemon=True
+            target=self._run,
+            name=f"lessmap-shard-{index}" if policy.heavy_of is None else f"lessmap-heavy-{index}",
+            daemon=True,
         )
         self._last_sweep_s = time.monotonic()
         self._store_heals = 0  # the table's ``store_heals`` when this shard last checkpointed
@@ -141,6 +148,11 @@ class Shard:
         return max(0.0, now - min(live)) if live else 0.0
 
     @property
+    def lanes(self) -> tuple[Shard, ...]:
+        """This shard and its heavy lane, if it has one (each has a table)."""
+        return (self,) if self._heavy is None else (self, self._heavy.worker)
+
+    @property
     def stopping(self) -> bool:
         """True once ``stop`` was called: new samples are refused."""
         return self._inbound.stopping
@@ -153,7 +165,17 @@ class Shard:
 
     def drain(self, wanted: Callable[[str, str], bool]) -> Future[None]:
         """Apply now what is queued for the robots ``wanted`` names (before a hand-over)."""
-        return self._commands.send(lambda: self._serve_now(wanted))
+        done = self._commands.send(lambda: self._serve_now(wanted))
+        return and_heavy(done, self._heavy, lambda heavy: heavy.drain(wanted), lambda _a, b: b)
+
+    def adopt(self, moved: MovedRobot) -> Future[None]:
+        """Take a robot another shard's worker released (its heavy lane's move)."""
+
+        def command() -> None:
+            self._table.adopt_robot(moved)
+            self.open_sessions = len(self._table)
+
+        return self._commands.send(command)
 
     def hand_over_sessions(self, leaving: Callable[[str, str], bool], now_s: float) -> Future[int]:
         """Checkpoint and drop the sessions of robots ``leaving`` names; how many."""
@@ -166,12 +188,14 @@ class Shard:
             self.open_sessions = len(self._table)
             return outcome.evicted
 
-        return self._commands.send(command)
+        done = self._commands.send(command)
+        return and_heavy(
+            done, self._heavy, lambda heavy: heavy.hand_over_sessions(leaving, now_s), operator.add
+        )
 
     def _serve_now(self, wanted: Callable[[str, str], bool]) -> None:
         """Serve in full, whatever their deficit, the lanes of the robots ``wanted`` names."""
-        for _ in range(-(-len(self._inbound.queue) // _BATCH_MAX)):
-            self._move_arrivals()  # what arrived before this command, not what follows it
+        self._arrivals.move_queued()  # what arrived before this command, not what follows it
         for key in [k for k in self._lanes if wanted(*k)]:
             lane = self._lanes[key]
             while lane.items:
@@ -183,7 +207,9 @@ class Shard:
     # -- worker ------------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the worker thread."""
+        """Start the worker thread (and the heavy lane's)."""
+        if self._heavy is not None:
+            self._heavy.worker.start()
         self._thread.start()
 
     def stop(self, timeout_s: float, cause: str = "shutdown") -> None:
@@ -195,6 +221,7 @@ class Shard:
         stands, so a restart catches up.
         """
         self._close_cause = cause
+        started_s = time.monotonic()
         self._inbound.stop()
         if self._thread.ident is None:  # never started: the table is the caller's
             self._commands.finish()
@@ -214,6 +241,9 @@ class Shard:
             self._thread.join()
         # A worker that died of a bug (or never started) left them: closed on this thread.
         self._commands.send(self._close_sessions).result()
+        if self._heavy is not None:  # after this worker forwarded all it held
+            left_s = timeout_s - (time.monotonic() - started_s)
+            self._heavy.worker.stop(max(0.1, left_s), cause)
 
     def _collect(self) -> None:
         """Move what arrived into the robots' lanes; wait for it when no lane has work."""
@@ -235,40 +265,7 @@ class Shard:
             # Woken by one frame: let the next few milliseconds of frames join this round.
             # A wake-up per frame costs as much CPU as the frame's own work at fleet rates.
             time.sleep(self._linger_s)
-        self._move_arrivals()
-
-    def _move_arrivals(self) -> None:
-        """Move what the queue holds into the robots' lanes (at most ``_BATCH_MAX``)."""
-        unattributed: list[tuple[str, WireError]] = []
-        robot_of = self._robot_of
-        lanes = self._lanes
-        inbound = self._inbound
-        with self._ready:
-            queue = inbound.queue
-            for _ in range(min(len(queue), _BATCH_MAX)):
-                item = queue.popleft()
-                robot_key = robot_of.get(item.key)
-                if robot_key is None:
-                    try:
-                        robot_key = self._parse_key(item.key)
-                    except WireError as exc:
-                        inbound.release([item])
-                        unattributed.append((item.key, exc))
-                        continue
-                lane = lanes.get(robot_key)
-                if lane is None:
-                    lane = lanes[robot_key] = Lane(deque())
-                lane.items.append(item)
-        for key, error in unattributed:  # outside the lock: the callback never waits on a put
-            self._outbox.reject_unattributed(key, error)
-
-    def _parse_key(self, key: str) -> tuple[str, str]:
-        """Return (fleet, robot) of a frames key, remembered: a robot's key arrives often."""
-        fleet, robot, _stream = parse_robot_key(key)
-        if len(self._robot_of) >= _KEYS_REMEMBERED:
-            self._robot_of.clear()  # a churn of robots: start over rather than grow
-        robot_key = self._robot_of[key] = (fleet, robot)
-        return robot_key
+        self._arrivals.move()
 
     def _run(self) -> None:
         try:
@@ -347,7 +344,7 @@ class Shard:
         if outcome.evicted:
             # Sessions left memory: so do their parsed keys, which would otherwise pin the
             # allocator's arenas past a flood (docs/tuning/memory.md).
-            self._robot_of.clear()
+            self._arrivals.forget_keys()
         self._ask_caches(outcome)
 
     def _ask_caches(self, outcome: Outcome) -> None:
@@ -421,6 +418,10 @@ class Shard:
         pending = len(lane.items)
         while lane.items and not self._decoded_head(key, lane, rejected):
             pass  # a head that does not decode is dropped (and reported)
+        if self._heavy is not None and self._moved_to_heavy(key, lane, decision):
+            if rejected:
+                self._publish(Outcome(rejections=rejected), now)
+            return
         plan: list[Planned] = []
         fits_per_frame = True
         if lane.items:
@@ -436,6 +437,26 @@ class Shard:
             lane.items.popleft()
         lane.head = None
         self._serve(key, plan, now, 1 if fits_per_frame else None)
+
+    def _moved_to_heavy(self, key: tuple[str, str], lane: Lane, decision: int) -> bool:
+        """Move a robot whose next decision is too costly to the heavy lane (invariant 6)."""
+        heavy = self._heavy
+        head = lane.head
+        if not isinstance(head, Frame) or heavy is None:
+            return False
+        if not heavy.is_heavy(decision, len(head.features)):
+            return False
+        self._flush()  # the robot's planned frames are applied here first
+        moved = self._table.release_robot(key)
+        if moved is None:
+            return False  # a catch-up holds its frames: it moves at a later turn
+        self.open_sessions = len(self._table)
+        items = list(lane.items)
+        lane.items.clear()
+        lane.head = None
+        self._inbound.give_back(items)
+        heavy.move(key, moved, items)
+        return True
 
     def _serve(
         self,

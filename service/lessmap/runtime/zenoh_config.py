@@ -14,6 +14,7 @@ import zenoh
 
 from lessmap.config.settings import EMBEDDED_ENDPOINT
 from lessmap.errors import ConfigError
+from lessmap_schemas import keys
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -69,13 +70,45 @@ _ZENOH_DEFAULT_LISTEN = zenoh.Config().get_json("listen/endpoints")
 _LOOPBACK_LISTEN = {"router": "tcp/127.0.0.1:7447", "peer": "tcp/127.0.0.1:0"}
 
 
+_WAIT_BEFORE_DROP = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+_ZENOH_WAIT_BEFORE_DROP_US = 1000
+# How long a DROP message waits for room on a full link. Zenoh's 1 ms dropped transitions
+# and frames on a busy host whose sender thread was merely descheduled; a link that stays
+# full this long has a consumer that does not read.
+WAIT_BEFORE_DROP_US = 50_000
+
+
+def slow_consumer_qos() -> list[dict[str, object]]:
+    """What a router does with lessmap puts toward a full link: drop, never wait.
+
+    A robot puts its frames with BLOCK (it never drops one at its own link), and Zenoh keeps
+    a message's congestion control hop by hop: a router forwarding such a frame to an app
+    that stopped reading would wait, and stop forwarding that robot's frames to everyone.
+    Overwritten on egress, the app that does not read loses its copies; the others do not
+    wait (docs/design/slow-consumers.md).
+    """
+    return [
+        {
+            "id": "lessmap-slow-consumers",
+            "messages": ["put"],
+            "key_exprs": [f"{keys.KEY_PREFIX}/**"],
+            "flows": ["egress"],
+            "overwrite": {"congestion_control": "drop"},
+        }
+    ]
+
+
 def _safe_defaults(conf: zenoh.Config) -> None:
-    """No multicast scouting and loopback listening unless the configuration asks otherwise.
+    """No multicast scouting, loopback listening, drop toward slow consumers, unless asked.
 
     Zenoh's defaults suit a LAN of trusted peers: multicast scouting on, and peers and routers
     listening on every interface. A service that joins a site names its endpoints instead
     (``-e``/``-l`` or its config file); what it did not name stays on this machine.
     """
+    if not json.loads(conf.get_json("qos/network")):
+        conf.insert_json5("qos/network", json.dumps(slow_consumer_qos()))
+    if json.loads(conf.get_json(_WAIT_BEFORE_DROP)) == _ZENOH_WAIT_BEFORE_DROP_US:
+        conf.insert_json5(_WAIT_BEFORE_DROP, str(WAIT_BEFORE_DROP_US))
     if json.loads(conf.get_json("scouting/multicast/enabled")) is None:
         conf.insert_json5("scouting/multicast/enabled", "false")
     if conf.get_json("listen/endpoints") == _ZENOH_DEFAULT_LISTEN:

@@ -11,7 +11,7 @@ if TYPE_CHECKING:
     from lessmap.core.segmenter import SegmentChange, Segmenter
     from lessmap.runtime.record import SessionRecord
     from lessmap_schemas.errors import ErrorCode
-    from lessmap_schemas.messages import Frame, SessionEnd, SessionState
+    from lessmap_schemas.messages import AreaGraph, Frame, SessionEnd, SessionState
 
 # Cost units of the fair scheduler (shard.py): roughly one pair update each. A frame costs
 # its pairs plus a fixed overhead; a decision costs in proportion to the CovGraph's edges
@@ -102,3 +102,14 @@ class Outcome:
     ) -> None:
         """Record a refused (or, for SEQ_GAP, a noted) message."""
         self.rejections.append(Rejection(fleet, robot, session, code, detail, seq))
+
+
+@dataclass(frozen=True, slots=True)
+class MovedRobot:
+    """What a session table keeps of one robot, handed whole to another table."""
+
+    key: RobotKey
+    session: RobotSession | None  # its open session, if any
+    closed_ids: list[str]
+    final_state: SessionState | None
+    final_graph: AreaGraph | None

@@ -13,6 +13,8 @@ Rules (the service's ordering contract, schemas/README.md; details in the module
 5. Checkpoints travel in the outcome, sessions resume from the store (``durability.py``),
    frames beyond a gap wait for the robot's cache (``catchup.py``).
 6. A bug in one session resets that session only (INTERNAL); the others go on.
+7. A robot moves to another table whole (``release_robot``, ``adopt_robot``): its open
+   session, closed ids and final state, never while a catch-up holds its frames.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from lessmap.runtime.sessions.limits import Budgets
 from lessmap.runtime.sessions.model import (
     DECISION_COST_PER_EDGE,
     FRAME_COST,
+    MovedRobot,
     Outcome,
     RobotSession,
 )
@@ -569,3 +572,39 @@ class SessionTable:
         self._closed.forget(leaving)
         self._marks.forget(leaving)
         return out
+
+    # -- moving a robot to another table (the shard's heavy lane) --------------------------
+
+    def release_robot(self, key: RobotKey) -> MovedRobot | None:
+        """Take out everything this table keeps of a robot; None while a catch-up holds it.
+
+        Its cache marks stay behind: a copy of a frame the robot's cache returns after the
+        move is then judged by its seq alone (a repeat, counted as a duplicate).
+        """
+        session = self._open.get(key)
+        if session is not None and session.hold_until_s is not None:
+            return None
+        if session is not None:
+            self._drop(key, session)
+        closed_ids = self._closed.of(key)
+        self._closed.forget(lambda fleet, robot: (fleet, robot) == key)
+        return MovedRobot(
+            key,
+            session,
+            closed_ids,
+            self._final_states.pop(key, None),
+            self._final_graphs.pop(key, None),
+        )
+
+    def adopt_robot(self, moved: MovedRobot) -> None:
+        """Take a robot another table released (rule 7)."""
+        key, session = moved.key, moved.session
+        if session is not None:
+            self._open[key] = session
+            self._budgets.set_edges(session, session.segmenter.memory_edges)
+        if moved.closed_ids:
+            self._closed.remember(key, moved.closed_ids)
+        if moved.final_state is not None:
+            self._final_states[key] = moved.final_state
+        if moved.final_graph is not None:
+            self._final_graphs[key] = moved.final_graph
