@@ -33,12 +33,7 @@ from lessmap.runtime.sessions.model import (
     Outcome,
     RobotSession,
 )
-from lessmap.runtime.sessions.policy import (
-    CatchupPolicy,
-    Clocks,
-    DurabilityPolicy,
-    SharedBudgets,
-)
+from lessmap.runtime.sessions.policy import CatchupPolicy, Clocks, DurabilityPolicy, SharedBudgets
 from lessmap.runtime.sessions.seq import CacheMarks, ClosedIds, RobotKey
 from lessmap.runtime.sessions.wire import session_area_graph, session_state
 from lessmap_schemas.errors import ErrorCode
@@ -573,13 +568,10 @@ class SessionTable:
         self._marks.forget(leaving)
         return out
 
-    # -- moving a robot to another table (the shard's heavy lane) --------------------------
-
     def release_robot(self, key: RobotKey) -> MovedRobot | None:
-        """Take out everything this table keeps of a robot; None while a catch-up holds it.
+        """Take out all this table keeps of a robot (rule 7); None while a catch-up holds it.
 
-        Its cache marks stay behind: a copy of a frame the robot's cache returns after the
-        move is then judged by its seq alone (a repeat, counted as a duplicate).
+        Its cache marks stay: a cache's copy arriving after the move counts as a duplicate.
         """
         session = self._open.get(key)
         if session is not None and session.hold_until_s is not None:
@@ -588,13 +580,8 @@ class SessionTable:
             self._drop(key, session)
         closed_ids = self._closed.of(key)
         self._closed.forget(lambda fleet, robot: (fleet, robot) == key)
-        return MovedRobot(
-            key,
-            session,
-            closed_ids,
-            self._final_states.pop(key, None),
-            self._final_graphs.pop(key, None),
-        )
+        final = self._final_states.pop(key, None), self._final_graphs.pop(key, None)
+        return MovedRobot(key, session, closed_ids, *final)
 
     def adopt_robot(self, moved: MovedRobot) -> None:
         """Take a robot another table released (rule 7)."""
