@@ -147,10 +147,12 @@ def test_a_stale_frame_is_refused() -> None:
     [
         ("window_similarity", 1.0),
         ("window_min_frames", 1),
-        ("window_max_frames", 2),
+        ("window_max_frames", 1),
         ("ahead_share", 0.0),
         ("cut_min", 0.0),
         ("known_share", 0.0),
+        ("sure_cut", 0.0),
+        ("sure_features", 0),
         ("min_side_features", 0),
         ("revisit_overlap", 1.5),
         ("max_area_sightings", -1),

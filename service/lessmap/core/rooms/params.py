@@ -19,7 +19,7 @@ class RoomParams:
     # Rule 1: a window side spans the frames over which the view keeps this CovRate with
     # its first frame, learnt from the stream; so its length follows speed, rate and range.
     window_similarity: float = 0.7
-    window_min_frames: int = 3  # fewer frames make a noisy mean of similarities
+    window_min_frames: int = 2  # a pair: at 2 frames a second, 3 frames put decisions 1.5 m late
     window_max_frames: int = 30  # the memory a side may take, and the decision's lag
     lag_smoothing: float = 0.02  # weight of a new frame in the learnt lag profile
     ahead_share: float = 0.5  # the newer half's frames, as a share of the older half's
