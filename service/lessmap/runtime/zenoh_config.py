@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
+from lessmap.config.qos import WAIT_BEFORE_DROP_US, slow_consumer_qos
 from lessmap.config.settings import EMBEDDED_ENDPOINT
 from lessmap.errors import ConfigError
-from lessmap_schemas import keys
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -72,30 +72,6 @@ _LOOPBACK_LISTEN = {"router": "tcp/127.0.0.1:7447", "peer": "tcp/127.0.0.1:0"}
 
 _WAIT_BEFORE_DROP = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
 _ZENOH_WAIT_BEFORE_DROP_US = 1000
-# How long a DROP message waits for room on a full link. Zenoh's 1 ms dropped transitions
-# and frames on a busy host whose sender thread was merely descheduled; a link that stays
-# full this long has a consumer that does not read.
-WAIT_BEFORE_DROP_US = 50_000
-
-
-def slow_consumer_qos() -> list[dict[str, object]]:
-    """What a router does with lessmap puts toward a full link: drop, never wait.
-
-    A robot puts its frames with BLOCK (it never drops one at its own link), and Zenoh keeps
-    a message's congestion control hop by hop: a router forwarding such a frame to an app
-    that stopped reading would wait, and stop forwarding that robot's frames to everyone.
-    Overwritten on egress, the app that does not read loses its copies; the others do not
-    wait (docs/design/slow-consumers.md).
-    """
-    return [
-        {
-            "id": "lessmap-slow-consumers",
-            "messages": ["put"],
-            "key_exprs": [f"{keys.KEY_PREFIX}/**"],
-            "flows": ["egress"],
-            "overwrite": {"congestion_control": "drop"},
-        }
-    ]
 
 
 def _safe_defaults(conf: zenoh.Config) -> None:

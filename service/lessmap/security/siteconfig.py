@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
+from lessmap.config.qos import WAIT_BEFORE_DROP_US, slow_consumer_qos
 from lessmap_schemas import keys
 
 if TYPE_CHECKING:
@@ -295,6 +296,10 @@ def access_rules(
     }
 
 
+# Routers drop lessmap puts toward a consumer that stops reading (docs/design/slow-consumers.md).
+_DROP_WAIT = {"queue": {"congestion_control": {"drop": {"wait_before_drop": WAIT_BEFORE_DROP_US}}}}
+
+
 def router_config(
     folder: str,
     fleets: Sequence[str],
@@ -307,14 +312,16 @@ def router_config(
         "listen": {"endpoints": [endpoint]},
         "scouting": {"multicast": {"enabled": False}},
         "timestamping": {"enabled": True},
+        "qos": {"network": slow_consumer_qos()},
         "transport": {
             "link": {
+                "tx": _DROP_WAIT,
                 "tls": {
                     "root_ca_certificate": f"{folder}/ca.pem",
                     "listen_private_key": f"{folder}/router.key",
                     "listen_certificate": f"{folder}/router.pem",
                     "enable_mtls": True,
-                }
+                },
             }
         },
         "access_control": access_rules(fleets, service_names),
@@ -349,8 +356,10 @@ def mesh_router_config(
         "connect": {"endpoints": [e for n, e in mesh.items() if n != name]},
         "scouting": {"multicast": {"enabled": False}},
         "timestamping": {"enabled": True},
+        "qos": {"network": slow_consumer_qos()},
         "transport": {
             "link": {
+                "tx": _DROP_WAIT,
                 "tls": {
                     "root_ca_certificate": f"{folder}/ca.pem",
                     "listen_private_key": f"{cert}.key",
@@ -359,7 +368,7 @@ def mesh_router_config(
                     "connect_certificate": f"{cert}.pem",
                     "enable_mtls": True,
                     "verify_name_on_connect": True,
-                }
+                },
             }
         },
         "access_control": access_rules(
