@@ -24,7 +24,7 @@ def a_transition() -> Transition:
         fleet="warehouse",
         robot="amr-7",
         session="run-1",
-        incarnation=7,
+        incarnation=0,
         seq=42,
         boundary_seq=38,
         stamp_s=12.5,

@@ -53,7 +53,7 @@ def a_transition(
         reason=reason,
         ncut=0.125 if spectral else None,
         lambda2=0.03 if spectral else None,
-        closed=SubmapSummary(id=0, first_seq=0, last_seq=41, frame_count=40, features=[1, 2, 3]),
+        closed=SubmapSummary(id=0, first_seq=7, last_seq=41, frame_count=35, features=[1, 2, 3]),
         opened=SubmapSummary(id=1, first_seq=38, last_seq=42, frame_count=5, features=[3, 4]),
         boundary_features=[3],
         area=1,
