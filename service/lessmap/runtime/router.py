@@ -38,46 +38,6 @@ DEFAULT_LISTEN = EMBEDDED_ENDPOINT
 _SOURCE_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 
 
-def configure(parser: argparse.ArgumentParser) -> None:
-    """Define ``lessmap router``."""
-    parser.description = (
-        "Run a plain Zenoh router (no lessmap service) in the foreground until SIGTERM/SIGINT. "
-        "Service instances (lessmap serve -m client -e ENDPOINT), robots and fleet apps "
-        "connect to it; routers connect to each other with -e. Multicast scouting is off "
-        "unless the config file enables it."
-    )
-    parser.add_argument(
-        "-l",
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help=f"endpoint to listen on, repeatable (default: {DEFAULT_LISTEN}, or the config "
-        "file's endpoints)",
-    )
-    parser.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="another router to connect to, e.g. tcp/10.0.0.6:7447 (repeatable: a mesh)",
-    )
-    parser.add_argument(
-        "--config",
-        type=Path,
-        metavar="FILE.json5",
-        help="Zenoh config file (JSON5), e.g. deploy/zenoh-router-a.json5; flags override it",
-    )
-    parser.add_argument(
-        "--cfg",
-        action="append",
-        default=[],
-        metavar="KEY:VALUE",
-        help="Zenoh config override, VALUE in JSON5 (repeatable)",
-    )
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap router`` until a stop signal; return 0 (1 is a ``ConfigError``)."""
     # The CLI logs only warnings for commands other than serve; a daemon reports its start.
