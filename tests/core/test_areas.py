@@ -128,7 +128,7 @@ def test_garbage_and_other_versions_are_graph_errors() -> None:
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(b"garbage")
     data = to_bytes(AreaTracker())
-    assert AREAS_SNAPSHOT_VERSION == 8
+    assert AREAS_SNAPSHOT_VERSION == 9
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(data[: len(data) // 2])
 
@@ -147,11 +147,11 @@ def test_a_version_7_snapshot_resumes_under_the_default_bound() -> None:
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     old = from_bytes(buffer.getvalue())
-    assert old.params == replace(tracker.params, max_area_sightings=100_000)
+    assert old.params == replace(tracker.params, max_area_sightings=100_000, max_features_kept=0)
     assert old.sightings == tracker.sightings > 0
     meta["version"] = 6
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
-    with pytest.raises(GraphError, match="version 6, expected one of 7, 8"):
+    with pytest.raises(GraphError, match="version 6, expected one of 7, 8, 9"):
         from_bytes(buffer.getvalue())

@@ -52,6 +52,14 @@ class PartitionSettings(BaseModel):
     min_cluster_size: int = Field(
         1, ge=1, description="guard: fewest features a transition may cut off (1 = off)"
     )
+    # The areas method's AreaParams.max_features_kept: a camera's frames of 1,000 features
+    # are decided at camera rate on a fixed subsample of ids (lessmap.core.sampling).
+    max_features_kept: int = Field(
+        AreaParams().max_features_kept,
+        ge=0,
+        description="areas: features a frame keeps at most, the same ids in every frame "
+        "(a subsample by id hash; a stream under it is taken whole; 0 = keep all)",
+    )
 
     def partition_params(self) -> PartitionParams:
         """Return the core's parameters: the profile's thresholds unless overridden."""
@@ -117,7 +125,8 @@ def area_params(settings: PartitionSettings, *, empty_frames_omitted: bool = Fal
     """Return the area tracker's parameters: its own proposer thresholds unless overridden.
 
     The profile is not applied: the proposer answers before the paper's thresholds would.
-    The guards and the seed mode pass through to the proposer. A stream that leaves out its
+    The guards and the seed mode pass through to the proposer; ``max_features_kept`` to the
+    tracker. A stream that leaves out its
     empty frames has its stamp gaps read as blindness (``AreaParams.for_stream``).
     """
     base = AreaParams().for_stream(empty_frames_omitted=empty_frames_omitted)
@@ -131,4 +140,4 @@ def area_params(settings: PartitionSettings, *, empty_frames_omitted: bool = Fal
         min_frames_between=settings.min_frames_between,
         min_cluster_size=settings.min_cluster_size,
     )
-    return replace(base, proposal=proposal)
+    return replace(base, proposal=proposal, max_features_kept=settings.max_features_kept)

@@ -108,6 +108,10 @@ class Segmenter(Protocol):
         """What that CovGraph costs in edges, for the edge budgets (``CovGraph.memory_edges``)."""
 
     @property
+    def max_features_kept(self) -> int:
+        """Features of one frame that reach the CovGraph at most (0: all), for the budgets."""
+
+    @property
     def closed_submaps(self) -> Sequence[Submap]:
         """Closed segments, oldest first (rule 5)."""
 
@@ -240,6 +244,11 @@ class PaperSegmenter:
     def memory_edges(self) -> int:
         """What the partitioner's CovGraph costs in edges (``CovGraph.memory_edges``)."""
         return self.partitioner.graph.memory_edges
+
+    @property
+    def max_features_kept(self) -> int:
+        """0: the paper keeps every feature."""
+        return 0
 
     @property
     def closed_submaps(self) -> tuple[Submap, ...]:
@@ -382,6 +391,11 @@ class AreasSegmenter:
         session's memory, not only its graph's.
         """
         return self.tracker.proposer.graph.memory_edges + SIGHTING_EDGES * self.tracker.sightings
+
+    @property
+    def max_features_kept(self) -> int:
+        """The tracker's ``AreaParams.max_features_kept`` (0: all)."""
+        return self.tracker.params.max_features_kept
 
     @property
     def closed_submaps(self) -> tuple[Submap, ...]:

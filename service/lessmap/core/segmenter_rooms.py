@@ -98,6 +98,11 @@ class RoomsSegmenter:
         )
 
     @property
+    def max_features_kept(self) -> int:
+        """0: the rooms method keeps every feature."""
+        return 0
+
+    @property
     def closed_submaps(self) -> tuple[Submap, ...]:
         """The segments closed by the changes found, oldest first."""
         return tuple(self._closed)

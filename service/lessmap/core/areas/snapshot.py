@@ -8,7 +8,8 @@ the areas' frame counts and the merged areas. The version number changes wheneve
 does (2: frame counts per area and merges, for recognition and merging; 3: the parameter
 ``familiar_relative``; 4: ``weak_ncut`` and ``weak_frames``; 5: ``blind_span`` and
 ``blind_margin``; 6: ``seam_frames``; 7: ``period_steps``, the last stamp steps and the
-kept frames that follow a stamp gap; 8: ``max_area_sightings``).
+kept frames that follow a stamp gap; 8: ``max_area_sightings``; 9: ``max_features_kept`` and
+the sampler's threshold).
 """
 
 from __future__ import annotations
@@ -24,11 +25,13 @@ from lessmap.core.areas.tracker import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.submaps import Reason
+from lessmap.core.sampling import KEEP_ALL, FeatureSampler
 
-AREAS_SNAPSHOT_VERSION = 8
+AREAS_SNAPSHOT_VERSION = 9
 #: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions
-#: checkpointed before the bound resume under it.
-READABLE_VERSIONS = (7, AREAS_SNAPSHOT_VERSION)
+#: checkpointed before the bound resume under it. Versions 7 and 8 have no sampling: their
+#: sessions resume keeping every feature (``max_features_kept`` 0), as they did.
+READABLE_VERSIONS = (7, 8, AREAS_SNAPSHOT_VERSION)
 
 _POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
 _INT_FIELDS = (
@@ -72,6 +75,7 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         "area_frames": list(tracker.area_frames),
         "merged": [[gone, into] for gone, into in tracker.merged.items()],
         "last_stamp_s": tracker.last_stamp_s.hex(),  # hex keeps the float exact
+        "sample_threshold": tracker.sampler.threshold,
         "candidate": None
         if candidate is None
         else {
@@ -121,7 +125,11 @@ def from_bytes(data: bytes) -> AreaTracker:
         proposer = snapshot.from_bytes(arrays["proposer"].tobytes())
         fields = dict(meta["params"])
         fields["proposal"] = proposer.params
+        fields.setdefault("max_features_kept", 0)  # versions 7, 8: every feature kept
         tracker = AreaTracker(AreaParams(**fields))
+        tracker.sampler = FeatureSampler(
+            tracker.params.max_features_kept, meta.get("sample_threshold", KEEP_ALL)
+        )
         tracker.proposer = proposer
         tracker.pool.features = set(meta["pool"])
         tracker.pool.starts.extend((int(i), int(s)) for i, s in meta["pool_starts"])

@@ -12,6 +12,7 @@
 7. Area model: per-feature frame counts per area; the segment entered starts at the seam.
 8. State: everything a later decision reads round-trips through the snapshot bit for bit.
 9. Bounded models: above ``max_area_sightings`` the smallest other areas forget their features.
+10. Sampling: a frame keeps at most ``max_features_kept`` features, the same ids in each.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from lessmap.core.areas.profile import (
 from lessmap.core.errors import StaleFrameError
 from lessmap.core.paper.partitioner import Partitioner
 from lessmap.core.paper.submaps import Reason, Submap
+from lessmap.core.sampling import FeatureSampler
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -70,6 +72,7 @@ class AreaTracker:
         """Start an empty session in area 0."""
         self.params = params if params is not None else AreaParams()
         self.proposer = Partitioner(self.params.proposal)
+        self.sampler = FeatureSampler(self.params.max_features_kept)  # rule 10
         p = self.params
         self.pool = Pool(p.pool_min_features, p.pool_max_frames, p.proposal.history_frames + 1)
         # the current segment (frames since the last transition)
@@ -150,7 +153,7 @@ class AreaTracker:
         if self.last_seq is not None and seq <= self.last_seq:
             msg = f"frame seq {seq} is not after the last applied seq {self.last_seq}"
             raise StaleFrameError(msg)
-        seen = distinct(seq, features)
+        seen = self.sampler.keep(distinct(seq, features))
         self._step(seq, float(stamp_s))
         self.last_seq = seq
         self.last_stamp_s = float(stamp_s)

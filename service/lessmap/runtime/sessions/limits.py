@@ -4,10 +4,11 @@ Invariants:
 
 1. Memory is bounded: at most ``max_sessions`` open sessions per shard and ``max_nodes``
    features per CovGraph; past either, the message is refused with an error.
-2. A frame costs at most ``max_pairs_per_frame`` pair updates (k features make k(k-1)/2;
-   ``LIMIT_EXCEEDED``); a session holds at most ``max_edges_per_session`` edges and the
-   instance ``ledger.max_edges_total`` (``GRAPH_LIMIT``), a graph counted by what it holds
-   in edges' worth (``Segmenter.memory_edges``), so the budgets bound memory too.
+2. A frame costs at most ``max_pairs_per_frame`` pair updates (k features make k(k-1)/2,
+   k counted after the session's sampling, ``kept_features``; ``LIMIT_EXCEEDED``); a
+   session holds at most ``max_edges_per_session`` edges and the instance
+   ``ledger.max_edges_total`` (``GRAPH_LIMIT``), a graph counted by what it holds in edges'
+   worth (``Segmenter.memory_edges``), so the budgets bound memory too.
 3. The edge checks are conservative: a frame counts as if every pair of its features were a
    new edge; the exact count is read only when that bound says the frame could break one.
 4. New sessions are admitted at ``admission.rate_per_s`` per fleet (a token bucket).
@@ -21,9 +22,16 @@ from lessmap.runtime.budget import pairs_of
 from lessmap_schemas.errors import ErrorCode
 
 if TYPE_CHECKING:
+    from lessmap.core.segmenter import Segmenter
     from lessmap.runtime.sessions.model import RobotSession
     from lessmap.runtime.sessions.policy import SessionLimits, SharedBudgets
     from lessmap_schemas.messages import Frame
+
+
+def kept_features(segmenter: Segmenter, features: int) -> int:
+    """Features of a frame of ``features`` that reach the session's CovGraph at most."""
+    cap = segmenter.max_features_kept
+    return min(features, cap) if cap else features
 
 
 class Budgets:
@@ -58,7 +66,8 @@ class Budgets:
     def charge(self, session: RobotSession, features: int) -> None:
         """Count an applied frame's pairs as new edges (an upper bound until the decision)."""
         if self.counts_edges:
-            self.set_edges(session, session.edges + pairs_of(features))
+            kept = kept_features(session.segmenter, features)
+            self.set_edges(session, session.edges + pairs_of(kept))
 
     def recount(self, session: RobotSession) -> None:
         """Take the session's exact edges' worth (after a decision)."""
@@ -67,13 +76,15 @@ class Budgets:
 
     def refusal(self, session: RobotSession, frame: Frame) -> tuple[ErrorCode, str] | None:
         """Why a frame may not reach the session's core (invariants 1-3), or None."""
-        refusal = self._over_budget(session, len(frame.features))
+        p = session.segmenter
+        kept = kept_features(p, len(frame.features))
+        refusal = self._over_budget(session, kept)
         if refusal is not None:
             return refusal
-        p = session.segmenter
         max_nodes = self._max_nodes
-        if p.node_count + len(frame.features) > max_nodes and (
-            p.node_count + sum(1 for f in set(frame.features) if not p.feature_known(f)) > max_nodes
+        if p.node_count + kept > max_nodes and (
+            p.node_count + min(kept, sum(1 for f in set(frame.features) if not p.feature_known(f)))
+            > max_nodes
         ):  # counting the new features only when the cheap bound says it could matter
             return (ErrorCode.GRAPH_LIMIT, f"CovGraph would exceed {max_nodes} features")
         return None
