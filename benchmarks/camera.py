@@ -1,10 +1,10 @@
 """Camera robots: cost per frame and quality of the areas method with and without sampling.
 
 ``python -m benchmarks.camera``: camera-like streams are simulated on the benchmark's floor
-plans (``../shared/floorplans``; the ``camera`` sensor, or a denser one with ``--layers``).
-Offline, each stream runs through the area tracker twice in this process, unreduced
-(``max_features_kept`` 0) and with the default sampling: the cost of each frame (its add and
-settle, as ``lessmap segment`` calls them) as median and p99, and the sampled run's
+plans (``../shared/floorplans``; the ``camera`` sensor, denser with more layers, ``--streams``).
+Offline (BLAS on one thread, as ``serve``), each stream runs through the area tracker twice,
+unreduced (``max_features_kept`` 0) and with the default sampling: the cost of each frame (its
+add and settle, as ``lessmap segment`` calls them) as median and p99, and the sampled run's
 transitions against the unreduced run's (a boundary matches within ``--tolerance`` frames:
 recall and precision), both beside the true room changes. The data sets in
 ``../shared/datasets`` (all under the cap) must give identical transitions.
@@ -25,6 +25,8 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
+
+from threadpoolctl import threadpool_limits
 
 from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.files.frames import FrameRow, read_frames
@@ -198,15 +200,15 @@ def datasets(names: list[str], tolerance: int) -> list[dict[str, Any]]:
 def main(argv: list[str] | None = None) -> int:
     """Run the offline comparison, then the live run; print the tables."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--maps", nargs="+", default=["office_a", "lab_f_scan"])
     parser.add_argument(
-        "--layers",
-        type=int,
+        "--streams",
         nargs="+",
-        default=[18],
-        help="heights of wall texture the camera sees (the camera sensor's is 12)",
+        default=["office_a:18", "lab_f_scan:24", "office_b:12"],
+        metavar="MAP:LAYERS",
+        help="floor plans and the heights of wall texture the camera sees there (the camera "
+        "sensor's is 12, ~500 features a frame; 18-24 give 700-1,000); the first goes live",
     )
-    parser.add_argument("--frames", type=int, default=1200, help="frames per stream")
+    parser.add_argument("--frames", type=int, default=1000, help="frames per stream")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rate", type=float, default=10.0, help="frames/s (stamps, live)")
     parser.add_argument("--tolerance", type=int, default=5, help="frames")
@@ -216,11 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-live", action="store_true", help="skip the live serve run")
     parser.add_argument("--json", type=Path, help="also write the figures to this file")
     args = parser.parse_args(argv)
-    streams = [
-        simulated(name, layers, args.frames, args.seed, args.rate)
-        for name in args.maps
-        for layers in args.layers
-    ]
+    threadpool_limits(1)  # BLAS on one thread, as lessmap serve runs it
+    streams = []
+    for spec in args.streams:
+        name, _, layers = spec.partition(":")
+        streams.append(simulated(name, int(layers or 12), args.frames, args.seed, args.rate))
     rows = [offline(stream, args.tolerance)[2] for stream in streams]
     rows += datasets(args.datasets, args.tolerance)
     print_offline(rows, args.tolerance)
