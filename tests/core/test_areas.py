@@ -147,7 +147,7 @@ def test_a_version_7_snapshot_resumes_under_the_default_bound() -> None:
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     old = from_bytes(buffer.getvalue())
-    assert old.params == replace(tracker.params, max_area_sightings=100_000, max_features_kept=0)
+    assert old.params == replace(tracker.params, max_area_sightings=100_000)
     assert old.sightings == tracker.sightings > 0
     meta["version"] = 6
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from lessmap.core import GraphError
+from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler, mix_ids
 from lessmap.core.areas.snapshot import from_bytes, to_bytes
 from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
-from lessmap.core.sampling import KEEP_ALL, FeatureSampler, mix_ids
 from lessmap.core.segmenter import make_segmenter, segmenter_from_bytes
 from tests.core.helpers import Frames, room_walk
 

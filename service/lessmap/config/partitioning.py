@@ -53,7 +53,7 @@ class PartitionSettings(BaseModel):
         1, ge=1, description="guard: fewest features a transition may cut off (1 = off)"
     )
     # The areas method's AreaParams.max_features_kept: a camera's frames of 1,000 features
-    # are decided at camera rate on a fixed subsample of ids (lessmap.core.sampling).
+    # are decided at camera rate on a fixed subsample of ids (lessmap.core.areas.sampling).
     max_features_kept: int = Field(
         AreaParams().max_features_kept,
         ge=0,

@@ -154,7 +154,8 @@ class ServiceSettings(BaseSettings, PartitionSettings):
     max_pairs_per_frame: int = Field(
         200_000,
         ge=1,
-        description="feature pairs one frame may update, k(k-1)/2 (about 630 features)",
+        description="feature pairs one frame may update, k(k-1)/2 (about 630 features); k "
+        "counts the features kept (areas: at most max_features_kept)",
     )
     max_edges_per_session: int = Field(
         1_000_000,

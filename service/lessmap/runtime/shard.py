@@ -444,7 +444,7 @@ class Shard:
         head = lane.head
         if not isinstance(head, Frame) or heavy is None:
             return False
-        if not heavy.is_heavy(decision, self._table.kept_features(key, len(head.features))):
+        if not heavy.is_heavy(decision, len(head.features)):
             return False
         self._flush()  # the robot's planned frames are applied here first
         moved = self._table.release_robot(key)

@@ -85,7 +85,7 @@ class AreaParams:
     # Rule 7: the segment entered starts at most this many frames after the area boundary,
     # where the two sides share most features, so both submaps keep the door's landmarks.
     seam_frames: int = 6
-    # Rule 10: features kept a frame at most, by a subsample of ids (``core/sampling.py``):
+    # Rule 10: features kept a frame at most, by a subsample of ids (``sampling.py``):
     # a camera's 1,000 features cost ~15 times the pairs of 256, and a CovGraph to match;
     # a frame under it, and a stream whose frames all are, is taken whole. 0: keep all.
     max_features_kept: int = 256

@@ -21,11 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler
 from lessmap.core.areas.tracker import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.submaps import Reason
-from lessmap.core.sampling import KEEP_ALL, FeatureSampler
 
 AREAS_SNAPSHOT_VERSION = 9
 #: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions

@@ -1,7 +1,6 @@
 """Areas on top of LESS-mapping: pooled evidence, confirmed splits, recognised revisits.
 
-``AreaTracker`` drives a paper ``Partitioner`` as a proposer of new areas. Its rules, in full in
-``docs/design/area-rules.md`` (parameters in ``AreaParams``; no I/O, no clock, no logging):
+``AreaTracker`` drives a paper ``Partitioner`` as proposer (``docs/design/area-rules.md``; no I/O):
 
 1. Minimum evidence: frames are pooled before they reach the proposer.
 2. Proposals: the paper's test, with looser thresholds, names a boundary frame.
@@ -42,10 +41,10 @@ from lessmap.core.areas.profile import (
     tally,
     without,
 )
+from lessmap.core.areas.sampling import FeatureSampler
 from lessmap.core.errors import StaleFrameError
 from lessmap.core.paper.partitioner import Partitioner
 from lessmap.core.paper.submaps import Reason, Submap
-from lessmap.core.sampling import FeatureSampler
 
 if TYPE_CHECKING:
     from collections.abc import Iterable

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 from lessmap.runtime.sessions.apply import Applier, report_gap
 from lessmap.runtime.sessions.catchup import Holds, tail_awaited
 from lessmap.runtime.sessions.durability import EVICT_MIN_IDLE_S, Durability, evictable
-from lessmap.runtime.sessions.limits import Budgets, kept_features
+from lessmap.runtime.sessions.limits import Budgets
 from lessmap.runtime.sessions.model import (
     DECISION_COST_PER_EDGE,
     FRAME_COST,
@@ -171,11 +171,6 @@ class SessionTable:
         session = self._open.get(key)
         edges = 0 if session is None else session.edges
         return FRAME_COST + DECISION_COST_PER_EDGE * edges
-
-    def kept_features(self, key: RobotKey, features: int) -> int:
-        """Features of a robot's frame of ``features`` that reach its CovGraph at most."""
-        session = self._open.get(key)
-        return features if session is None else kept_features(session.segmenter, features)
 
     @property
     def edges(self) -> int:
