@@ -126,8 +126,8 @@ def area_params(settings: PartitionSettings, *, empty_frames_omitted: bool = Fal
 
     The profile is not applied: the proposer answers before the paper's thresholds would.
     The guards and the seed mode pass through to the proposer; ``max_features_kept`` to the
-    tracker. A stream that leaves out its
-    empty frames has its stamp gaps read as blindness (``AreaParams.for_stream``).
+    tracker. A stream that leaves out its empty frames has its stamp gaps read as blindness
+    (``AreaParams.for_stream``).
     """
     base = AreaParams().for_stream(empty_frames_omitted=empty_frames_omitted)
     proposal = replace(
