@@ -157,6 +157,7 @@ def offline(stream: Stream, tolerance: int) -> tuple[Run, Run, dict[str, Any]]:
         "recall_wide": ratio(wide, len(full.boundaries)) if full.boundaries else 1.0,
         "precision_wide": ratio(wide, len(sampled.boundaries)) if sampled.boundaries else 1.0,
         "identical": full.records == sampled.records,
+        "true_changes": len(truth),
         "full_truth_recall": ratio(matched(truth, full.boundaries, 2 * tolerance), len(truth)),
         "truth_recall": ratio(matched(truth, sampled.boundaries, 2 * tolerance), len(truth)),
     }
@@ -173,7 +174,8 @@ def print_offline(rows: list[dict[str, Any]], tolerance: int) -> None:
     print(
         f"{'stream':<16} {'frames':>6} {'feat':>4} {'max':>5} {'kept':>4} "
         f"{'full p50':>8} {'p99':>6} {'samp p50':>8} {'p99':>5} {'x p50':>5} {'x p99':>5} "
-        f"{'full':>4} {'samp':>4} {'R':>4} {'P':>4} {'R2':>4} {'P2':>4} {'truth':>9} same"
+        f"{'full':>4} {'samp':>4} {'R':>4} {'P':>4} {'R2':>4} {'P2':>4} {'true':>4} {'truth':>9} "
+        "same"
     )
     for r in rows:
         print(
@@ -182,7 +184,7 @@ def print_offline(rows: list[dict[str, Any]], tolerance: int) -> None:
             f"{r['p99']:>5.1f} {ratio(r['full_p50'], r['p50']):>5.1f} "
             f"{ratio(r['full_p99'], r['p99']):>5.1f} {r['full_changes']:>4} {r['changes']:>4} "
             f"{r['recall']:>4.2f} {r['precision']:>4.2f} {r['recall_wide']:>4.2f} "
-            f"{r['precision_wide']:>4.2f} "
+            f"{r['precision_wide']:>4.2f} {r['true_changes']:>4} "
             f"{r['full_truth_recall']:>4.2f}/{r['truth_recall']:<4.2f} {r['identical']}"
         )
 
