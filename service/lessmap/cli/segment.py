@@ -226,6 +226,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap segment``: transitions as JSON lines, then the summary."""
     from pydantic import ValidationError
+    from threadpoolctl import threadpool_limits
 
     from lessmap.cli.progress import line_count, progress, wanted
     from lessmap.config.partitioning import area_params, partition_settings
@@ -278,7 +279,9 @@ def run(args: argparse.Namespace) -> int:
             sys.stdout.write(json.dumps(area_record(robot, change)) + "\n")
 
     graphs: dict[str, AreaGraph] = {}
-    with progress(args) as shown:
+    # BLAS on one thread, as serve runs it: the same arithmetic as live, and no threads
+    # fighting over a loaded host's cores for the small eigensolves of a camera robot.
+    with threadpool_limits(limits=1), progress(args) as shown:
         shown.stage(f"segmenting {path.name}", line_count(path) if wanted(args) else None)
         frames = tracked(frames, shown)
         if args.method == "areas":
