@@ -6,7 +6,8 @@ the DLR data set as robot ``good`` at ``--rate`` frames/s and measures, for each
 the time from the publish of the frame it was decided at to its receipt. Scenarios:
 
 - ``alone``: the good robot only;
-- ``bad``: plus four 4096-feature overlapping frames (refused by ``max_pairs_per_frame``);
+- ``bad``: plus four 4096-feature overlapping frames (sampled to ``max_features_kept`` by
+  the default method; the paper's ``max_pairs_per_frame`` refuses them);
 - ``heavy``: plus a robot putting 600-feature frames (within budget) at 20 frames/s.
 
 It prints p50/p99/max per scenario, the ratio to ``alone``, whether the good robot's
