@@ -456,3 +456,33 @@ def test_empty_frames_omitted_reads_the_stamp_gaps(capsys: pytest.CaptureFixture
     assert records[-1]["transitions"] == 0
     assert records[-1]["params"]["period_steps"] > 0
     assert len(records) == 1  # the summary alone
+
+
+def camera_frames_file(path: Path) -> Path:
+    """Two rooms of 300 features a frame (a camera's wall texture): over a small cap."""
+    frames = [[f * 32 + k for f in frame for k in range(20)] for frame in two_room_frames()]
+    path.write_text("\n".join(frame_line("cam", s, f) for s, f in enumerate(frames)) + "\n")
+    return path
+
+
+def without_timing(records: list[Any]) -> list[Any]:
+    return [{k: v for k, v in r.items() if k not in ("elapsed_s", "ms_per_frame")} for r in records]
+
+
+def test_the_cap_samples_the_default_method_and_leaves_the_paper_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = camera_frames_file(tmp_path / "cam.frames.jsonl")
+    paper = run(["segment", str(path), "--method", "paper"], capsys)[1]
+    capped = run(["segment", str(path), "--method", "paper", "--max-features-kept", "8"], capsys)
+    assert without_timing(capped[1]) == without_timing(paper)  # paper: every feature, always
+    whole = run(["segment", str(path), "--max-features-kept", "0"], capsys)[1]
+    sampled = run(["segment", str(path), "--max-features-kept", "64"], capsys)[1]
+    assert whole[-1]["params"]["max_features_kept"] == 0
+    assert sampled[-1]["params"]["max_features_kept"] == 64
+    # the door found either way; the submaps list the kept ids only, a subset of the whole
+    assert [r["boundary_seq"] for r in sampled[:-1]] == [r["boundary_seq"] for r in whole[:-1]]
+    for part in ("closed", "opened"):
+        kept, every = set(sampled[0][part]["features"]), set(whole[0][part]["features"])
+        assert kept < every
+        assert len(kept) < len(every) / 2
