@@ -185,24 +185,16 @@ def make_site(
 
     Args:
         out: the folder (created); configs name its absolute path.
-        fleets: a robot and an app identity per fleet.
+        fleets: a robot, an app and a viewer identity per fleet.
         service_names: one identity per name (certificate CN).
-        endpoint: where the router listens and the clients connect (single router).
-        router_hosts: more DNS names or IP addresses for the router certificate, or for
-            every mesh router's (127.0.0.1 and localhost are always in it).
-        mesh: routers of a mesh, name to TLS endpoint (at least two). Each gets a
-            certificate ``router.<name>`` naming its endpoint's host and a config that
-            listens there and connects to the others; the clients' configs list every
-            router's endpoint, and ``endpoint`` is not used.
-        robots: fleet to robot names: each robot gets an identity of its own
-            (``robot.<fleet>/<robot>``, files in ``robots/<fleet>/``) that may put only its
-            own frames; its fleet gets no fleet-wide robot identity and joins ``fleets``.
+        endpoint: where the single router listens and the clients connect.
+        router_hosts: more DNS names or IP addresses in the router certificates (SAN).
+        mesh: routers of a mesh, name to TLS endpoint (at least two), instead of one.
+        robots: fleet to robot names, each robot with an identity of its own
+            (``robot.<fleet>/<robot>``); its fleet gets no fleet-wide robot identity.
         days: validity of every certificate.
         force: replace an existing CA (every older certificate stops working).
         reuse_ca: keep the CA in ``out`` and issue new certificates and keys from it.
-
-    Raises:
-        ConfigError: a bad name, or a CA already in ``out`` without ``force``.
     """
     from lessmap.security import pki
 

@@ -107,12 +107,10 @@ def access_rules(
         fleets: fleet names; each gets a robot, an app and a viewer subject.
         service_names: identities of the service instances.
         subject_kind: ``cert_common_names`` (mTLS) or ``usernames`` (usrpwd).
-        routers: identities of the other routers of a mesh (``router.<name>``): they may
-            relay every lessmap message both ways. Robots and apps are still held to their
-            own rules by the router they connect to, so this widens nothing for them.
-        robots: fleet to robot names, for fleets with per-robot identities: each listed
-            robot gets a subject of its own, held to its own keys, and the fleet gets no
-            fleet-wide robot subject.
+        routers: identities of the other routers of a mesh: they relay every lessmap
+            message both ways (each client is still held to its rules by its own router).
+        robots: fleet to robot names, for fleets with per-robot identities: a subject
+            per robot, held to its own keys, and no fleet-wide robot subject.
     """
     any_robot = f"{P}/*/*"
     # Frames keys end with the robot's partition chunk (schemas/README.md §2a). The rules
