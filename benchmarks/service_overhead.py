@@ -42,8 +42,8 @@ from threadpoolctl import threadpool_limits
 
 from benchmarks.fleet.loadgen import LoadSpec, robot_name, simulated_streams
 from lessmap.config.settings import ServiceSettings
-from lessmap.core import Partitioner, PartitionParams
-from lessmap.core.segmenter import Method
+from lessmap.core import PartitionParams
+from lessmap.core.segmenter import DEFAULT_METHOD, Method, make_segmenter
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.receiver import Receiver
@@ -81,13 +81,15 @@ def fleet_frames(robots: int, seconds: float, rate_hz: float) -> list[tuple[int,
     return out
 
 
-def time_core(frames: Sequence[tuple[int, Frame]], robots: int) -> float:
-    """Thread CPU seconds of the core alone on the frames."""
+def time_core(frames: Sequence[tuple[int, Frame]], robots: int, method: Method) -> float:
+    """Thread CPU seconds of the core alone on the frames: apply and decide every frame."""
     params = PartitionParams.from_profile("laser")
-    partitioners = [Partitioner(params) for _ in range(robots)]
+    segmenters = [make_segmenter(method, params) for _ in range(robots)]
     started = time.process_time()
     for robot, frame in frames:
-        partitioners[robot].observe(frame.seq, frame.stamp_s, frame.features)
+        segmenter = segmenters[robot]
+        segmenter.apply(frame.seq, frame.stamp_s, frame.features)
+        segmenter.decide()
     return time.process_time() - started
 
 
@@ -98,6 +100,7 @@ def time_worker(
     per_sweep: int,
     *,
     memory_only: bool,
+    method: Method,
 ) -> float:
     """CPU seconds of a shard's worker loop on the encoded frames (module docstring)."""
     fields = ServiceSettings.model_fields
@@ -124,8 +127,7 @@ def time_worker(
             store=store,
         )
         table = SessionTable(
-            # The paper: the method of the core it is compared with.
-            Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+            Segmenting(params=PartitionParams.from_profile("laser"), method=method),
             SessionLimits(
                 max_sessions=robots,
                 max_nodes=100_000,
@@ -230,8 +232,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="no checkpoint store (lessmap serve --memory-only)",
     )
+    parser.add_argument(
+        "--method",
+        choices=[m.value for m in Method],
+        default=DEFAULT_METHOD.value,
+        help=f"segmentation method of the sessions and the core ({DEFAULT_METHOD.value})",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    method = Method(args.method)
     frames = fleet_frames(args.robots, args.seconds, args.rate)
     items = [
         Inbound(0.0, keys.frames(FLEET, robot_name(robot)), encode(frame))
@@ -244,9 +253,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     runs: dict[str, list[float]] = {"core": [], "worker": [], "receive": []}
     with zenoh.open(conf) as session, threadpool_limits(limits=1):
         for _ in range(args.repeats):
-            runs["core"].append(time_core(frames, args.robots))
+            runs["core"].append(time_core(frames, args.robots, method))
             runs["worker"].append(
-                time_worker(session, items, args.robots, per_sweep, memory_only=args.memory_only)
+                time_worker(
+                    session,
+                    items,
+                    args.robots,
+                    per_sweep,
+                    memory_only=args.memory_only,
+                    method=method,
+                )
             )
             runs["receive"].append(time_receive(session, items, per_sweep))
     us = {name: 1e6 * statistics.median(values) / len(frames) for name, values in runs.items()}

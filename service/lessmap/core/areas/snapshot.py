@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 import json
 from dataclasses import asdict
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -54,12 +55,22 @@ def _unpack(offsets: np.ndarray, values: np.ndarray) -> list[list[int]]:
     return [values[offsets[i] : offsets[i + 1]].tolist() for i in range(offsets.size - 1)]
 
 
+@lru_cache(maxsize=64)
+def _params_meta(params: AreaParams) -> dict[str, Any]:
+    """The parameters as ``meta`` holds them, made once per parameter set (never mutate it).
+
+    Every checkpoint of every session writes them; ``asdict`` copies them field by field.
+    """
+    found = asdict(params)
+    found["proposal"] = {
+        k: str(v) if k == "seed_mode" else v for k, v in found["proposal"].items()
+    }
+    return found
+
+
 def to_bytes(tracker: AreaTracker) -> bytes:
     """Serialize an area tracker's whole state."""
-    params = asdict(tracker.params)
-    params["proposal"] = {
-        k: str(v) if k == "seed_mode" else v for k, v in params["proposal"].items()
-    }
+    params = _params_meta(tracker.params)
     candidate = tracker.candidate
     meta: dict[str, Any] = {
         "version": AREAS_SNAPSHOT_VERSION,

@@ -285,6 +285,8 @@ class AreaTracker:
         window = rules.last_nonempty(self.frames, self.params.recognise_frames)
         if first is None or window is None or window[0][0] <= first:
             return None
+        if not self._recognisable():
+            return None  # no known area to fit better: the profiles below cannot matter
         leave, left = tally(window)
         # Only the window's frames are weighed against known areas, so the current area's
         # profile needs only their features' gains (rule 5 costs a profile every frame).
@@ -324,6 +326,11 @@ class AreaTracker:
         )
         overlap = rules.seen_share(self.areas[best], after)
         return self._enter(candidate, seq, best, overlap, Rule.RECOGNISED)
+
+    def _recognisable(self) -> bool:
+        """Whether a known area other than the current one has frames (has a profile)."""
+        current, area_frames = self.current, self.area_frames
+        return any(area != current and area_frames[area] > 0 for area in self._live())
 
     def _blind(self, boundary: int) -> bool:
         """Whether the robot reached the new side blind (rule 3b)."""

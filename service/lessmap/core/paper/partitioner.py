@@ -131,6 +131,16 @@ def _feature_ids(seq: int, features: Iterable[int]) -> tuple[list[int], NDArray[
     return distinct.tolist(), distinct
 
 
+def _feature_id_list(seq: int, features: Iterable[int]) -> list[int]:
+    """The distinct feature IDs, ascending, as Python ints: ``_feature_ids`` without the array.
+
+    Raises:
+        GraphError: as ``_feature_ids``.
+    """
+    ids = _plain_ids(features)
+    return ids if ids is not None else _numpy_ids(seq, features).tolist()
+
+
 def _numpy_ids(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
     """Return the distinct feature IDs as int64, refusing floats, strings and bools."""
     values = features if isinstance(features, np.ndarray) else list(features)
