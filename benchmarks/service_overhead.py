@@ -40,6 +40,8 @@ from typing import TYPE_CHECKING
 import zenoh
 from threadpoolctl import threadpool_limits
 
+import lessmap
+from benchmarks import reference
 from benchmarks.fleet.loadgen import LoadSpec, robot_name, simulated_streams
 from lessmap.config.settings import ServiceSettings
 from lessmap.core import PartitionParams
@@ -238,8 +240,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=DEFAULT_METHOD.value,
         help=f"segmentation method of the sessions and the core ({DEFAULT_METHOD.value})",
     )
+    parser.add_argument(
+        "--compare-ref",
+        metavar="REF",
+        help="run this benchmark on the code of git REF and on this tree, alternately, "
+        "--repeats times each (child processes), and print both with the ratios",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.compare_ref:
+        try:
+            return compare_ref(args)
+        except reference.RefRunError as exc:
+            sys.stderr.write(f"service_overhead: {exc}\n")
+            return 2
     method = Method(args.method)
     frames = fleet_frames(args.robots, args.seconds, args.rate)
     items = [
@@ -276,6 +290,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "worker_over_core": us["worker"] / us["core"],
         "service_over_core": (us["worker"] + us["receive"]) / us["core"],
         "load_after": load,
+        "method": method.value,
+        "code": str(Path(lessmap.__file__).resolve().parents[1]),
     }
     if args.json:
         sys.stdout.write(json.dumps(result) + "\n")
@@ -291,6 +307,52 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"  worker + receiver     {us['worker'] + us['receive']:7.1f} µs/frame  "
         f"= {result['service_over_core']:.2f}× core\n"
     )
+    return 0
+
+
+_PARTS = ("core", "worker", "receive")
+
+
+def compare_ref(args: argparse.Namespace) -> int:
+    """Alternate child runs on ``--compare-ref``'s code and this tree's; print both."""
+    child = [
+        *("--robots", str(args.robots), "--seconds", str(args.seconds)),
+        *("--rate", str(args.rate), "--sweep-ms", str(args.sweep_ms)),
+        *("--method", args.method, "--repeats", "1"),
+        *(["--memory-only"] if args.memory_only else []),
+    ]
+    runs: dict[str, list[dict[str, float]]] = {"ref": [], "this": []}
+    code: dict[str, str] = {}  # where each side's lessmap was imported from
+    commit = reference.describe(args.compare_ref)
+    with reference.checkout(args.compare_ref) as tree:
+        for _ in range(args.repeats):
+            for side, root in (("ref", tree), ("this", reference.REPO)):
+                found = reference.run_child(root, "service_overhead", child)
+                runs[side].append({**found["us_per_frame"], "frames": found["frames"]})
+                code[side] = found["code"]
+    us = {
+        side: {part: statistics.median(run[part] for run in found) for part in _PARTS}
+        for side, found in runs.items()
+    }
+    for side in us:
+        us[side]["worker+receive"] = us[side]["worker"] + us[side]["receive"]
+    ratios = {part: us["ref"][part] / us["this"][part] for part in us["this"]}
+    load = f"{os.getloadavg()[0]:.2f}"
+    if args.json:
+        result = {"ref": args.compare_ref, "commit": commit, "us_per_frame": us}
+        result |= {"ref_over_this": ratios, "runs": runs, "code": code, "load_after": load}
+        sys.stdout.write(json.dumps(result) + "\n")
+        return 0
+    frames = runs["this"][0]["frames"]
+    sys.stdout.write(
+        f"{frames:.0f} frames of {args.robots} robots, method {args.method}, medians of "
+        f"{args.repeats} alternating child runs, load average {load}\n"
+        f"  µs per frame          {args.compare_ref} ({commit})   this tree   ref / this\n"
+    )
+    for part, ratio in ratios.items():
+        sys.stdout.write(
+            f"  {part:<20}  {us['ref'][part]:14.1f}  {us['this'][part]:10.1f}   {ratio:9.2f}×\n"
+        )
     return 0
 
 

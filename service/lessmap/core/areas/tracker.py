@@ -329,8 +329,12 @@ class AreaTracker:
 
     def _recognisable(self) -> bool:
         """Whether a known area other than the current one has frames (has a profile)."""
-        current, area_frames = self.current, self.area_frames
-        return any(area != current and area_frames[area] > 0 for area in self._live())
+        current, areas, merged = self.current, self.areas, self.merged
+        for area, frames in enumerate(self.area_frames):
+            # ``_live``'s areas with frames: not merged, not forgotten (their counts kept)
+            if frames > 0 and area != current and areas[area] and area not in merged:
+                return True
+        return False
 
     def _blind(self, boundary: int) -> bool:
         """Whether the robot reached the new side blind (rule 3b)."""
