@@ -200,9 +200,20 @@ class Partitioner:
         self._frames_applied = 0
         self._transitions = 0
         self._prover = Prover()
-        self.last_evaluation: Evaluation | None = None
+        self._last_decision: Decision | None = None
+        self._last_evaluation: Evaluation | None = None
 
     # -- read ------------------------------------------------------------------------------
+
+    @property
+    def last_evaluation(self) -> Evaluation | None:
+        """The figures of the last decision that ran the test (None before the first).
+
+        Made when first read: a session decides at every frame and is rarely asked.
+        """
+        if self._last_evaluation is None and self._last_decision is not None:
+            self._last_evaluation = self._last_decision.evaluation()
+        return self._last_evaluation
 
     @property
     def graph(self) -> CovGraph:
@@ -291,7 +302,7 @@ class Partitioner:
             return None
         assert self._last_seq is not None  # a pending frame was applied
         decision = self._test(self._last_seq)
-        self.last_evaluation = decision.evaluation()
+        self._last_decision, self._last_evaluation = decision, None
         if not decision.transition:
             return None
         return self._transition(decision, batch_frames)
