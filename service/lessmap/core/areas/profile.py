@@ -98,6 +98,14 @@ def count(into: dict[int, int], features: Iterable[int]) -> None:
         into[feature] = into.get(feature, 0) + 1
 
 
+def count_pair(first: dict[int, int], second: dict[int, int], features: Iterable[int]) -> None:
+    """``count`` into two dicts in one pass (a frame's segment and its area, every frame)."""
+    first_get, second_get = first.get, second.get
+    for feature in features:
+        first[feature] = first_get(feature, 0) + 1
+        second[feature] = second_get(feature, 0) + 1
+
+
 def tally(frames: Iterable[Frame]) -> tuple[dict[int, int], int]:
     """Sightings per feature, and the number of non-empty frames."""
     counts: dict[int, int] = {}

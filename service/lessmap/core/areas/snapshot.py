@@ -18,6 +18,7 @@ import json
 from dataclasses import asdict
 from functools import lru_cache
 from itertools import chain
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -79,7 +80,7 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         "params": params,
         "pool": sorted(tracker.pool.features),
         "pool_starts": [list(pair) for pair in tracker.pool.starts],
-        "frame_seqs": [seq for seq, _ in tracker.frames],
+        "frame_seqs": list(map(itemgetter(0), tracker.frames)),
         "steps": [step.hex() for step in tracker.steps],
         "gaps": [list(gap) for gap in tracker.gaps],
         "area_frames": list(tracker.area_frames),
@@ -98,7 +99,7 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         **{name: getattr(tracker.pool, field) for name, field in _POOL_FIELDS.items()},
         **{name: getattr(tracker, name) for name in _INT_FIELDS},
     }
-    frame_offsets, frame_values = _pack([features for _, features in tracker.frames])
+    frame_offsets, frame_values = _pack(list(map(itemgetter(1), tracker.frames)))
     area_offsets, area_features = _pack(tracker.areas)  # a dict's keys, in its order
     _, area_counts = _pack([counts.values() for counts in tracker.areas])
     arrays = {

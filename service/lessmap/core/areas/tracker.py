@@ -34,7 +34,7 @@ from lessmap.core.areas.pool import Pool
 from lessmap.core.areas.profile import (
     Frame,
     Profile,
-    count,
+    count_pair,
     distinct,
     profile,
     rate_overlap,
@@ -160,18 +160,17 @@ class AreaTracker:
         self.segment_frame_count += 1
         self.frames.append((seq, seen))
         self._forget_gaps()
-        count(self.segment_counts, seen)
         if seen:
             counts = self.areas[self.current]
             known = len(counts)
-            count(counts, seen)
+            count_pair(self.segment_counts, counts, seen)
             self.sightings += len(counts) - known
             self.area_frames[self.current] += 1
             self._profiles.pop(self.current, None)
             self._bound_models()
         closed = self.pool.add(seq, seen)
         if closed is not None:
-            self.proposer.apply(closed[0], self.last_stamp_s, closed[1])
+            self.proposer.apply_distinct(closed[0], self.last_stamp_s, closed[1])
 
     def settle(self) -> AreaTransition | None:
         """Run the tests on the frames added since the last settle; return the change found.

@@ -275,6 +275,28 @@ class Partitioner:
             msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
             raise StaleFrameError(msg)
         ids, distinct = _feature_ids(seq, features)
+        self._count(seq, stamp_s, ids, distinct)
+
+    def apply_distinct(self, seq: int, stamp_s: float, ids: list[int]) -> None:
+        """``apply`` for IDs that are distinct Python ints in ascending order already.
+
+        The areas tracker hands its pools this way: checking them again cost as much as
+        counting a small frame.
+
+        Raises:
+            StaleFrameError: seq is not greater than the last applied seq.
+            GraphError: an ID is outside the int64 range (``apply``'s check and message).
+        """
+        if self._last_seq is not None and seq <= self._last_seq:
+            msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
+            raise StaleFrameError(msg)
+        try:
+            distinct = np.array(ids, dtype=np.int64)
+        except OverflowError:
+            ids, distinct = _feature_ids(seq, ids)  # raises apply's error for the ID
+        self._count(seq, stamp_s, ids, distinct)
+
+    def _count(self, seq: int, stamp_s: float, ids: list[int], distinct: NDArray[np.int64]) -> None:
         self._graph.add_frame(seq, ids, distinct=True)
         self._history.append(FrameRecord(seq, distinct))
         if self._submap_first_seq is None:
