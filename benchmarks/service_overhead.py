@@ -1,28 +1,32 @@
 """The service's own CPU per frame beside the core's, in one process, interleaved.
 
-Run from the repository root (docs/BENCHMARKS.md, "Receive path and decode"):
+Run from the repository root (docs/BENCHMARKS.md, "Per-frame CPU"):
 
     python -m benchmarks.service_overhead --robots 100 --seconds 20 --repeats 3
+    python -m benchmarks.service_overhead --robots 100 --seconds 20 --compare-ref main
 
 The fleet benchmark (``fleet_load``) measures the whole process under real load, but on a
 shared machine its core baseline runs at another moment than the service, and their ratio
 moves with the load. This one runs both on the same frames in the same process, one after
 the other, ``--repeats`` times, and times each with the thread's CPU clock:
 
-- ``core``: one ``Partitioner`` per robot, ``observe`` per frame, robots interleaved frame
-  by frame (the paper's loop, the fleet benchmark's baseline, with as many robots);
+- ``core``: one segmenter of ``--method`` per robot (the service's default unless told),
+  ``apply`` and ``decide`` per frame, robots interleaved frame by frame (the fleet
+  benchmark's baseline, with as many robots);
 - ``worker``: a real ``Shard`` (its worker's loop run in this thread) with a real
   ``SessionTable`` and an ``Outbox`` on a Zenoh peer session, with the service's defaults:
   work budgets (so edges are counted) and a ``CheckpointStore`` in a temporary folder
   (a checkpoint per 100 frames of a session; the store's writer thread and Zenoh's threads
   are counted too: process CPU), fed the encoded frames as the receiver hands them on
   (``offer_many``, one batch per ``--sweep-ms`` of the fleet's frames), deciding at every
-  frame as at 200 robots unloaded (``--memory-only``: no store, as before 2026-11-25);
+  frame as at 200 robots unloaded (``--memory-only``: no store);
 - ``receive``: the receiver's sweep of real Zenoh channels (samples put on a local session),
   per sample.
 
 It prints µs per frame and the ratios worker / core and (worker + receive) / core. Zenoh's
 own threads (network, routing) are not in it: the fleet benchmark shows them.
+``--compare-ref REF`` runs all of it on REF's code and on this tree (``benchmarks.reference``)
+and prints both with the ratios REF / this tree.
 """
 
 from __future__ import annotations
