@@ -1,28 +1,32 @@
 """The service's own CPU per frame beside the core's, in one process, interleaved.
 
-Run from the repository root (docs/BENCHMARKS.md, "Receive path and decode"):
+Run from the repository root (docs/BENCHMARKS.md, "Per-frame CPU"):
 
     python -m benchmarks.service_overhead --robots 100 --seconds 20 --repeats 3
+    python -m benchmarks.service_overhead --robots 100 --seconds 20 --compare-ref main
 
 The fleet benchmark (``fleet_load``) measures the whole process under real load, but on a
 shared machine its core baseline runs at another moment than the service, and their ratio
 moves with the load. This one runs both on the same frames in the same process, one after
 the other, ``--repeats`` times, and times each with the thread's CPU clock:
 
-- ``core``: one ``Partitioner`` per robot, ``observe`` per frame, robots interleaved frame
-  by frame (the paper's loop, the fleet benchmark's baseline, with as many robots);
+- ``core``: one segmenter of ``--method`` per robot (the service's default unless told),
+  ``apply`` and ``decide`` per frame, robots interleaved frame by frame (the fleet
+  benchmark's baseline, with as many robots);
 - ``worker``: a real ``Shard`` (its worker's loop run in this thread) with a real
   ``SessionTable`` and an ``Outbox`` on a Zenoh peer session, with the service's defaults:
   work budgets (so edges are counted) and a ``CheckpointStore`` in a temporary folder
   (a checkpoint per 100 frames of a session; the store's writer thread and Zenoh's threads
   are counted too: process CPU), fed the encoded frames as the receiver hands them on
   (``offer_many``, one batch per ``--sweep-ms`` of the fleet's frames), deciding at every
-  frame as at 200 robots unloaded (``--memory-only``: no store, as before 2026-11-25);
+  frame as at 200 robots unloaded (``--memory-only``: no store);
 - ``receive``: the receiver's sweep of real Zenoh channels (samples put on a local session),
   per sample.
 
 It prints µs per frame and the ratios worker / core and (worker + receive) / core. Zenoh's
 own threads (network, routing) are not in it: the fleet benchmark shows them.
+``--compare-ref REF`` runs all of it on REF's code and on this tree (``benchmarks.reference``)
+and prints both with the ratios REF / this tree.
 """
 
 from __future__ import annotations
@@ -40,10 +44,12 @@ from typing import TYPE_CHECKING
 import zenoh
 from threadpoolctl import threadpool_limits
 
+import lessmap
+from benchmarks import reference
 from benchmarks.fleet.loadgen import LoadSpec, robot_name, simulated_streams
 from lessmap.config.settings import ServiceSettings
-from lessmap.core import Partitioner, PartitionParams
-from lessmap.core.segmenter import Method
+from lessmap.core import PartitionParams
+from lessmap.core.segmenter import DEFAULT_METHOD, Method, make_segmenter
 from lessmap.runtime.metrics import ServiceMetrics
 from lessmap.runtime.outbox import EgressPolicy, Outbox
 from lessmap.runtime.receiver import Receiver
@@ -81,13 +87,15 @@ def fleet_frames(robots: int, seconds: float, rate_hz: float) -> list[tuple[int,
     return out
 
 
-def time_core(frames: Sequence[tuple[int, Frame]], robots: int) -> float:
-    """Thread CPU seconds of the core alone on the frames."""
+def time_core(frames: Sequence[tuple[int, Frame]], robots: int, method: Method) -> float:
+    """Thread CPU seconds of the core alone on the frames: apply and decide every frame."""
     params = PartitionParams.from_profile("laser")
-    partitioners = [Partitioner(params) for _ in range(robots)]
+    segmenters = [make_segmenter(method, params) for _ in range(robots)]
     started = time.process_time()
     for robot, frame in frames:
-        partitioners[robot].observe(frame.seq, frame.stamp_s, frame.features)
+        segmenter = segmenters[robot]
+        segmenter.apply(frame.seq, frame.stamp_s, frame.features)
+        segmenter.decide()
     return time.process_time() - started
 
 
@@ -98,6 +106,7 @@ def time_worker(
     per_sweep: int,
     *,
     memory_only: bool,
+    method: Method,
 ) -> float:
     """CPU seconds of a shard's worker loop on the encoded frames (module docstring)."""
     fields = ServiceSettings.model_fields
@@ -124,8 +133,7 @@ def time_worker(
             store=store,
         )
         table = SessionTable(
-            # The paper: the method of the core it is compared with.
-            Segmenting(params=PartitionParams.from_profile("laser"), method=Method.PAPER),
+            Segmenting(params=PartitionParams.from_profile("laser"), method=method),
             SessionLimits(
                 max_sessions=robots,
                 max_nodes=100_000,
@@ -230,8 +238,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="no checkpoint store (lessmap serve --memory-only)",
     )
+    parser.add_argument(
+        "--method",
+        choices=[m.value for m in Method],
+        default=DEFAULT_METHOD.value,
+        help=f"segmentation method of the sessions and the core ({DEFAULT_METHOD.value})",
+    )
+    parser.add_argument(
+        "--compare-ref",
+        metavar="REF",
+        help="run this benchmark on the code of git REF and on this tree, alternately, "
+        "--repeats times each (child processes), and print both with the ratios",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.compare_ref:
+        try:
+            return compare_ref(args)
+        except reference.RefRunError as exc:
+            sys.stderr.write(f"service_overhead: {exc}\n")
+            return 2
+    method = Method(args.method)
     frames = fleet_frames(args.robots, args.seconds, args.rate)
     items = [
         Inbound(0.0, keys.frames(FLEET, robot_name(robot)), encode(frame))
@@ -244,9 +271,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     runs: dict[str, list[float]] = {"core": [], "worker": [], "receive": []}
     with zenoh.open(conf) as session, threadpool_limits(limits=1):
         for _ in range(args.repeats):
-            runs["core"].append(time_core(frames, args.robots))
+            runs["core"].append(time_core(frames, args.robots, method))
             runs["worker"].append(
-                time_worker(session, items, args.robots, per_sweep, memory_only=args.memory_only)
+                time_worker(
+                    session,
+                    items,
+                    args.robots,
+                    per_sweep,
+                    memory_only=args.memory_only,
+                    method=method,
+                )
             )
             runs["receive"].append(time_receive(session, items, per_sweep))
     us = {name: 1e6 * statistics.median(values) / len(frames) for name, values in runs.items()}
@@ -260,6 +294,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "worker_over_core": us["worker"] / us["core"],
         "service_over_core": (us["worker"] + us["receive"]) / us["core"],
         "load_after": load,
+        "method": method.value,
+        "code": str(Path(lessmap.__file__).resolve().parents[1]),
     }
     if args.json:
         sys.stdout.write(json.dumps(result) + "\n")
@@ -275,6 +311,52 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"  worker + receiver     {us['worker'] + us['receive']:7.1f} µs/frame  "
         f"= {result['service_over_core']:.2f}× core\n"
     )
+    return 0
+
+
+_PARTS = ("core", "worker", "receive")
+
+
+def compare_ref(args: argparse.Namespace) -> int:
+    """Alternate child runs on ``--compare-ref``'s code and this tree's; print both."""
+    child = [
+        *("--robots", str(args.robots), "--seconds", str(args.seconds)),
+        *("--rate", str(args.rate), "--sweep-ms", str(args.sweep_ms)),
+        *("--method", args.method, "--repeats", "1"),
+        *(["--memory-only"] if args.memory_only else []),
+    ]
+    runs: dict[str, list[dict[str, float]]] = {"ref": [], "this": []}
+    code: dict[str, str] = {}  # where each side's lessmap was imported from
+    commit = reference.describe(args.compare_ref)
+    with reference.checkout(args.compare_ref) as tree:
+        for _ in range(args.repeats):
+            for side, root in (("ref", tree), ("this", reference.REPO)):
+                found = reference.run_child(root, "service_overhead", child)
+                runs[side].append({**found["us_per_frame"], "frames": found["frames"]})
+                code[side] = found["code"]
+    us = {
+        side: {part: statistics.median(run[part] for run in found) for part in _PARTS}
+        for side, found in runs.items()
+    }
+    for side in us:
+        us[side]["worker+receive"] = us[side]["worker"] + us[side]["receive"]
+    ratios = {part: us["ref"][part] / us["this"][part] for part in us["this"]}
+    load = f"{os.getloadavg()[0]:.2f}"
+    if args.json:
+        result = {"ref": args.compare_ref, "commit": commit, "us_per_frame": us}
+        result |= {"ref_over_this": ratios, "runs": runs, "code": code, "load_after": load}
+        sys.stdout.write(json.dumps(result) + "\n")
+        return 0
+    frames = runs["this"][0]["frames"]
+    sys.stdout.write(
+        f"{frames:.0f} frames of {args.robots} robots, method {args.method}, medians of "
+        f"{args.repeats} alternating child runs, load average {load}\n"
+        f"  µs per frame          {args.compare_ref} ({commit})   this tree   ref / this\n"
+    )
+    for part, ratio in ratios.items():
+        sys.stdout.write(
+            f"  {part:<20}  {us['ref'][part]:14.1f}  {us['this'][part]:10.1f}   {ratio:9.2f}×\n"
+        )
     return 0
 
 

@@ -63,6 +63,7 @@ from benchmarks.fleet.process import (
     offline_baseline,
     proc_cpu_s,
     proc_status_kib,
+    pyspy_path,
     stop_all,
     stop_process,
     thread_cpu_s,
@@ -787,6 +788,9 @@ def run_fleet(args: argparse.Namespace) -> int:
                 f"{table}\nknee: {found} at {spec.rate_hz:g} Hz × {spec.features} features\n"
             )
         return 0
+    if args.profile is not None and pyspy_path() is None:
+        sys.stderr.write("fleet_load: --profile needs py-spy (pip install py-spy)\n")
+        return 2
     report = run_load(spec, profile=args.profile, profile_duration_s=args.profile_duration, log=log)
     if args.json:
         sys.stdout.write(_json(report.as_dict()) + "\n")

@@ -501,8 +501,14 @@ class TransitionLog:
 # -- profile ---------------------------------------------------------------------------------
 
 
+def pyspy_path() -> str | None:
+    """The py-spy executable ``--profile`` runs (on PATH or beside this Python), if any."""
+    beside = Path(sys.executable).with_name("py-spy")
+    return shutil.which("py-spy") or (str(beside) if beside.is_file() else None)
+
+
 def _start_pyspy(pid: int, out: Path, duration_s: float) -> subprocess.Popen[bytes]:
-    exe = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    exe = pyspy_path() or "py-spy"
     fmt = "flamegraph" if out.suffix == ".svg" else "raw"
     args = [
         exe,

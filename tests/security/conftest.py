@@ -21,7 +21,7 @@ from lessmap_client.session import open_session
 from tests.conftest import ServeProcess, free_port, wait_until
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator
+    from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
 
     from lessmap_client import Connection
@@ -37,20 +37,32 @@ class SecureSite:
     other: str  # G: another fleet of the same site
 
     def config(self, role: str, fleet: str | None = None) -> str:
-        """Return the Zenoh config file of ``role`` (robot, app, viewer, service)."""
+        """Return the Zenoh config file of ``role`` (robot, app, viewer, service).
+
+        ``fleet`` is a fleet name, or ``F/R`` for a robot with an identity of its own.
+        """
         if role == "service":
             return str(self.site.services["service"])
         table = {"robot": self.site.robots, "app": self.site.apps, "viewer": self.site.viewers}
         return str(table[role][fleet or self.fleet])
 
 
-@pytest.fixture
-def site(tmp_path: Path, fleet_name: str) -> SecureSite:
-    """Certificates and configs for fleets F and G, the router on a free loopback port."""
+def secure_site(folder: Path, fleet: str, robots: Sequence[str] = ()) -> SecureSite:
+    """Certificates and configs for fleets F and G, the router on a free loopback port.
+
+    ``robots`` are robots of F with identities of their own (``--robot F/R``): their
+    configs are ``config("robot", "F/R")``, and F has no fleet-wide robot identity.
+    """
     endpoint = f"tls/127.0.0.1:{free_port()}"
     other = f"other-{uuid.uuid4().hex[:8]}"
-    made = make_site(tmp_path / "site", [fleet_name, other], endpoint=endpoint)
-    return SecureSite(made, endpoint, fleet_name, other)
+    made = make_site(folder, [fleet, other], endpoint=endpoint, robots={fleet: list(robots)})
+    return SecureSite(made, endpoint, fleet, other)
+
+
+@pytest.fixture
+def site(tmp_path: Path, fleet_name: str) -> SecureSite:
+    """Fleets F and G, each with a fleet-wide robot identity (a module may override this)."""
+    return secure_site(tmp_path / "site", fleet_name)
 
 
 @pytest.fixture

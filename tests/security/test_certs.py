@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -18,7 +19,12 @@ from cryptography.x509.oid import NameOID
 from lessmap.cli.app import main
 from lessmap.errors import ConfigError
 from lessmap.security.certs import make_site, templates
-from lessmap.security.siteconfig import render, usrpwd_client_config, usrpwd_router_config
+from lessmap.security.siteconfig import (
+    access_rules,
+    render,
+    usrpwd_client_config,
+    usrpwd_router_config,
+)
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from tests.conftest import free_port, wait_until
@@ -176,3 +182,112 @@ def test_user_names_and_passwords_with_access_control(tmp_path: Path) -> None:
             service.close()
         with pytest.raises(ConnectionError):
             open_session([endpoint], config_file=client("robot.f", "wrong"), timeout_s=2.0)
+
+
+def rules_of(acl: dict[str, Any], subject_id: str) -> dict[str, dict[str, Any]]:
+    """The rules of the policy of ``subject_id``, by rule id."""
+    (policy,) = [p for p in acl["policies"] if p["subjects"] == [subject_id]]
+    by_id = {rule["id"]: rule for rule in acl["rules"]}
+    return {rule_id: by_id[rule_id] for rule_id in policy["rules"]}
+
+
+def test_per_robot_identities_are_held_to_their_own_keys() -> None:
+    acl = access_rules(["f", "g"], ["service"], robots={"f": ["r1", "r2"]})
+    subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert subjects["robot-f/r1"] == ["robot.f/r1"]
+    assert subjects["robot-f/r2"] == ["robot.f/r2"]
+    assert "robot-f" not in subjects  # no fleet-wide robot identity for f
+    assert subjects["robot-g"] == ["robot.g"]
+    p = keys.KEY_PREFIX
+    r1 = rules_of(acl, "robot-f/r1")
+    assert {rule_id: (rule["flows"], rule["key_exprs"]) for rule_id, rule in r1.items()} == {
+        "robot-f/r1-put": (["ingress"], [f"{p}/f/r1/frames/*"]),
+        "robot-f/r1-cache": (["ingress"], [f"{p}/f/r1/frames/*/@adv/**"]),
+        "robot-f/r1-read": (
+            ["ingress"],
+            [f"{p}/f/r1/errors", f"{p}/f/r1/state", f"{p}/@/instances/*"],
+        ),
+        "robot-f/r1-out": (
+            ["egress"],
+            [
+                f"{p}/f/r1/frames/*",
+                f"{p}/f/r1/frames/*/@adv/**",
+                f"{p}/f/r1/errors",
+                f"{p}/f/r1/state",
+                f"{p}/@/instances/*",
+            ],
+        ),
+        # Declarations of the service's wildcard subscribers and queryables, no data.
+        "see-service": (
+            ["egress"],
+            [f"{p}/*/*/frames/*", f"{p}/*/*/state", f"{p}/*/*/areas", f"{p}/*/*/submaps/*"],
+        ),
+    }
+    assert r1["robot-f/r1-put"]["messages"] == ["put"]
+    # Nothing r1 may send touches r2's keys; r1's own frames key is covered.
+    r2_keys = [
+        keys.frames("f", "r2"),
+        f"{keys.frames('f', 'r2')}/@adv/pub/z/1",
+        keys.state("f", "r2"),
+    ]
+    for rule in r1.values():
+        if "ingress" in rule["flows"]:
+            for expr in rule["key_exprs"]:
+                assert not any(zenoh.KeyExpr(expr).intersects(k) for k in r2_keys), expr
+    assert zenoh.KeyExpr(f"{p}/f/r1/frames/*").includes(keys.frames("f", "r1"))
+    # The other fleet's rules, and those of apps and viewers, are those of a fleet-wide site.
+    fleet_wide = access_rules(["f", "g"], ["service"])
+    for subject_id in ["robot-g", "app-f", "viewer-f", "app-g", "viewer-g", "service"]:
+        assert rules_of(acl, subject_id) == rules_of(fleet_wide, subject_id), subject_id
+    assert access_rules(["f"], ["service"], robots={}) == access_rules(["f"], ["service"])
+
+
+def test_a_site_with_per_robot_identities(tmp_path: Path) -> None:
+    mesh = {"a": "tls/127.0.0.1:7001", "b": "tls/127.0.0.1:7002"}
+    site = make_site(tmp_path / "site", ["g"], robots={"f": ["r1", "r2"]}, mesh=mesh)
+    folder = site.folder
+    assert set(site.robots) == {"f/r1", "f/r2", "g"}  # f joins the fleets
+    assert set(site.apps) == {"f", "g"}
+    assert not (folder / "robot.f.pem").exists()
+    for robot in ("r1", "r2"):
+        pem, key = (
+            folder / "robots" / "f" / f"{robot}.pem",
+            folder / "robots" / "f" / f"{robot}.key",
+        )
+        assert common_name(pem) == f"robot.f/{robot}"
+        assert stat.S_IMODE(key.stat().st_mode) == 0o600
+        config = site.robots[f"f/{robot}"]
+        assert config == folder / "robots" / "f" / f"zenoh-{robot}-mtls.json5"
+        assert f'"{key}"' in config.read_text()
+        zenoh.Config.from_file(str(config))
+    for router in site.routers.values():
+        text = router.read_text()
+        assert 'cert_common_names: ["robot.f/r1"]' in text
+        assert '"robot.f"' not in text
+        zenoh.Config.from_file(str(router))
+
+
+def test_the_robot_option_and_its_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "site"
+    assert main(["certs", "--out", str(out), "--robot", "lab/amr-1", "--robot", "lab/amr-2"]) == 0
+    written = json.loads(capsys.readouterr().out)
+    assert set(written["robots"]) == {"lab/amr-1", "lab/amr-2"}
+    bad = {
+        "lab": "give FLEET/ROBOT",
+        "lab/": "give FLEET/ROBOT",
+        "lab/a/b": "give FLEET/ROBOT",
+        "lab/a*": "robot name 'a*'",
+        "l b/a": "fleet name 'l b'",
+        f"lab/{'r' * 60}": "at most 64",
+    }
+    for value, message in bad.items():
+        assert main(["certs", "--out", str(tmp_path / "x"), "--robot", value]) == 1, value
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1, err
+        assert message in err[0], err
+    args = ["certs", "--out", str(tmp_path / "x"), "--robot", "lab/a", "--robot", "lab/a"]
+    assert main(args) == 1
+    assert "--robot lab/a is given twice" in capsys.readouterr().err
+    assert not (tmp_path / "x" / "ca.key").exists()  # refused before anything is written

@@ -31,7 +31,7 @@ from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.params import PartitionParams
-from lessmap.core.paper.partitioner import Partitioner, _feature_ids  # rule 2: its own check
+from lessmap.core.paper.partitioner import Partitioner, _feature_id_list  # rule 2: its check
 from lessmap.core.paper.submaps import Submap
 from lessmap.core.rooms.params import RoomParams
 from lessmap.core.rooms.tracker import RoomTracker
@@ -412,8 +412,7 @@ class AreasSegmenter:
         if last is not None and seq <= last:
             msg = f"frame seq {seq} is not after the last applied seq {last}"
             raise StaleFrameError(msg)
-        ids, _ = _feature_ids(seq, features)
-        self.tracker.add(seq, float(stamp_s), ids)
+        self.tracker.add(seq, float(stamp_s), _feature_id_list(seq, features))
         self._pending_frames += 1
 
     def decide(self) -> tuple[SegmentChange, ...]:

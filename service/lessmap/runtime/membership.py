@@ -52,6 +52,9 @@ _LEAVE_CONFIRM_S = 0.25  # a token that went is checked again this much later
 # at most: well below handover_release_s, so the joining owner still gets the release.
 _DRAIN_BEFORE_HANDOVER_S = 1.0
 _ROUTER_WAIT_S = 10.0  # after a freeze, how long a client waits for its router again
+# Back from a cut or a freeze, how long to wait for the instances known before it to show
+# again: a restarted router learns the others' tokens from its peers a while after it links.
+_REJOIN_WAIT_S = 10.0
 
 
 class Membership:
@@ -80,6 +83,7 @@ class Membership:
         self._token: zenoh.LivelinessToken | None = None
         self._frame_subs: dict[int, zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]] = {}
         self._liveliness_sub: zenoh.Subscriber[None] | None = None
+        self._release_sub: zenoh.Subscriber[None] | None = None  # while a join waits
         # Release announcements of the former owners, while this instance waits for them
         # (a join only): the subscriber's callback only enqueues.
         self._releases: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
@@ -131,6 +135,7 @@ class Membership:
         if self._liveliness_sub is not None:
             self._liveliness_sub.undeclare()
             self._liveliness_sub = None
+        self._stop_listening()
         for frames_sub in self._frame_subs.values():
             frames_sub.undeclare()
         self._frame_subs.clear()
@@ -233,10 +238,12 @@ class Membership:
             self._settings.instance,
             self._settings.fence_after_s,
         )
+        known = self._ownership.live
         self._hand_over(sorted(self._ownership.owned()))
         self._replication.stop_standing_by()
+        self._listen_for_releases()
         self._wait_for_router()
-        self._rejoin()
+        self._rejoin(known)
 
     def _after_cut_off(self) -> None:
         """No router past the fence: the others took this instance's partitions; drop them.
@@ -251,24 +258,48 @@ class Membership:
             self._settings.instance,
             self._settings.fence_after_s,
         )
+        known = self._ownership.live
         self._hand_over(sorted(self._ownership.owned()))
         self._replication.stop_standing_by()
+        self._listen_for_releases()
         while self._without_router():  # unbounded: alone, it would take every partition
             if self._heartbeat_stop.wait(0.1):
                 return
         # The others' tokens reach a client just after its link is back.
         if self._heartbeat_stop.wait(_LEAVE_CONFIRM_S):
             return
-        self._rejoin()
+        self._rejoin(known)
 
-    def _rejoin(self) -> None:
+    def _rejoin(self, known: frozenset[str]) -> None:
         # Back as a joiner comes (invariant 5): the partitions won again were taken over
         # meanwhile; taken at once, they would resume from this instance's old checkpoints.
-        change = self._ownership.set_live(self._live_instances(), arriving=True)
+        change = self._ownership.set_live(self._instances_back(known), arriving=True)
         if change.handed_by:
             self._join(change, declare_token=False)
         else:
+            self._stop_listening()
             self._apply(change)
+
+    def _instances_back(self, known: frozenset[str]) -> list[str]:
+        """The live instances once those ``known`` before the cut show again (bounded).
+
+        Seen alone too early, this instance would take every partition and resume them from
+        its own old checkpoints, though another instance applied their frames meanwhile.
+        """
+        deadline = time.monotonic() + _REJOIN_WAIT_S
+        while True:
+            live = self._live_instances()
+            missing = sorted(known - set(live))
+            if not missing or self._heartbeat_stop.is_set():
+                return live
+            if time.monotonic() > deadline:
+                log.warning(
+                    "rejoining without %s: not seen %.0f s after the router came back",
+                    ", ".join(missing),
+                    _REJOIN_WAIT_S,
+                )
+                return live
+            self._heartbeat_stop.wait(_LEAVE_CONFIRM_S)
 
     def _without_router(self) -> bool:
         """True for a client connected to no router: it sees no other instance's token."""
@@ -296,12 +327,12 @@ class Membership:
     def _join(self, change: Change, *, declare_token: bool = True) -> None:
         """Take partitions from the live instances that hold them (invariant 4).
 
-        After a freeze the token is already declared: the others see it again as the
-        session reconnects.
+        After a freeze or a cut the token is already declared: the others see it again as
+        the session reconnects, and hand over at once; the releases are listened to from
+        the cut on, or the joiner would wait out ``handover_release_s`` for each one.
         """
-        while not self._releases.empty():  # announcements of an earlier join, already used
-            self._releases.get_nowait()
-        releases = self._session.declare_subscriber(keys.released(), self._on_released)
+        if self._release_sub is None:
+            self._listen_for_releases()
         try:
             held = sorted(change.handed_by)
             self._receiver.hold(held)
@@ -310,7 +341,17 @@ class Membership:
                 self._declare_token()  # the former owners hand over when they see it
             self._apply(change)
         finally:
-            releases.undeclare()
+            self._stop_listening()
+
+    def _listen_for_releases(self) -> None:
+        while not self._releases.empty():  # announcements of an earlier join, already used
+            self._releases.get_nowait()
+        self._release_sub = self._session.declare_subscriber(keys.released(), self._on_released)
+
+    def _stop_listening(self) -> None:
+        if self._release_sub is not None:
+            self._release_sub.undeclare()
+            self._release_sub = None
 
     def _apply(self, change: Change) -> None:
         """Carry out a change of ownership (ownership thread, or ``start``)."""

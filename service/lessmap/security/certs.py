@@ -1,9 +1,10 @@
 """``lessmap certs``: a test site's CA, certificates and Zenoh configs (mTLS + access control).
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
-session presents: ``robot.<fleet>``, ``app.<fleet>``, ``viewer.<fleet>`` (``lessmap view``:
-an app's reads and the robots' frames), the service names (``service`` by default) and, for a
-mesh of routers (``--mesh NAME=ENDPOINT``), ``router.<name>``.
+session presents: ``robot.<fleet>`` (or ``robot.<fleet>/<robot>``, one per robot, with
+``--robot FLEET/ROBOT``), ``app.<fleet>``, ``viewer.<fleet>`` (``lessmap view``: an app's
+reads and the robots' frames), the service names (``service`` by default) and, for a mesh of
+routers (``--mesh NAME=ENDPOINT``), ``router.<name>``.
 ``lessmap.security.siteconfig.access_rules`` is the one place that maps those roles to Zenoh
 ``access_control`` rules; the router configs this command writes and the templates in ``deploy/``
 (``--templates``) are both rendered from it, so they cannot drift apart.
@@ -15,9 +16,7 @@ unless ``--force`` is given (a new CA invalidates every certificate issued befor
 from __future__ import annotations
 
 import datetime
-import ipaddress
 import json
-import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +29,7 @@ from lessmap.security.siteconfig import (
     TEMPLATE_FLEET,
     app_name,
     client_config,
+    identity_file,
     mesh_router_config,
     render,
     robot_name,
@@ -45,9 +45,6 @@ if TYPE_CHECKING:
     import argparse
     from collections.abc import Iterable, Mapping, Sequence
 
-    from cryptography import x509
-    from cryptography.hazmat.primitives.asymmetric import ec
-
 
 # -- the site -----------------------------------------------------------------------------------
 
@@ -57,7 +54,8 @@ class Site:
     """What ``make_site`` wrote: the folder and every config file, by role.
 
     ``router`` is the single router's config; for a mesh, the first mesh router's, and
-    ``routers`` holds every mesh router's config by name.
+    ``routers`` holds every mesh router's config by name. ``robots`` holds the robot configs
+    by fleet (``F``), and by ``F/R`` for the robots with identities of their own.
     """
 
     folder: Path
@@ -70,16 +68,27 @@ class Site:
 
 
 def _check_names(
-    fleets: Sequence[str], service_names: Sequence[str], mesh: Mapping[str, str] | None = None
+    fleets: Sequence[str],
+    service_names: Sequence[str],
+    mesh: Mapping[str, str] | None = None,
+    robots: Mapping[str, Sequence[str]] | None = None,
 ) -> None:
     if not fleets:
         msg = "give at least one --fleet"
         raise ConfigError(msg)
-    for name in [*fleets, *service_names]:
+    robots = robots or {}
+    robot_names = [name for names in robots.values() for name in names]
+    for name in [*fleets, *service_names, *robot_names]:
+        what = "fleet" if name in fleets else "robot" if name in robot_names else "service name"
         try:
-            keys.validate_name(name, "fleet" if name in fleets else "service name")
+            keys.validate_name(name, what)
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
+    for fleet, names in robots.items():
+        twice = sorted({name for name in names if names.count(name) > 1})
+        if twice:
+            msg = f"--robot {fleet}/{twice[0]} is given twice"
+            raise ConfigError(msg)
     for name in service_names:
         if name == "router" or name.startswith(("router.", "robot.", "app.", "ca")):
             msg = f"service name {name!r} would clash with another identity"
@@ -132,6 +141,33 @@ def parse_mesh(values: Sequence[str]) -> dict[str, str]:
     return mesh
 
 
+def parse_robots(values: Sequence[str]) -> dict[str, list[str]]:
+    """Return ``--robot FLEET/ROBOT`` values as fleet to robot names, in order.
+
+    Raises:
+        ConfigError: a value that is not two chunks around one ``/``.
+    """
+    robots: dict[str, list[str]] = {}
+    for value in values:
+        fleet, sep, robot = value.partition("/")
+        if not sep or not fleet or not robot or "/" in robot:
+            msg = f"--robot {value!r}: give FLEET/ROBOT, e.g. warehouse/amr-7"
+            raise ConfigError(msg)
+        robots.setdefault(fleet, []).append(robot)
+    return robots
+
+
+def _check_common_names(identities: Sequence[str]) -> None:
+    # X.509 caps a CN at 64 characters (RFC 5280, ub-common-name).
+    for identity in identities:
+        if len(identity) > 64:
+            msg = (
+                f"certificate CN {identity!r} has {len(identity)} characters (at most 64): "
+                "use shorter fleet or robot names"
+            )
+            raise ConfigError(msg)
+
+
 def make_site(
     out: Path,
     fleets: Sequence[str],
@@ -140,6 +176,7 @@ def make_site(
     endpoint: str = DEFAULT_ENDPOINT,
     router_hosts: Iterable[str] = (),
     mesh: Mapping[str, str] | None = None,
+    robots: Mapping[str, Sequence[str]] | None = None,
     days: int = 365,
     force: bool = False,
     reuse_ca: bool = False,
@@ -148,31 +185,33 @@ def make_site(
 
     Args:
         out: the folder (created); configs name its absolute path.
-        fleets: a robot and an app identity per fleet.
+        fleets: a robot, an app and a viewer identity per fleet.
         service_names: one identity per name (certificate CN).
-        endpoint: where the router listens and the clients connect (single router).
-        router_hosts: more DNS names or IP addresses for the router certificate, or for
-            every mesh router's (127.0.0.1 and localhost are always in it).
-        mesh: routers of a mesh, name to TLS endpoint (at least two). Each gets a
-            certificate ``router.<name>`` naming its endpoint's host and a config that
-            listens there and connects to the others; the clients' configs list every
-            router's endpoint, and ``endpoint`` is not used.
+        endpoint: where the single router listens and the clients connect.
+        router_hosts: more DNS names or IP addresses in the router certificates (SAN).
+        mesh: routers of a mesh, name to TLS endpoint (at least two), instead of one.
+        robots: fleet to robot names, each robot with an identity of its own
+            (``robot.<fleet>/<robot>``); its fleet gets no fleet-wide robot identity.
         days: validity of every certificate.
         force: replace an existing CA (every older certificate stops working).
         reuse_ca: keep the CA in ``out`` and issue new certificates and keys from it.
-
-    Raises:
-        ConfigError: a bad name, or a CA already in ``out`` without ``force``.
     """
-    from cryptography.hazmat.primitives.asymmetric import ec
+    from lessmap.security import pki
 
     mesh = dict(mesh or {})
-    _check_names(fleets, service_names, mesh)
+    robots = {fleet: list(names) for fleet, names in (robots or {}).items() if names}
+    fleets = [*fleets, *(fleet for fleet in robots if fleet not in fleets)]
+    _check_names(fleets, service_names, mesh, robots)
+    identities = [*service_names]
+    for fleet in fleets:
+        own = [robot_name(fleet, r) for r in robots[fleet]] if fleet in robots else []
+        identities += [*(own or [robot_name(fleet)]), app_name(fleet), viewer_name(fleet)]
+    _check_common_names([*identities, *(router_name(name) for name in mesh)])
     out.mkdir(parents=True, exist_ok=True)
     folder = out.resolve()
     now = datetime.datetime.now(datetime.UTC)
     if reuse_ca:
-        ca_key, ca_cert = _load_ca(folder)
+        ca = pki.load_ca(folder)
     elif (folder / "ca.key").exists() and not force:
         msg = (
             f"{out / 'ca.key'} exists: give --reuse-ca to issue new certificates from it, "
@@ -180,22 +219,16 @@ def make_site(
         )
         raise ConfigError(msg)
     else:
-        ca_key = ec.generate_private_key(ec.SECP256R1())
-        ca_cert = _certificate("lessmap test CA", ca_key, None, None, now, days, ca=True)
-        _write_key(folder / "ca.key", ca_key)
-        (folder / "ca.pem").write_bytes(_pem(ca_cert))
+        ca = pki.new_ca(folder, now, days)
     hosts = ["127.0.0.1", "localhost", *router_hosts]
     if mesh:
         for name, listen in mesh.items():
-            own = [*hosts, _endpoint_host(listen)]
-            _issue(folder, router_name(name), ca_key, ca_cert, now, days, list(dict.fromkeys(own)))
+            own_hosts = [*hosts, _endpoint_host(listen)]
+            pki.issue(folder, router_name(name), ca, now, days, list(dict.fromkeys(own_hosts)))
     else:
-        _issue(folder, "router", ca_key, ca_cert, now, days, hosts)
-    identities = [*service_names]
-    for fleet in fleets:
-        identities += [robot_name(fleet), app_name(fleet), viewer_name(fleet)]
+        pki.issue(folder, "router", ca, now, days, hosts)
     for identity in identities:
-        _issue(folder, identity, ca_key, ca_cert, now, days, ())
+        pki.issue(folder, identity, ca, now, days, stem=identity_file(identity))
 
     header = (
         f"Written by `lessmap certs` for fleets {', '.join(fleets)}.\n"
@@ -206,148 +239,33 @@ def make_site(
     if mesh:
         for name in mesh:
             routers[name] = folder / f"zenoh-router-{name}-mtls.json5"
-            conf = mesh_router_config(d, name, mesh, fleets, service_names)
+            conf = mesh_router_config(d, name, mesh, fleets, service_names, robots)
             routers[name].write_text(render(conf, header))
         router = next(iter(routers.values()))
         connect: str | list[str] = list(mesh.values())
     else:
         router = folder / "zenoh-router-mtls.json5"
-        router.write_text(render(router_config(d, fleets, service_names, endpoint), header))
+        conf = router_config(d, fleets, service_names, endpoint, robots)
+        router.write_text(render(conf, header))
         connect = endpoint
     services = {}
     for name in service_names:
         services[name] = folder / f"zenoh-{name}-mtls.json5"
         services[name].write_text(render(client_config(d, name, connect), header))
-    robots, apps, viewers = {}, {}, {}
+    configs, apps, viewers = {}, {}, {}
     for fleet in fleets:
-        robots[fleet] = folder / f"zenoh-robot-{fleet}-mtls.json5"
-        robots[fleet].write_text(render(client_config(d, robot_name(fleet), connect), header))
+        for robot in robots.get(fleet, []):
+            path = folder / "robots" / fleet / f"zenoh-{robot}-mtls.json5"
+            configs[f"{fleet}/{robot}"] = path
+            path.write_text(render(client_config(d, robot_name(fleet, robot), connect), header))
+        if fleet not in robots:
+            configs[fleet] = folder / f"zenoh-robot-{fleet}-mtls.json5"
+            configs[fleet].write_text(render(client_config(d, robot_name(fleet), connect), header))
         apps[fleet] = folder / f"zenoh-app-{fleet}-mtls.json5"
         apps[fleet].write_text(render(client_config(d, app_name(fleet), connect), header))
         viewers[fleet] = folder / f"zenoh-viewer-{fleet}-mtls.json5"
         viewers[fleet].write_text(render(client_config(d, viewer_name(fleet), connect), header))
-    return Site(folder, router, services, robots, apps, routers, viewers)
-
-
-def _load_ca(folder: Path) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-
-    try:
-        key = serialization.load_pem_private_key((folder / "ca.key").read_bytes(), None)
-        cert = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
-    except FileNotFoundError as exc:
-        msg = f"--reuse-ca: no CA in {folder} ({exc.filename} is missing)"
-        raise ConfigError(msg) from exc
-    if not isinstance(key, ec.EllipticCurvePrivateKey):
-        msg = f"--reuse-ca: {folder / 'ca.key'} is not an EC key written by lessmap certs"
-        raise ConfigError(msg)
-    return key, cert
-
-
-def _pem(cert: x509.Certificate) -> bytes:
-    from cryptography.hazmat.primitives import serialization
-
-    return cert.public_bytes(serialization.Encoding.PEM)
-
-
-def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
-    from cryptography.hazmat.primitives import serialization
-
-    data = key.private_bytes(
-        serialization.Encoding.PEM,
-        serialization.PrivateFormat.PKCS8,
-        serialization.NoEncryption(),
-    )
-    # Created 0600 (never world-readable, not even for a moment), replaced if it exists.
-    path.unlink(missing_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "wb") as file:
-        file.write(data)
-
-
-def _issue(
-    folder: Path,
-    name: str,
-    ca_key: ec.EllipticCurvePrivateKey,
-    ca_cert: x509.Certificate,
-    now: datetime.datetime,
-    days: int,
-    hosts: Sequence[str],
-) -> None:
-    from cryptography.hazmat.primitives.asymmetric import ec
-
-    key = ec.generate_private_key(ec.SECP256R1())
-    cert = _certificate(name, key, ca_key, ca_cert, now, days, ca=False, hosts=hosts)
-    _write_key(folder / f"{name}.key", key)
-    (folder / f"{name}.pem").write_bytes(_pem(cert))
-
-
-def _certificate(
-    common_name: str,
-    key: ec.EllipticCurvePrivateKey,
-    ca_key: ec.EllipticCurvePrivateKey | None,
-    ca_cert: x509.Certificate | None,
-    now: datetime.datetime,
-    days: int,
-    *,
-    ca: bool,
-    hosts: Sequence[str] = (),
-) -> x509.Certificate:
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
-
-    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
-    issuer = ca_cert.subject if ca_cert is not None else subject
-    public = key.public_key()
-    builder = (
-        x509.CertificateBuilder()
-        .subject_name(subject)
-        .issuer_name(issuer)
-        .public_key(public)
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))
-        .not_valid_after(now + datetime.timedelta(days=days))
-        .add_extension(x509.BasicConstraints(ca=ca, path_length=0 if ca else None), critical=True)
-        .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=not ca,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                key_cert_sign=ca,
-                crl_sign=ca,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-    )
-    if not ca:
-        builder = builder.add_extension(
-            x509.ExtendedKeyUsage(
-                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-            ),
-            critical=False,
-        )
-    if ca_cert is not None:
-        builder = builder.add_extension(
-            x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_cert.public_key()),  # type: ignore[arg-type]
-            critical=False,
-        )
-    if hosts:
-        names: list[x509.GeneralName] = []
-        for host in hosts:
-            try:
-                names.append(x509.IPAddress(ipaddress.ip_address(host)))
-            except ValueError:
-                names.append(x509.DNSName(host))
-        builder = builder.add_extension(x509.SubjectAlternativeName(names), critical=False)
-    return builder.sign(ca_key if ca_key is not None else key, hashes.SHA256())
+    return Site(folder, router, services, configs, apps, routers, viewers)
 
 
 # -- templates (deploy/) ------------------------------------------------------------------------
@@ -465,8 +383,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Write a test site's CA, a router certificate (SAN 127.0.0.1, localhost) or one per "
         "mesh router (CN router.NAME, --mesh), one certificate and key per role and fleet "
-        "(CN robot.F, app.F, and the service names), and the Zenoh configs of each role with "
-        "mTLS and deny-by-default access control. "
+        "(CN robot.F, app.F, and the service names) or per robot (CN robot.F/R, --robot), "
+        "and the Zenoh configs of each role with mTLS and deny-by-default access control. "
         "Keys are written mode 0600. See docs/SECURITY.md."
     )
     parser.add_argument(
@@ -505,6 +423,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
             "to the others; clients' configs list every router (--endpoint is then unused)"
         ),
     )
+    parser.add_argument(
+        "--robot",
+        action="append",
+        default=[],
+        metavar="FLEET/ROBOT",
+        help=(
+            "a robot with an identity of its own, CN robot.FLEET/ROBOT, that may put only its "
+            "own frames (repeat; its fleet then gets no shared robot.FLEET identity, and "
+            "--fleet FLEET is implied)"
+        ),
+    )
     parser.add_argument("--days", type=int, default=365, help="validity (default: 365)")
     ca = parser.add_mutually_exclusive_group()
     ca.add_argument("--force", action="store_true", help="replace an existing CA")
@@ -537,6 +466,7 @@ def run(args: argparse.Namespace) -> int:
         endpoint=args.endpoint,
         router_hosts=args.router_host,
         mesh=parse_mesh(args.mesh),
+        robots=parse_robots(args.robot),
         days=args.days,
         force=args.force,
         reuse_ca=args.reuse_ca,

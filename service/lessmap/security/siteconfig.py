@@ -1,8 +1,9 @@
 """Who may do what on a lessmap site, as Zenoh configs: access rules, router and client files.
 
 Who may do what is decided by the router, from the common name (CN) of the certificate a
-session presents (``robot.<fleet>``, ``app.<fleet>``, ``viewer.<fleet>``, the service names,
-and in a mesh the other routers' ``router.<name>``) or from the user name (usrpwd).
+session presents (``robot.<fleet>``, or ``robot.<fleet>/<robot>`` for a fleet with per-robot
+identities, ``app.<fleet>``, ``viewer.<fleet>``, the service names, and in a mesh the other
+routers' ``router.<name>``) or from the user name (usrpwd).
 ``access_rules`` is the one place that maps those roles to Zenoh ``access_control`` rules;
 ``lessmap certs`` writes a site's configs from it and renders the templates in ``deploy/``
 from it, so they cannot drift apart. Pure data: no cryptography.
@@ -17,7 +18,7 @@ from lessmap.config.qos import WAIT_BEFORE_DROP_US, slow_consumer_qos
 from lessmap_schemas import keys
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
 #: Where the templates in ``deploy/`` expect the site's files.
 TEMPLATE_DIR = "/etc/lessmap/tls"
@@ -41,9 +42,23 @@ ALL_MESSAGES = [
 READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 
 
-def robot_name(fleet: str) -> str:
-    """Return the certificate CN (or user name) of the robots of ``fleet``."""
-    return f"robot.{fleet}"
+def robot_name(fleet: str, robot: str | None = None) -> str:
+    """Return the certificate CN (or user name) of the robots of ``fleet``, or of one robot.
+
+    ``robot.<fleet>`` speaks for every robot of the fleet, ``robot.<fleet>/<robot>`` for one
+    (per-robot identities). Names never hold ``/``, so no CN can be read both ways.
+    """
+    return f"robot.{fleet}" if robot is None else f"robot.{fleet}/{robot}"
+
+
+def identity_file(identity: str) -> str:
+    """Return where the key and certificate of ``identity`` are, in the site's folder.
+
+    ``<identity>.key`` and ``.pem``, but ``robots/<fleet>/<robot>.key`` and ``.pem`` for a
+    per-robot identity: one folder per fleet, and no file name holding a ``/``.
+    """
+    role_fleet, sep, robot = identity.partition("/")
+    return f"robots/{role_fleet.removeprefix('robot.')}/{robot}" if sep else identity
 
 
 def app_name(fleet: str) -> str:
@@ -80,6 +95,7 @@ def access_rules(
     service_names: Sequence[str],
     subject_kind: str = "cert_common_names",
     routers: Sequence[str] = (),
+    robots: Mapping[str, Sequence[str]] | None = None,
 ) -> dict[str, Any]:
     """Return the ``access_control`` section: deny by default, allow each role its keys.
 
@@ -88,12 +104,13 @@ def access_rules(
     subscriber was announced to it).
 
     Args:
-        fleets: fleet names; each gets a robot and an app subject.
+        fleets: fleet names; each gets a robot, an app and a viewer subject.
         service_names: identities of the service instances.
         subject_kind: ``cert_common_names`` (mTLS) or ``usernames`` (usrpwd).
-        routers: identities of the other routers of a mesh (``router.<name>``): they may
-            relay every lessmap message both ways. Robots and apps are still held to their
-            own rules by the router they connect to, so this widens nothing for them.
+        routers: identities of the other routers of a mesh: they relay every lessmap
+            message both ways (each client is still held to its rules by its own router).
+        robots: fleet to robot names, for fleets with per-robot identities: a subject
+            per robot, held to its own keys, and no fleet-wide robot subject.
     """
     any_robot = f"{P}/*/*"
     # Frames keys end with the robot's partition chunk (schemas/README.md §2a). The rules
@@ -207,53 +224,31 @@ def access_rules(
         subjects.append({"id": "routers", subject_kind: list(routers)})
         policies.append({"rules": ["router-in", "router-out"], "subjects": ["routers"]})
     for fleet in fleets:
-        robots = f"{P}/{fleet}/*"
-        frames = f"{robots}/frames/*"  # any partition chunk, this fleet only
+        # A fleet with per-robot identities has one robot subject per robot, none fleet-wide.
+        own = (robots or {}).get(fleet)
+        scopes = (
+            [(f"robot-{fleet}/{r}", robot_name(fleet, r), r) for r in own]
+            if own
+            else [(f"robot-{fleet}", robot_name(fleet), "*")]
+        )
+        for rule_id, identity, robot in scopes:
+            robot_rules, policy = _robot_access(rule_id, f"{P}/{fleet}/{robot}")
+            rules += robot_rules
+            subjects.append({"id": rule_id, subject_kind: [identity]})
+            policies.append(policy)
+        robots_of_fleet = f"{P}/{fleet}/*"
+        frames = f"{robots_of_fleet}/frames/*"  # any robot and partition chunk, this fleet only
         app_keys = [
-            f"{robots}/transitions",
-            f"{robots}/transitions/@adv/**",
-            f"{robots}/errors",
-            f"{robots}/state",
-            f"{robots}/areas",
-            f"{robots}/submaps/*",
+            f"{robots_of_fleet}/transitions",
+            f"{robots_of_fleet}/transitions/@adv/**",
+            f"{robots_of_fleet}/errors",
+            f"{robots_of_fleet}/state",
+            f"{robots_of_fleet}/areas",
+            f"{robots_of_fleet}/submaps/*",
             f"{P}/@/health/*",
             f"{P}/@/instances/*",
         ]
         rules += [
-            # Frames and session ends, and what the robot's AdvancedPublisher declares: the
-            # cache queryable and its replies, the publisher's liveliness token.
-            _rule(f"robot-{fleet}-put", "ingress", ["put"], [frames]),
-            _rule(
-                f"robot-{fleet}-cache",
-                "ingress",
-                ["declare_queryable", "reply", "liveliness_token"],
-                [f"{frames}/@adv/**"],
-            ),
-            # The SDK's robot follows its own errors and state, and the service instances'
-            # tokens (its partition's owner, schemas/README.md §2a).
-            _rule(
-                f"robot-{fleet}-read",
-                "ingress",
-                [
-                    "declare_subscriber",
-                    "query",
-                    "liveliness_query",
-                    "declare_liveliness_subscriber",
-                ],
-                [f"{robots}/errors", f"{robots}/state", f"{P}/@/instances/*"],
-            ),
-            _rule(
-                f"robot-{fleet}-out",
-                "egress",
-                ALL_MESSAGES,
-                [
-                    frames,
-                    f"{frames}/@adv/**",
-                    f"{robots}/errors",
-                    f"{robots}/state",
-                    f"{P}/@/instances/*",
-                ],
-            ),
             # Fleet apps read their fleet's outputs (with the transitions' history and
             # recovery under @adv) and the service's liveliness and health; viewers read
             # the robots' frames as well (lessmap view draws their poses).
@@ -263,21 +258,10 @@ def access_rules(
             _rule(f"viewer-{fleet}-out", "egress", ALL_MESSAGES, [frames, *app_keys]),
         ]
         subjects += [
-            {"id": f"robot-{fleet}", subject_kind: [robot_name(fleet)]},
             {"id": f"app-{fleet}", subject_kind: [app_name(fleet)]},
             {"id": f"viewer-{fleet}", subject_kind: [viewer_name(fleet)]},
         ]
         policies += [
-            {
-                "rules": [
-                    f"robot-{fleet}-put",
-                    f"robot-{fleet}-cache",
-                    f"robot-{fleet}-read",
-                    f"robot-{fleet}-out",
-                    "see-service",
-                ],
-                "subjects": [f"robot-{fleet}"],
-            },
             {
                 "rules": [f"app-{fleet}-read", f"app-{fleet}-out", "see-service"],
                 "subjects": [f"app-{fleet}"],
@@ -296,6 +280,49 @@ def access_rules(
     }
 
 
+def _robot_access(rule_id: str, robots: str) -> tuple[list[Any], dict[str, Any]]:
+    """Return the rules and policy of the robot subject ``rule_id``, for the keys of ``robots``.
+
+    ``robots`` is ``P/<fleet>/*`` for a fleet-wide identity, ``P/<fleet>/<robot>`` for one
+    robot's: the same rules, so a per-robot identity may do for its robot what a fleet-wide
+    one may do for any robot of its fleet, and nothing else.
+    """
+    frames = f"{robots}/frames/*"  # any partition chunk: the names alone decide
+    rules = [
+        # Frames and session ends, and what the robot's AdvancedPublisher declares: the
+        # cache queryable and its replies, the publisher's liveliness token.
+        _rule(f"{rule_id}-put", "ingress", ["put"], [frames]),
+        _rule(
+            f"{rule_id}-cache",
+            "ingress",
+            ["declare_queryable", "reply", "liveliness_token"],
+            [f"{frames}/@adv/**"],
+        ),
+        # The SDK's robot follows its own errors and state, and the service instances'
+        # tokens (its partition's owner, schemas/README.md §2a).
+        _rule(
+            f"{rule_id}-read",
+            "ingress",
+            ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"],
+            [f"{robots}/errors", f"{robots}/state", f"{P}/@/instances/*"],
+        ),
+        _rule(
+            f"{rule_id}-out",
+            "egress",
+            ALL_MESSAGES,
+            [
+                frames,
+                f"{frames}/@adv/**",
+                f"{robots}/errors",
+                f"{robots}/state",
+                f"{P}/@/instances/*",
+            ],
+        ),
+    ]
+    policy = {"rules": [r["id"] for r in rules] + ["see-service"], "subjects": [rule_id]}
+    return rules, policy
+
+
 # Routers drop lessmap puts toward a consumer that stops reading (docs/design/slow-consumers.md).
 _DROP_WAIT = {"queue": {"congestion_control": {"drop": {"wait_before_drop": WAIT_BEFORE_DROP_US}}}}
 
@@ -305,8 +332,12 @@ def router_config(
     fleets: Sequence[str],
     service_names: Sequence[str],
     endpoint: str = DEFAULT_ENDPOINT,
+    robots: Mapping[str, Sequence[str]] | None = None,
 ) -> dict[str, Any]:
-    """Return the router's config: TLS with client certificates, deny-by-default ACL."""
+    """Return the router's config: TLS with client certificates, deny-by-default ACL.
+
+    ``robots`` names the robots of the fleets with per-robot identities (``access_rules``).
+    """
     return {
         "mode": "router",
         "listen": {"endpoints": [endpoint]},
@@ -324,7 +355,7 @@ def router_config(
                 },
             }
         },
-        "access_control": access_rules(fleets, service_names),
+        "access_control": access_rules(fleets, service_names, robots=robots),
     }
 
 
@@ -334,6 +365,7 @@ def mesh_router_config(
     mesh: dict[str, str],
     fleets: Sequence[str],
     service_names: Sequence[str],
+    robots: Mapping[str, Sequence[str]] | None = None,
 ) -> dict[str, Any]:
     """Return the config of router ``name`` of a mesh: mTLS both ways, access control.
 
@@ -348,6 +380,7 @@ def mesh_router_config(
         mesh: every router of the mesh, name to TLS endpoint.
         fleets: fleet names.
         service_names: identities of the service instances.
+        robots: the robots of the fleets with per-robot identities (``access_rules``).
     """
     cert = f"{folder}/{router_name(name)}"
     return {
@@ -372,7 +405,7 @@ def mesh_router_config(
             }
         },
         "access_control": access_rules(
-            fleets, service_names, routers=[router_name(n) for n in mesh]
+            fleets, service_names, routers=[router_name(n) for n in mesh], robots=robots
         ),
     }
 
@@ -395,8 +428,8 @@ def client_config(
             "link": {
                 "tls": {
                     "root_ca_certificate": f"{folder}/ca.pem",
-                    "connect_private_key": f"{folder}/{identity}.key",
-                    "connect_certificate": f"{folder}/{identity}.pem",
+                    "connect_private_key": f"{folder}/{identity_file(identity)}.key",
+                    "connect_certificate": f"{folder}/{identity_file(identity)}.pem",
                     "enable_mtls": True,
                     # The router's certificate must name the host dialled (its SAN).
                     "verify_name_on_connect": True,

@@ -18,6 +18,8 @@ if TYPE_CHECKING:
 
 Frame = tuple[int, tuple[int, ...]]  # (seq, distinct feature IDs ascending)
 
+_INT_ONLY = frozenset({int})  # plain ints only: bool (an int subclass) takes the slow path
+
 
 @dataclass(frozen=True, slots=True)
 class Profile:
@@ -56,14 +58,16 @@ def profile(
     denominator = remaining + 1.0
     absent = 0.0
     gain: dict[int, float] = {}
+    log, log1p = math.log, math.log1p  # locals: this loop runs over an area every frame
     for feature, count in counts.items():
         seen = count - leave.get(feature, 0) if leave else count
         if seen <= 0:
             continue
         p = (seen + 0.5) / denominator
-        absent += math.log1p(-p)
+        absent_term = log1p(-p)  # the same float both sums use: computed once
+        absent += absent_term
         if only is None or feature in only:
-            gain[feature] = math.log(p) - math.log1p(-p)
+            gain[feature] = log(p) - absent_term
     return Profile(absent, gain, math.log(0.5 / denominator))
 
 
@@ -78,6 +82,8 @@ def rate_overlap(a: dict[int, int], frames_a: int, b: dict[int, int], frames_b: 
 def distinct(seq: int, features: Iterable[int]) -> tuple[int, ...]:
     """Return the distinct feature IDs in ascending order, refusing non-integers."""
     values = list(features)
+    if set(map(type, values)) <= _INT_ONLY:  # the common case, checked in C: every frame
+        return tuple(sorted(set(values)))
     for value in values:
         # bool is an int subclass; numpy integers pass through __index__
         if isinstance(value, bool) or not hasattr(value, "__index__"):
@@ -90,6 +96,14 @@ def count(into: dict[int, int], features: Iterable[int]) -> None:
     """Add one sighting of each feature to ``into``."""
     for feature in features:
         into[feature] = into.get(feature, 0) + 1
+
+
+def count_pair(first: dict[int, int], second: dict[int, int], features: Iterable[int]) -> None:
+    """``count`` into two dicts in one pass (a frame's segment and its area, every frame)."""
+    first_get, second_get = first.get, second.get
+    for feature in features:
+        first[feature] = first_get(feature, 0) + 1
+        second[feature] = second_get(feature, 0) + 1
 
 
 def tally(frames: Iterable[Frame]) -> tuple[dict[int, int], int]:

@@ -252,7 +252,9 @@ def best_fit(
     the one with the largest average; None when there is none. ``profile_of`` gives None
     for the current area and for areas without frames.
     """
-    fits_here = [here.loglik(features) for _, features in window]
+    # The current area's fit of each frame, computed when first read: most areas fail the
+    # first frame, so the later ones are rarely needed (the same floats either way).
+    fits_here: list[float] = []
     best: int | None = None
     best_gain = 0.0
     for area in live:
@@ -260,8 +262,10 @@ def best_fit(
         if there is None:
             continue
         gains: list[float] = []
-        for (_, features), fit_here in zip(window, fits_here, strict=True):
-            gain = there.loglik(features) - fit_here
+        for at, (_, features) in enumerate(window):
+            if at == len(fits_here):
+                fits_here.append(here.loglik(features))
+            gain = there.loglik(features) - fits_here[at]
             if gain <= 0:
                 break  # it must fit every frame better: most areas fail the first one
             gains.append(gain)

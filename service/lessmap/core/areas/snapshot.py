@@ -17,7 +17,10 @@ from __future__ import annotations
 import io
 import json
 from dataclasses import asdict
-from typing import Any
+from functools import lru_cache
+from itertools import chain
+from operator import itemgetter
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +29,9 @@ from lessmap.core.areas.tracker import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.submaps import Reason
+
+if TYPE_CHECKING:
+    from collections.abc import Collection, Sequence
 
 AREAS_SNAPSHOT_VERSION = 9
 #: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions
@@ -45,31 +51,39 @@ _INT_FIELDS = (
 )
 
 
-def _pack(rows: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
-    """Pack int lists as (offsets, values)."""
-    lengths = np.array([len(row) for row in rows], dtype=np.int64)
+def _pack(rows: Sequence[Collection[int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Pack rows of ints as (offsets, values), in one pass over the ints (no list per row)."""
+    lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
     offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    flat = [value for row in rows for value in row]
-    return offsets, np.asarray(flat, dtype=np.int64).reshape(-1)
+    values = np.fromiter(chain.from_iterable(rows), dtype=np.int64, count=int(offsets[-1]))
+    return offsets, values
 
 
 def _unpack(offsets: np.ndarray, values: np.ndarray) -> list[list[int]]:
     return [values[offsets[i] : offsets[i + 1]].tolist() for i in range(offsets.size - 1)]
 
 
+@lru_cache(maxsize=64)
+def _params_meta(params: AreaParams) -> dict[str, Any]:
+    """The parameters as ``meta`` holds them, made once per parameter set (never mutate it).
+
+    Every checkpoint of every session writes them; ``asdict`` copies them field by field.
+    """
+    found = asdict(params)
+    found["proposal"] = {k: str(v) if k == "seed_mode" else v for k, v in found["proposal"].items()}
+    return found
+
+
 def to_bytes(tracker: AreaTracker) -> bytes:
     """Serialize an area tracker's whole state."""
-    params = asdict(tracker.params)
-    params["proposal"] = {
-        k: str(v) if k == "seed_mode" else v for k, v in params["proposal"].items()
-    }
+    params = _params_meta(tracker.params)
     candidate = tracker.candidate
     meta: dict[str, Any] = {
         "version": AREAS_SNAPSHOT_VERSION,
         "params": params,
         "pool": sorted(tracker.pool.features),
         "pool_starts": [list(pair) for pair in tracker.pool.starts],
-        "frame_seqs": [seq for seq, _ in tracker.frames],
+        "frame_seqs": list(map(itemgetter(0), tracker.frames)),
         "steps": [step.hex() for step in tracker.steps],
         "gaps": [list(gap) for gap in tracker.gaps],
         "area_frames": list(tracker.area_frames),
@@ -89,9 +103,9 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         **{name: getattr(tracker.pool, field) for name, field in _POOL_FIELDS.items()},
         **{name: getattr(tracker, name) for name in _INT_FIELDS},
     }
-    frame_offsets, frame_values = _pack([list(features) for _, features in tracker.frames])
-    area_offsets, area_features = _pack([list(counts) for counts in tracker.areas])
-    _, area_counts = _pack([list(counts.values()) for counts in tracker.areas])
+    frame_offsets, frame_values = _pack(list(map(itemgetter(1), tracker.frames)))
+    area_offsets, area_features = _pack(tracker.areas)  # a dict's keys, in its order
+    _, area_counts = _pack([counts.values() for counts in tracker.areas])
     arrays = {
         "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
         "proposer": np.frombuffer(snapshot.to_bytes(tracker.proposer), dtype=np.uint8),

@@ -34,7 +34,7 @@ from lessmap.core.areas.pool import Pool
 from lessmap.core.areas.profile import (
     Frame,
     Profile,
-    count,
+    count_pair,
     distinct,
     profile,
     rate_overlap,
@@ -162,18 +162,17 @@ class AreaTracker:
         self.segment_frame_count += 1
         self.frames.append((seq, seen))
         self._forget_gaps()
-        count(self.segment_counts, seen)
         if seen:
             counts = self.areas[self.current]
             known = len(counts)
-            count(counts, seen)
+            count_pair(self.segment_counts, counts, seen)
             self.sightings += len(counts) - known
             self.area_frames[self.current] += 1
             self._profiles.pop(self.current, None)
             self._bound_models()
         closed = self.pool.add(seq, seen)
         if closed is not None:
-            self.proposer.apply(closed[0], self.last_stamp_s, closed[1])
+            self.proposer.apply_distinct(closed[0], self.last_stamp_s, closed[1])
 
     def settle(self) -> AreaTransition | None:
         """Run the tests on the frames added since the last settle; return the change found.
@@ -287,6 +286,8 @@ class AreaTracker:
         window = rules.last_nonempty(self.frames, self.params.recognise_frames)
         if first is None or window is None or window[0][0] <= first:
             return None
+        if not self._recognisable():
+            return None  # no known area to fit better: the profiles below cannot matter
         leave, left = tally(window)
         # Only the window's frames are weighed against known areas, so the current area's
         # profile needs only their features' gains (rule 5 costs a profile every frame).
@@ -326,6 +327,15 @@ class AreaTracker:
         )
         overlap = rules.seen_share(self.areas[best], after)
         return self._enter(candidate, seq, best, overlap, Rule.RECOGNISED)
+
+    def _recognisable(self) -> bool:
+        """Whether a known area other than the current one has frames (has a profile)."""
+        current, areas, merged = self.current, self.areas, self.merged
+        for area, frames in enumerate(self.area_frames):
+            # ``_live``'s areas with frames: not merged, not forgotten (their counts kept)
+            if frames > 0 and area != current and areas[area] and area not in merged:
+                return True
+        return False
 
     def _blind(self, boundary: int) -> bool:
         """Whether the robot reached the new side blind (rule 3b)."""

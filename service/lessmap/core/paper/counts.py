@@ -269,8 +269,8 @@ class DenseCounts:
         # Pairs at 0 become edges; the k diagonal entries are always 0 and are not pairs.
         self._edges += (int(np.count_nonzero(block == 0)) - nodes.size) // 2
         block += 1
+        block.reshape(-1)[:: nodes.size + 1] = 0  # a feature is not its own neighbour
         flat[at] = block  # nodes are distinct: no lost updates
-        flat[nodes * (side + 1)] -= 1  # a feature is not its own neighbour
 
     def refresh(self, counts: NDArray[np.int64], touched: NDArray[np.bool_]) -> None:
         """Recompute the touched rows and columns of W (all of them after a load)."""

@@ -131,6 +131,16 @@ def _feature_ids(seq: int, features: Iterable[int]) -> tuple[list[int], NDArray[
     return distinct.tolist(), distinct
 
 
+def _feature_id_list(seq: int, features: Iterable[int]) -> list[int]:
+    """The distinct feature IDs, ascending, as Python ints: ``_feature_ids`` without the array.
+
+    Raises:
+        GraphError: as ``_feature_ids``.
+    """
+    ids = _plain_ids(features)
+    return ids if ids is not None else _numpy_ids(seq, features).tolist()
+
+
 def _numpy_ids(seq: int, features: Iterable[int]) -> NDArray[np.int64]:
     """Return the distinct feature IDs as int64, refusing floats, strings and bools."""
     values = features if isinstance(features, np.ndarray) else list(features)
@@ -190,9 +200,20 @@ class Partitioner:
         self._frames_applied = 0
         self._transitions = 0
         self._prover = Prover()
-        self.last_evaluation: Evaluation | None = None
+        self._last_decision: Decision | None = None
+        self._last_evaluation: Evaluation | None = None
 
     # -- read ------------------------------------------------------------------------------
+
+    @property
+    def last_evaluation(self) -> Evaluation | None:
+        """The figures of the last decision that ran the test (None before the first).
+
+        Made when first read: a session decides at every frame and is rarely asked.
+        """
+        if self._last_evaluation is None and self._last_decision is not None:
+            self._last_evaluation = self._last_decision.evaluation()
+        return self._last_evaluation
 
     @property
     def graph(self) -> CovGraph:
@@ -254,6 +275,28 @@ class Partitioner:
             msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
             raise StaleFrameError(msg)
         ids, distinct = _feature_ids(seq, features)
+        self._count(seq, stamp_s, ids, distinct)
+
+    def apply_distinct(self, seq: int, stamp_s: float, ids: list[int]) -> None:
+        """``apply`` for IDs that are distinct Python ints in ascending order already.
+
+        The areas tracker hands its pools this way: checking them again cost as much as
+        counting a small frame.
+
+        Raises:
+            StaleFrameError: seq is not greater than the last applied seq.
+            GraphError: an ID is outside the int64 range (``apply``'s check and message).
+        """
+        if self._last_seq is not None and seq <= self._last_seq:
+            msg = f"frame seq {seq} is not after the last applied seq {self._last_seq}"
+            raise StaleFrameError(msg)
+        try:
+            distinct = np.array(ids, dtype=np.int64)
+        except OverflowError:
+            ids, distinct = _feature_ids(seq, ids)  # raises apply's error for the ID
+        self._count(seq, stamp_s, ids, distinct)
+
+    def _count(self, seq: int, stamp_s: float, ids: list[int], distinct: NDArray[np.int64]) -> None:
         self._graph.add_frame(seq, ids, distinct=True)
         self._history.append(FrameRecord(seq, distinct))
         if self._submap_first_seq is None:
@@ -281,7 +324,7 @@ class Partitioner:
             return None
         assert self._last_seq is not None  # a pending frame was applied
         decision = self._test(self._last_seq)
-        self.last_evaluation = decision.evaluation()
+        self._last_decision, self._last_evaluation = decision, None
         if not decision.transition:
             return None
         return self._transition(decision, batch_frames)

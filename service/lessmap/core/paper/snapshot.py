@@ -17,6 +17,7 @@ import json
 import struct
 import zlib
 from dataclasses import asdict
+from functools import lru_cache
 from itertools import chain
 from typing import Any
 
@@ -63,6 +64,12 @@ def _unragged(offsets: np.ndarray, values: np.ndarray) -> list[np.ndarray]:
     return [values[offsets[i] : offsets[i + 1]] for i in range(offsets.size - 1)]
 
 
+@lru_cache(maxsize=64)
+def _params_meta(params: PartitionParams) -> dict[str, Any]:
+    """The parameters as ``meta`` holds them, made once per parameter set (never mutate it)."""
+    return {k: str(v) if k == "seed_mode" else v for k, v in asdict(params).items()}
+
+
 def to_bytes(partitioner: Partitioner) -> bytes:
     """Serialize a partitioner's whole state (format: module docstring)."""
     state = partitioner.state()
@@ -70,7 +77,7 @@ def to_bytes(partitioner: Partitioner) -> bytes:
     closed_offsets, closed_values = _ragged([s.features for s in state.closed_submaps])
     meta: dict[str, Any] = {
         "version": SNAPSHOT_VERSION,
-        "params": {k: str(v) if k == "seed_mode" else v for k, v in asdict(state.params).items()},
+        "params": _params_meta(state.params),
         "closed": [[s.id, s.first_seq, s.last_seq, s.frame_count] for s in state.closed_submaps],
         "submap_id": state.submap_id,
         "submap_first_seq": state.submap_first_seq,

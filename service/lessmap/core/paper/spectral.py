@@ -252,15 +252,20 @@ def _ncut(cut: float, side: NDArray[np.bool_], degrees: NDArray[np.float64]) -> 
 # -- dense path: small graphs, W a dense array, LAPACK ---------------------------------------
 
 
+_add_reduce, _min_reduce = np.add.reduce, np.minimum.reduce
+
+
 def _dense_lambda2_exceeds(w: NDArray[np.float64], bound: float) -> bool:
     n = w.shape[0]
     if n < 2:
         return False
-    degrees = w.sum(axis=1)
-    if not degrees.min() > 0.0:
+    # The ufuncs' reductions that ``sum`` and ``min`` call, without their Python wrappers
+    # (this runs at every decision): the same sums in the same order.
+    degrees = _add_reduce(w, axis=1)
+    if not _min_reduce(degrees) > 0.0:
         return False
     shift = bound + CERTIFICATE_MARGIN
-    matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
+    matrix = np.multiply.outer(degrees * ((shift + 1.0) / _add_reduce(degrees)), degrees)
     matrix -= w
     # The diagonal through a flat view: cheaper than ``ndarray.flat`` at tens of nodes.
     matrix.reshape(-1)[:: n + 1] += (1.0 - shift) * degrees
@@ -270,9 +275,9 @@ def _dense_lambda2_exceeds(w: NDArray[np.float64], bound: float) -> bool:
 
 def _dense_split(w: NDArray[np.float64]) -> Bisection | Components:
     # Solve first, search only when λ2 does not prove the graph connected (see split_graph).
-    degrees = w.sum(axis=1)
+    degrees = _add_reduce(w, axis=1)
     bisection: Bisection | None = None
-    if degrees.min() > 0.0:
+    if _min_reduce(degrees) > 0.0:
         try:
             bisection = _dense_bisection(w, degrees)
         except GraphError:

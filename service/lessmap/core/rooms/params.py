@@ -35,8 +35,9 @@ class RoomParams:
     sure_cut: float = 0.12
     sure_features: int = 10
     min_side_features: int = 5  # distinct features on each side of a change
-    # Rule 4: the area entered, when the new side's features are mostly an area's.
-    revisit_overlap: float = 0.5
+    # Rule 4: the area entered, when the new side's features are nearly all an area's. A
+    # wrong name merges two rooms, a missed one only splits a room: the bar is high.
+    revisit_overlap: float = 0.8
     # Rule 5: sightings (feature, area) the area models hold at most; 0: no bound.
     max_area_sightings: int = 100_000
 
