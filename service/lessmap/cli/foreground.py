@@ -9,6 +9,7 @@ import time
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
+from lessmap.runtime.supervisor import SignalEvent
 from lessmap_client.cli_options import non_negative_float
 
 if TYPE_CHECKING:
@@ -23,7 +24,7 @@ class StopSignal:
     """Set by SIGINT or SIGTERM (while ``stop_signals`` is active)."""
 
     def __init__(self) -> None:
-        self.event = threading.Event()
+        self.event: threading.Event = SignalEvent()
 
     def wait(self, duration_s: float | None = None) -> None:
         """Return once stopped, or after ``duration_s`` seconds (None: no limit).

@@ -6,7 +6,6 @@ import argparse
 import gc
 import logging
 import signal
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,6 +16,7 @@ from lessmap.config.coexist import join_existing_router
 from lessmap.config.settings import add_settings_flags, settings_from_args
 from lessmap.runtime.memory import tune_allocator, use_system_malloc
 from lessmap.runtime.service import Service
+from lessmap.runtime.supervisor import SignalEvent
 from lessmap.runtime.workers import (
     die_with_parent,
     read_worker_file,
@@ -119,7 +119,7 @@ def _serve(
     # Before Zenoh starts its runtime threads (each would take a malloc arena of its own).
     log.debug("malloc options set: %s", tune_allocator() or "none")
     zenoh.init_log_from_env_or("error")
-    stop = threading.Event()
+    stop = SignalEvent()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         log.info("received %s", signal.Signals(signum).name)

@@ -19,7 +19,6 @@ import shutil
 import signal
 import socket
 import tempfile
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,7 +26,7 @@ import zenoh
 
 from lessmap.errors import ConfigError
 from lessmap.runtime.store import STORE_FILE, CheckpointStore, StoreError
-from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, Supervisor
+from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, SignalEvent, Supervisor
 from lessmap.runtime.workers import worker_count, worker_settings, worker_state_dir
 from lessmap.runtime.zenoh_config import service_config
 
@@ -63,7 +62,7 @@ def serve_workers(
     if not settings.memory_only:
         gather_checkpoints(settings, count)
     hub = hub_config(settings, zenoh_cfg)
-    stop = threading.Event()
+    stop = SignalEvent()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         log.info("received %s: stopping the workers", signal.Signals(signum).name)

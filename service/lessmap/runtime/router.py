@@ -14,7 +14,6 @@ import json
 import logging
 import re
 import signal
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +21,7 @@ import zenoh
 
 from lessmap.config.settings import EMBEDDED_ENDPOINT, ServiceSettings
 from lessmap.errors import ConfigError
+from lessmap.runtime.supervisor import SignalEvent
 from lessmap.runtime.zenoh_config import service_config
 
 if TYPE_CHECKING:
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         log.setLevel(logging.INFO)
     conf = router_config(args.config, args.listen, args.connect, args.cfg)
     zenoh.init_log_from_env_or("error")
-    stop = threading.Event()
+    stop = SignalEvent()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         log.info("received %s", signal.Signals(signum).name)

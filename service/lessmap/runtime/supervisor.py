@@ -21,6 +21,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -29,7 +30,6 @@ from typing import TYPE_CHECKING
 from lessmap.runtime.workers import WorkerRole, write_worker_file
 
 if TYPE_CHECKING:
-    import threading
     from collections.abc import Sequence
     from pathlib import Path
 
@@ -81,6 +81,38 @@ class WorkerSlot:
     def tag(self) -> str:
         """``w<index>``."""
         return f"w{self.index}"
+
+
+class SignalEvent(threading.Event):
+    """An Event that a signal handler may set.
+
+    ``Event.set`` takes the event's lock; a handler runs on the main thread, which may hold
+    that very lock inside ``Event.wait``, and then blocks forever (seen after a worker's
+    parent died: three SIGTERMs logged, the worker never stopped). Here ``set`` only writes
+    a flag, and ``wait`` polls it in short sleeps.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._signalled = False
+
+    def set(self) -> None:
+        """Mark the event set; takes no lock."""
+        self._signalled = True
+
+    def is_set(self) -> bool:
+        """True once set."""
+        return self._signalled
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """True once set, False after ``timeout`` seconds (None: no limit)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self._signalled:
+            left = 0.05 if deadline is None else min(0.05, deadline - time.monotonic())
+            if left <= 0:
+                return False
+            time.sleep(left)
+        return True
 
 
 class Supervisor:
