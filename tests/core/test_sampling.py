@@ -12,9 +12,10 @@ import pytest
 from lessmap.core import GraphError
 from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler, mix_ids
 from lessmap.core.areas.snapshot import from_bytes, to_bytes
-from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
+from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.core.segmenter import make_segmenter, segmenter_from_bytes
 from tests.core.helpers import Frames, room_walk
+from tests.core.test_areas import track
 
 SAMPLED = AreaParams(max_features_kept=64)
 
@@ -24,23 +25,6 @@ def camera_walk(seed: int) -> tuple[Frames, tuple[int, ...]]:
     walk = room_walk(seed, rooms=4, back=True, stay=(20, 30), door_frames=2, door_share=0.2)
     frames = [[f * 32 + k for f in frame for k in range(20)] for frame in walk.frames]
     return frames, walk.doors
-
-
-def track(
-    frames: Frames, params: AreaParams, cuts: frozenset[int] = frozenset()
-) -> tuple[AreaTracker, list[AreaTransition]]:
-    """Observe frames (seq = index); before each seq in ``cuts`` restore from a snapshot."""
-    tracker = AreaTracker(params)
-    found: list[AreaTransition] = []
-    for seq, frame in enumerate(frames):
-        if seq in cuts:
-            data = to_bytes(tracker)
-            tracker = from_bytes(data)
-            assert to_bytes(tracker) == data
-        change = tracker.observe(seq, seq * 0.1, frame)
-        if change is not None:
-            found.append(change)
-    return tracker, found
 
 
 def kept_ids(threshold: int, frame: tuple[int, ...]) -> tuple[int, ...]:
