@@ -2,8 +2,8 @@
 
 A frame's similarity to another is the paper's CovRate between two frames, shared features
 over the smaller frame's. Each new non-empty frame is compared once with the frames kept
-before it; the window's matrix is assembled from those rows, so a frame costs
-``2 * window_max_frames`` set intersections and one small numpy reduction.
+before it; the window's matrix is assembled from those rows, so a frame costs at most
+``3 * window_max_frames - 1`` set intersections and one small numpy reduction.
 """
 
 from __future__ import annotations
