@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from lessmap.core.segmenter import make_segmenter
@@ -42,8 +43,7 @@ class Tail:
 
     def quantile(self, q: float) -> float:
         """The q-quantile of the frames' costs (nearest rank)."""
-        ordered = sorted(self.costs_ms)
-        return ordered[min(len(ordered) - 1, max(0, round(q * len(ordered)) - 1))]
+        return float(np.quantile(self.costs_ms, q, method="inverted_cdf"))
 
 
 def floorplan_stream(
