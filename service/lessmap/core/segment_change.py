@@ -15,6 +15,7 @@ if TYPE_CHECKING:
 
     from lessmap.core.areas.events import AreaTransition
     from lessmap.core.areas.graph import AreaGraphBuilder
+    from lessmap.core.closed_segments import ClosedSegments
     from lessmap.core.paper.submaps import Submap
 
 
@@ -84,12 +85,12 @@ def pack_beside(
     method: Method,
     inner: bytes,
     builder: AreaGraphBuilder,
-    closed: Iterable[Submap],
+    closed: ClosedSegments,
     held: Iterable[SegmentChange],
     pending_frames: int,
 ) -> bytes:
     """The record of an area-naming segmenter: its tracker's bytes and what it keeps beside."""
-    rows, arrays = record.submaps_pack(closed)
+    rows, arrays = closed.pack()
     meta: dict[str, Any] = {
         "pending_frames": pending_frames,
         "builder": record.builder_json(builder),

@@ -15,7 +15,6 @@ its ``AreaGraphBuilder``. No I/O. Rules (in full: ``docs/design/segmenter.md``):
 
 from __future__ import annotations
 
-from collections import deque
 from typing import TYPE_CHECKING, Final, Protocol
 
 from lessmap.core import segmenter_snapshot as record
@@ -28,6 +27,7 @@ from lessmap.core.areas.graph import (
     AreaNode,
 )
 from lessmap.core.areas.tracker import AreaParams, AreaTracker
+from lessmap.core.closed_segments import ClosedSegments
 from lessmap.core.errors import GraphError, StaleFrameError
 from lessmap.core.paper import snapshot
 from lessmap.core.paper.params import PartitionParams
@@ -343,7 +343,7 @@ class AreasSegmenter:
         self.tracker = tracker if tracker is not None else AreaTracker()
         self.builder = builder if builder is not None else AreaGraphBuilder()
         bound = PartitionParams().keep_closed_submaps  # the proposer keeps none (AreaParams)
-        self._closed: deque[Submap] = deque(closed, maxlen=bound)
+        self._closed = ClosedSegments(bound, closed)
         self._held: list[SegmentChange] = list(held)  # found, not yet decided (rule 3)
         self._pending_frames = pending_frames
 

@@ -8,11 +8,11 @@ tests each frame as it arrives (the cut is cheap), so ``apply`` already finds th
 
 from __future__ import annotations
 
-from collections import deque
 from typing import TYPE_CHECKING, Final
 
 from lessmap.core import segmenter_snapshot as record
 from lessmap.core.areas.graph import AreaGraph, AreaGraphBuilder
+from lessmap.core.closed_segments import ClosedSegments
 from lessmap.core.errors import StaleFrameError
 from lessmap.core.paper.params import PartitionParams
 from lessmap.core.paper.partitioner import _feature_ids
@@ -50,7 +50,7 @@ class RoomsSegmenter:
         """Wrap a tracker and the builder fed its changes so far (new ones by default)."""
         self.tracker = tracker if tracker is not None else RoomTracker()
         self.builder = builder if builder is not None else AreaGraphBuilder()
-        self._closed: deque[Submap] = deque(closed, maxlen=PartitionParams().keep_closed_submaps)
+        self._closed = ClosedSegments(PartitionParams().keep_closed_submaps, closed)
         self._held: list[SegmentChange] = list(held)
         self._pending_frames = pending_frames
 

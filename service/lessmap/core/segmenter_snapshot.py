@@ -29,7 +29,7 @@ from lessmap.core.errors import GraphError
 from lessmap.core.paper.submaps import Reason, Submap, Transition
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Mapping
+    from collections.abc import Mapping
 
     from numpy.typing import NDArray
 
@@ -163,23 +163,8 @@ def submap_of(row: list[Any]) -> Submap:
     )
 
 
-def submaps_pack(
-    submaps: Iterable[Submap],
-) -> tuple[list[list[int]], dict[str, NDArray[np.int64]]]:
-    """Segments as JSON rows (id, first, last, frames) and their features as ragged arrays."""
-    kept = list(submaps)
-    rows = [[s.id, s.first_seq, s.last_seq, s.frame_count] for s in kept]
-    lengths = [len(s.features) for s in kept]
-    offsets = np.zeros(len(kept) + 1, dtype=np.int64)
-    np.cumsum(np.asarray(lengths, dtype=np.int64), out=offsets[1:])
-    values = np.fromiter(
-        (f for s in kept for f in s.features), dtype=np.int64, count=int(offsets[-1])
-    )
-    return rows, {"submap_offsets": offsets, "submap_values": values}
-
-
 def submaps_unpack(rows: list[list[int]], arrays: Mapping[str, NDArray[np.int64]]) -> list[Submap]:
-    """The segments of ``submaps_pack``."""
+    """The segments of ``ClosedSegments.pack``."""
     offsets, values = arrays["submap_offsets"], arrays["submap_values"]
     if offsets.size != len(rows) + 1 or (offsets.size and offsets[-1] != values.size):
         msg = f"segmenter snapshot: {len(rows)} segments, {offsets.size} feature offsets"

@@ -41,4 +41,11 @@ class Pool:
 
     def start_of(self, index: int, default: int) -> int:
         """The first frame of pool ``index`` (``default`` once it is forgotten)."""
-        return dict(self.starts).get(index, default)
+        # Pools are remembered in a run of consecutive numbers: an offset finds one.
+        offset = index - self.starts[0][0] if self.starts else -1
+        return self.starts[offset][1] if 0 <= offset < len(self.starts) else default
+
+    def forget_before(self, index: int) -> None:
+        """Forget the first frames of pools numbered below ``index`` (never looked up again)."""
+        while self.starts and self.starts[0][0] < index:
+            self.starts.popleft()

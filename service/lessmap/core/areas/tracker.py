@@ -234,6 +234,11 @@ class AreaTracker:
                 lambda2=proposal.lambda2,
                 boundary_features=proposal.boundary_features,
             )
+        # The proposer's boundaries fall in its kept history only: older pools' first frames
+        # would only cost memory and checkpoint bytes (2,000 of them once a session is old).
+        oldest = self.proposer.oldest_boundary_seq
+        if oldest is not None:
+            self.pool.forget_before(oldest)
 
     # -- rules 3, 4: a proposal ------------------------------------------------------------
 

@@ -226,6 +226,15 @@ class Partitioner:
         return self._last_seq
 
     @property
+    def oldest_boundary_seq(self) -> int | None:
+        """The earliest frame a transition's boundary can still fall on (its kept history).
+
+        ``_boundary_seq`` walks back over the kept frames only, so a caller that maps
+        boundaries (``areas``' pools) can forget whatever lies before this one.
+        """
+        return self._history[0].seq if self._history else None
+
+    @property
     def frames_applied(self) -> int:
         """Frames applied since the session began."""
         return self._frames_applied
