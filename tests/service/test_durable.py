@@ -205,6 +205,7 @@ def test_idle_sessions_are_evicted_and_resume(tmp_path: Path) -> None:
     store = open_store(tmp_path)
     table = make_table(store)
     first = feed(table, FRAMES[:half], now_s=0.0)
+    in_memory = table.state(FLEET, ROBOT)
     expired = table.expire_idle(100.0)
     assert expired.evicted == 1
     assert not expired.closed
@@ -212,6 +213,7 @@ def test_idle_sessions_are_evicted_and_resume(tmp_path: Path) -> None:
     evicted_state = table.state(FLEET, ROBOT)  # answered from the store
     assert evicted_state is not None
     assert evicted_state.frames_applied == half
+    assert evicted_state == in_memory  # made again from the snapshot and its counters
     second = feed(table, FRAMES[half:], now_s=200.0)
     assert not errors(second)
     assert transitions(first) + transitions(second) == REFERENCE
