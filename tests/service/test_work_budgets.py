@@ -16,6 +16,7 @@ from lessmap.runtime.sessions import (
     SharedBudgets,
     commit_checkpoints,
 )
+from lessmap.runtime.sessions.model import DECISION_COST_PER_EDGE
 from lessmap.runtime.store import CheckpointStore
 from lessmap_schemas.errors import ErrorCode
 from lessmap_schemas.messages import Frame
@@ -193,3 +194,17 @@ def test_an_areas_session_is_charged_its_area_models_which_stay_bounded() -> Non
     assert state is not None
     assert state.transitions >= 50  # a new area per room
     assert max(charges[30:]) <= 2 * max(charges[:30])  # bounded, not growing with areas
+
+
+def test_a_decisions_estimate_counts_the_pairs_the_sessions_sampling_keeps() -> None:
+    # The heavy lane reads this estimate: a camera frame of 1,000 features costs an areas
+    # session the pairs of the 256 it keeps, the paper's all 499,500.
+    camera = range(1000)
+    for method, kept in ((Method.AREAS, AreaParams().max_features_kept), (Method.PAPER, 1000)):
+        table = make_table(method=method)
+        key = (FLEET, "cam")
+        new = table.decision_cost(key, len(camera))  # before its session opens
+        assert table.handle_batch([(FLEET, "cam", frame(0, range(20)))], 0.0).rejections == []
+        opened = table.decision_cost(key, len(camera)) - table.decision_cost(key)
+        assert new - table.decision_cost((FLEET, "unknown")) == opened
+        assert opened == DECISION_COST_PER_EDGE * pairs_of(kept), method

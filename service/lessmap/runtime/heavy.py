@@ -3,8 +3,9 @@
 Invariants (the why and the bound: ``docs/design/heavy-robots.md``):
 
 1. A robot moves to the heavy lane when one decision of its session, estimated from its
-   CovGraph's edges plus the pairs of the frame at the head of its lane, would take longer
-   than ``heavy_decision_ms``; it stays there while this instance runs.
+   CovGraph's edges plus the pairs its session keeps (after sampling) of the frame at the
+   head of its lane, would take longer than ``heavy_decision_ms``; it stays there while
+   this instance runs.
 2. The move is a pair of commands: the shard's worker releases the robot from its table,
    then the heavy worker adopts it, before any message of the robot reaches the heavy
    worker (sent first, taken first); one owner per session at every moment.
@@ -21,9 +22,7 @@ import logging
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
-from lessmap.runtime.budget import pairs_of
 from lessmap.runtime.fairness import SECONDS_PER_COST_UNIT
-from lessmap.runtime.sessions.model import DECISION_COST_PER_EDGE
 from lessmap_schemas.errors import ErrorCode
 
 if TYPE_CHECKING:
@@ -72,10 +71,9 @@ class HeavyLane(Generic[W]):
         self.robots: set[tuple[str, str]] = set()  # the shard's worker's alone
         self._after_cost = cost_of_ms(decision_ms)
 
-    def is_heavy(self, decision_cost: int, features: int) -> bool:
-        """Whether a decision after a frame of ``features`` would take too long (invariant 1)."""
-        estimate = decision_cost + DECISION_COST_PER_EDGE * pairs_of(features)
-        return estimate > self._after_cost and len(self.robots) < _ROBOTS_KEPT
+    def is_heavy(self, decision_cost: int) -> bool:
+        """Whether a decision of this estimated cost, head frame included, is too long (inv. 1)."""
+        return decision_cost > self._after_cost and len(self.robots) < _ROBOTS_KEPT
 
     def move(self, key: tuple[str, str], moved: MovedRobot, items: list[Inbound]) -> None:
         """Hand a released robot and its pending messages to the heavy worker (invariant 2)."""

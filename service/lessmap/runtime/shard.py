@@ -418,7 +418,7 @@ class Shard:
         pending = len(lane.items)
         while lane.items and not self._decoded_head(key, lane, rejected):
             pass  # a head that does not decode is dropped (and reported)
-        if self._heavy is not None and self._moved_to_heavy(key, lane, decision):
+        if self._heavy is not None and self._moved_to_heavy(key, lane):
             if rejected:
                 self._publish(Outcome(rejections=rejected), now)
             return
@@ -438,13 +438,13 @@ class Shard:
         lane.head = None
         self._serve(key, plan, now, 1 if fits_per_frame else None)
 
-    def _moved_to_heavy(self, key: tuple[str, str], lane: Lane, decision: int) -> bool:
+    def _moved_to_heavy(self, key: tuple[str, str], lane: Lane) -> bool:
         """Move a robot whose next decision is too costly to the heavy lane (invariant 6)."""
         heavy = self._heavy
         head = lane.head
         if not isinstance(head, Frame) or heavy is None:
             return False
-        if not heavy.is_heavy(decision, len(head.features)):
+        if not heavy.is_heavy(self._table.decision_cost(key, len(head.features))):
             return False
         self._flush()  # the robot's planned frames are applied here first
         moved = self._table.release_robot(key)

@@ -24,14 +24,19 @@ from lessmap_schemas.errors import ErrorCode
 if TYPE_CHECKING:
     from lessmap.core.segmenter import Segmenter
     from lessmap.runtime.sessions.model import RobotSession
-    from lessmap.runtime.sessions.policy import SessionLimits, SharedBudgets
+    from lessmap.runtime.sessions.policy import Segmenting, SessionLimits, SharedBudgets
     from lessmap_schemas.messages import Frame
 
 
-def kept_features(segmenter: Segmenter, features: int) -> int:
+def kept_features(segmenter: Segmenter | Segmenting, features: int) -> int:
     """Features of a frame of ``features`` that reach the session's CovGraph at most."""
     cap = segmenter.max_features_kept
     return min(features, cap) if cap else features
+
+
+def kept_pairs(segmenter: Segmenter | Segmenting, features: int) -> int:
+    """Pair updates a frame of ``features`` can cause in the session, after its sampling."""
+    return pairs_of(kept_features(segmenter, features))
 
 
 class Budgets:

@@ -42,6 +42,11 @@ class Segmenting:
     # Per fleet: its robots leave out their empty frames, so stamp gaps are blindness.
     omits_empty_frames: Callable[[str], bool] = _never
 
+    @property
+    def max_features_kept(self) -> int:
+        """What a new session's sampling keeps of a frame (0: all; only ``areas`` samples)."""
+        return self.area_params.max_features_kept if self.method is Method.AREAS else 0
+
     def new_segmenter(self, fleet: str) -> Segmenter:
         """A fresh segmenter for a session of ``fleet``."""
         omitted = self.omits_empty_frames(fleet)

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 from lessmap.runtime.sessions.apply import Applier, report_gap
 from lessmap.runtime.sessions.catchup import Holds, tail_awaited
 from lessmap.runtime.sessions.durability import EVICT_MIN_IDLE_S, Durability, evictable
-from lessmap.runtime.sessions.limits import Budgets
+from lessmap.runtime.sessions.limits import Budgets, kept_pairs
 from lessmap.runtime.sessions.model import (
     DECISION_COST_PER_EDGE,
     FRAME_COST,
@@ -166,10 +166,11 @@ class SessionTable:
                 return state, closed, False
         return None
 
-    def decision_cost(self, key: RobotKey) -> int:
-        """Estimated cost of one decision of a robot's session, in scheduler cost units."""
+    def decision_cost(self, key: RobotKey, features: int = 0) -> int:
+        """Estimated cost in scheduler units of a robot's decision after a frame of ``features``."""
         session = self._open.get(key)
-        edges = 0 if session is None else session.edges
+        keeps = self._segmenting if session is None else session.segmenter  # its sampling
+        edges = (0 if session is None else session.edges) + kept_pairs(keeps, features)
         return FRAME_COST + DECISION_COST_PER_EDGE * edges
 
     @property
