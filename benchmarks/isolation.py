@@ -16,107 +16,42 @@ transitions equal ``lessmap segment``'s, and the 1-minute load average before an
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import threading
 import time
-import uuid
-from pathlib import Path
 
 import zenoh
 
-from benchmarks.fleet.process import free_port, stop_process
-from lessmap.cli.segment import segment
+from benchmarks.good_robot import run_good_robot
 from lessmap.config.settings import ServiceSettings
-from lessmap.files.frames import read_frames
-from lessmap_client import FleetClient, RobotPublisher
-from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
-from lessmap_schemas.messages import Frame, Transition
+from lessmap_schemas.messages import Frame
 
-REPO = Path(__file__).resolve().parents[1]
-DLR = REPO / ".." / "shared" / "datasets" / "dlr.frames.jsonl"
 HEAVY_ROBOTS = 8
 HEAVY_FEATURES = 600
 _NO_QOS = '[{id:"none",messages:["put"],key_exprs:["nothing/**"],overwrite:{}}]'
 
 
-def _pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
-
-
 def run(scenario: str, rate_hz: float, heavy_rate_hz: float) -> dict[str, float | bool]:
     """Run one scenario against a fresh service; return its figures."""
-    frames = list(read_frames(DLR))
-    expected: list[int] = []
-    segment(
-        frames,
-        ServiceSettings(memory_only=True, method="paper").partition_params(),
-        on_transition=lambda _robot, t: expected.append(t.seq),
-    )
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]
-    args += ["--cfg", "scouting/multicast/enabled:false", "--memory-only", "--method", "paper"]
+    args: list[str] = []
     if scenario.endswith("-old") and scenario.startswith("slow"):
         # A rule that matches nothing replaces the default drop toward slow consumers.
         args += ["--cfg", f"qos/network:{_NO_QOS}"]
     if scenario == "heavy-old":
         args += ["--heavy-decision-ms", "0"]
-    load_before = os.getloadavg()[0]
-    service = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    fleet = f"iso-{uuid.uuid4().hex[:8]}"
-    session = open_session([endpoint], timeout_s=20.0)
-    app = _slow_app(endpoint) if scenario.startswith("slow") else None
-    stop = threading.Event()
-    try:
-        published: dict[int, float] = {}
-        latencies: list[float] = []
-        got: list[int] = []
-        with FleetClient(fleet, "good", session=session) as client:
-
-            def on_transition(t: Transition) -> None:
-                got.append(t.seq)
-                latencies.append(time.monotonic() - published[t.seq])
-
-            client.on_transition(on_transition)
-            with RobotPublisher(fleet, "good", session=session) as robot:
-                if not robot.wait_for_service(20.0):
-                    msg = "the service did not come up"
-                    raise RuntimeError(msg)
-                time.sleep(0.5)
-                loader = threading.Thread(
-                    target=_heavy, args=(scenario, session, fleet, heavy_rate_hz, stop)
-                )
-                loader.start()
-                start = time.monotonic()
-                for index, frame in enumerate(frames):
-                    delay = start + index / rate_hz - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                    published[frame.seq] = time.monotonic()
-                    robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
-                deadline = time.monotonic() + 60
-                while len(got) < len(expected) and time.monotonic() < deadline:
-                    time.sleep(0.1)
-                stop.set()
-                loader.join(30)
-    finally:
-        stop.set()
-        if app is not None:
-            stop_process(app)
-        session.close()
-        stop_process(service)
-    return {
-        "p50_ms": 1000 * _pct(latencies, 0.50),
-        "p99_ms": 1000 * _pct(latencies, 0.99),
-        "max_ms": 1000 * max(latencies, default=float("nan")),
-        "exact": got == expected,
-        "load_before": load_before,
-        "load_after": os.getloadavg()[0],
-    }
+    measured = run_good_robot(
+        "paper",
+        ServiceSettings(memory_only=True, method="paper").partition_params(),
+        lambda session, fleet, stop: _heavy(scenario, session, fleet, heavy_rate_hz, stop),
+        rate_hz=rate_hz,
+        fleet_prefix="iso",
+        serve_args=tuple(args),
+        beside=_slow_app if scenario.startswith("slow") else lambda _endpoint: None,
+    )
+    return measured.figures()
 
 
 # An app whose callback never returns: Zenoh's receiving thread in it is stuck from the first

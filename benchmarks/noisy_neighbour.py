@@ -18,102 +18,28 @@ Every process is stopped by its PID.
 from __future__ import annotations
 
 import argparse
-import sys
 import threading
-import time
-import uuid
-from pathlib import Path
 
 import zenoh
 
-from benchmarks.fleet.process import free_port, stop_process
-from lessmap.cli.segment import segment
+from benchmarks.good_robot import run_good_robot
 from lessmap.core import PartitionParams
-from lessmap.files.frames import read_frames
-from lessmap_client import FleetClient, RobotPublisher
-from lessmap_client.session import open_session
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
-from lessmap_schemas.messages import Frame, Transition
-
-REPO = Path(__file__).resolve().parents[1]
-DLR = REPO / ".." / "shared" / "datasets" / "dlr.frames.jsonl"
-
-
-def _vm_kib(pid: int, field: str) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1])
-    return 0
-
-
-def _pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
+from lessmap_schemas.messages import Frame
 
 
 def run(scenario: str, rate_hz: float) -> dict[str, float | bool]:
-    """Run one scenario against a fresh service; return its figures."""
-    import subprocess
-
-    frames = list(read_frames(DLR))
-    expected: list[int] = []
-    segment(
-        frames,
+    """Run one scenario against a fresh service (default settings); return its figures."""
+    measured = run_good_robot(
+        "areas",  # the default method
         PartitionParams.from_profile("laser"),
-        on_transition=lambda _robot, t: expected.append(t.seq),
+        lambda session, fleet, stop: _abuse(scenario, session, fleet, stop),
+        rate_hz=rate_hz,
+        fleet_prefix="nn",
+        others_until_done=False,
     )
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]
-    args += ["--cfg", "scouting/multicast/enabled:false", "--memory-only"]
-    service = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    fleet = f"nn-{uuid.uuid4().hex[:8]}"
-    session = open_session([endpoint], timeout_s=20.0)
-    stop = threading.Event()
-    try:
-        published: dict[int, float] = {}
-        latencies: list[float] = []
-        got: list[int] = []
-        with FleetClient(fleet, "good", session=session) as client:
-
-            def on_transition(t: Transition) -> None:
-                got.append(t.seq)
-                latencies.append(time.monotonic() - published[t.seq])
-
-            client.on_transition(on_transition)
-            with RobotPublisher(fleet, "good", session=session) as robot:
-                if not robot.wait_for_service(20.0):
-                    msg = "the service did not come up"
-                    raise RuntimeError(msg)
-                time.sleep(0.5)
-                idle_kib = _vm_kib(service.pid, "VmRSS")
-                loader = threading.Thread(target=_abuse, args=(scenario, session, fleet, stop))
-                loader.start()
-                start = time.monotonic()
-                for index, frame in enumerate(frames):
-                    delay = start + index / rate_hz - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                    published[frame.seq] = time.monotonic()
-                    robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
-                stop.set()
-                loader.join(30)
-            deadline = time.monotonic() + 60
-            while len(got) < len(expected) and time.monotonic() < deadline:
-                time.sleep(0.1)
-            time.sleep(1.0)
-        peak_kib = _vm_kib(service.pid, "VmHWM")
-    finally:
-        stop.set()
-        session.close()
-        stop_process(service)
-    return {
-        "p50_ms": 1000 * _pct(latencies, 0.50),
-        "p99_ms": 1000 * _pct(latencies, 0.99),
-        "max_ms": 1000 * max(latencies, default=float("nan")),
-        "exact": got == expected,
-        "peak_over_idle_mib": (peak_kib - idle_kib) / 1024,
-    }
+    return measured.figures()
 
 
 def _abuse(scenario: str, session: zenoh.Session, fleet: str, stop: threading.Event) -> None:

@@ -1,0 +1,150 @@
+"""One well-behaved robot beside others: the run that ``isolation`` and ``noisy_neighbour`` share.
+
+``run_good_robot`` starts a ``lessmap serve`` (the given arguments, on a free loopback port),
+streams the DLR data set as robot ``good`` at a fixed rate while a loader thread puts the
+scenario's other traffic, and returns the good robot's publish -> Transition latencies,
+whether its transitions equal ``lessmap segment``'s, the service's RSS when idle and at its
+peak, and the load average before and after (the host is shared). Every process it starts
+is stopped by its PID.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from benchmarks.fleet.process import free_port, proc_status_kib, stop_process
+from lessmap.cli.segment import segment, segment_areas
+from lessmap.core.areas.tracker import AreaParams
+from lessmap.files.frames import read_frames
+from lessmap_client import FleetClient, RobotPublisher
+from lessmap_client.session import open_session
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from lessmap.core import PartitionParams
+    from lessmap_schemas.messages import Transition
+
+REPO = Path(__file__).resolve().parents[1]
+DLR = REPO / ".." / "shared" / "datasets" / "dlr.frames.jsonl"
+
+#: The other traffic of a scenario: (session, fleet, stop) -> returns once ``stop`` is set.
+Loader = Callable[["zenoh.Session", str, threading.Event], None]
+
+
+def percentile_ms(seconds: list[float], q: float) -> float:
+    """The nearest-rank ``q`` quantile of latencies in seconds, in ms (NaN if none)."""
+    if not seconds:
+        return float("nan")
+    return 1000 * float(np.quantile(seconds, q, method="inverted_cdf"))
+
+
+@dataclass(frozen=True, slots=True)
+class GoodRun:
+    """What one scenario measured of the good robot and the service."""
+
+    latencies_s: list[float]
+    exact: bool
+    idle_kib: int
+    peak_kib: int
+    load_before: float
+    load_after: float
+
+    def figures(self) -> dict[str, float | bool]:
+        """p50/p99/max in ms, exactness, peak RSS over idle and the load averages."""
+        return {
+            "p50_ms": percentile_ms(self.latencies_s, 0.50),
+            "p99_ms": percentile_ms(self.latencies_s, 0.99),
+            "max_ms": 1000 * max(self.latencies_s, default=float("nan")),
+            "exact": self.exact,
+            "peak_over_idle_mib": (self.peak_kib - self.idle_kib) / 1024,
+            "load_before": self.load_before,
+            "load_after": self.load_after,
+        }
+
+
+def run_good_robot(
+    method: str,
+    params: PartitionParams,
+    loader: Loader,
+    *,
+    rate_hz: float,
+    fleet_prefix: str,
+    serve_args: tuple[str, ...] = (),
+    beside: Callable[[str], subprocess.Popen[bytes] | None] = lambda _endpoint: None,
+    others_until_done: bool = True,
+) -> GoodRun:
+    """Run one scenario against a fresh service of ``method`` (``params``: the paper's).
+
+    ``beside``: a process started with it; ``others_until_done``: the loader keeps going
+    until the good robot's last transition is in (False: it stops at its last publish).
+    """
+    frames = list(read_frames(DLR))
+    expected: list[int] = []
+    if method == "paper":
+        segment(frames, params, on_transition=lambda _robot, t: expected.append(t.seq))
+    else:  # the default method, as `lessmap segment` runs it
+        segment_areas(frames, AreaParams(), lambda _robot, c: expected.append(c.transition.seq))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]
+    args += ["--cfg", "scouting/multicast/enabled:false", "--memory-only"]
+    args += ["--method", method, *serve_args]
+    load_before = os.getloadavg()[0]
+    service = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    other: subprocess.Popen[bytes] | None = None
+    fleet = f"{fleet_prefix}-{uuid.uuid4().hex[:8]}"
+    session = open_session([endpoint], timeout_s=20.0)
+    stop = threading.Event()
+    published: dict[int, float] = {}
+    latencies: list[float] = []
+    got: list[int] = []
+    try:
+        other = beside(endpoint)
+        with FleetClient(fleet, "good", session=session) as client:
+
+            def on_transition(t: Transition) -> None:
+                got.append(t.seq)
+                latencies.append(time.monotonic() - published[t.seq])
+
+            client.on_transition(on_transition)
+            with RobotPublisher(fleet, "good", session=session) as robot:
+                if not robot.wait_for_service(20.0):
+                    msg = "the service did not come up"
+                    raise RuntimeError(msg)
+                time.sleep(0.5)
+                idle_kib = proc_status_kib(service.pid, "VmRSS")
+                traffic = threading.Thread(target=loader, args=(session, fleet, stop))
+                traffic.start()
+                start = time.monotonic()
+                for index, frame in enumerate(frames):
+                    delay = start + index / rate_hz - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                    published[frame.seq] = time.monotonic()
+                    robot.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
+                if not others_until_done:
+                    stop.set()
+                deadline = time.monotonic() + 60
+                while len(got) < len(expected) and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                stop.set()
+                traffic.join(30)
+        peak_kib = proc_status_kib(service.pid, "VmHWM")
+    finally:
+        stop.set()
+        if other is not None:
+            stop_process(other)
+        session.close()
+        stop_process(service)
+    return GoodRun(latencies, got == expected, idle_kib, peak_kib, load_before, os.getloadavg()[0])
