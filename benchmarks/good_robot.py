@@ -25,6 +25,7 @@ import numpy as np
 
 from benchmarks.fleet.process import free_port, proc_status_kib, stop_process
 from lessmap.cli.segment import segment, segment_areas
+from lessmap.config.settings import ServiceSettings
 from lessmap.core.areas.tracker import AreaParams
 from lessmap.files.frames import read_frames
 from lessmap_client import FleetClient, RobotPublisher
@@ -33,7 +34,6 @@ from lessmap_client.session import open_session
 if TYPE_CHECKING:
     import zenoh
 
-    from lessmap.core import PartitionParams
     from lessmap_schemas.messages import Transition
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,7 +76,6 @@ class GoodRun:
 
 def run_good_robot(
     method: str,
-    params: PartitionParams,
     loader: Loader,
     *,
     rate_hz: float,
@@ -85,16 +84,17 @@ def run_good_robot(
     beside: Callable[[str], subprocess.Popen[bytes] | None] = lambda _endpoint: None,
     others_until_done: bool = True,
 ) -> GoodRun:
-    """Run one scenario against a fresh service of ``method`` (``params``: the paper's).
+    """Run one scenario against a fresh service of ``method`` ("paper" or "areas").
 
     ``beside``: a process started with it; ``others_until_done``: the loader keeps going
     until the good robot's last transition is in (False: it stops at its last publish).
     """
     frames = list(read_frames(DLR))
     expected: list[int] = []
-    if method == "paper":
+    if method == "paper":  # the service's paper parameters, as `lessmap segment` runs them
+        params = ServiceSettings(memory_only=True, method="paper").partition_params()
         segment(frames, params, on_transition=lambda _robot, t: expected.append(t.seq))
-    else:  # the default method, as `lessmap segment` runs it
+    else:
         segment_areas(frames, AreaParams(), lambda _robot, c: expected.append(c.transition.seq))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]

@@ -24,7 +24,6 @@ import time
 import zenoh
 
 from benchmarks.good_robot import run_good_robot
-from lessmap.config.settings import ServiceSettings
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.messages import Frame
@@ -44,7 +43,6 @@ def run(scenario: str, rate_hz: float, heavy_rate_hz: float) -> dict[str, float 
         args += ["--heavy-decision-ms", "0"]
     measured = run_good_robot(
         "paper",
-        ServiceSettings(memory_only=True, method="paper").partition_params(),
         lambda session, fleet, stop: _heavy(scenario, session, fleet, heavy_rate_hz, stop),
         rate_hz=rate_hz,
         fleet_prefix="iso",

@@ -23,7 +23,6 @@ import threading
 import zenoh
 
 from benchmarks.good_robot import run_good_robot
-from lessmap.core import PartitionParams
 from lessmap_schemas import keys
 from lessmap_schemas.codec import encode
 from lessmap_schemas.messages import Frame
@@ -33,7 +32,6 @@ def run(scenario: str, rate_hz: float) -> dict[str, float | bool]:
     """Run one scenario against a fresh service (default settings); return its figures."""
     measured = run_good_robot(
         "areas",  # the default method
-        PartitionParams.from_profile("laser"),
         lambda session, fleet, stop: _abuse(scenario, session, fleet, stop),
         rate_hz=rate_hz,
         fleet_prefix="nn",

@@ -107,21 +107,19 @@ class Durability:
         status: str,
         closed_ids: list[str],
         *,
-        is_open: bool,
-        final_graph: AreaGraph | None = None,
+        final: tuple[SessionState, AreaGraph] | None = None,
     ) -> SessionRecord:
-        """The session's record for the store."""
-        epoch = self._identity.epoch_of(session.fleet, session.robot)
-        snapshot = session.segmenter.to_bytes() if status != "closed" else None
-        # A closed session keeps no snapshot: its state and area graph are stored for queries
-        # instead. Other records hold no state: ``stored_state`` makes it from the snapshot
-        # when asked, rather than every checkpoint writing up to 1,000 closed segments twice.
+        """The session's record for the store; a closed one's with its ``final`` state and graph.
+
+        A closed session keeps no snapshot: its final state and area graph are stored for
+        queries instead. Other records hold no state: ``stored_state`` makes it from the
+        snapshot when asked, rather than every checkpoint writing up to 1,000 closed
+        segments twice.
+        """
         kept: dict[str, Any] = {}
-        if snapshot is None:
-            state = session_state(session, self._identity.instance, is_open=is_open, epoch=epoch)
-            kept["state"] = state.model_dump(mode="json")
-        if final_graph is not None:
-            kept["area_graph"] = final_graph.model_dump(mode="json")
+        if final is not None:
+            kept["state"] = final[0].model_dump(mode="json")
+            kept["area_graph"] = final[1].model_dump(mode="json")
         return SessionRecord(
             fleet=session.fleet,
             robot=session.robot,
@@ -131,10 +129,10 @@ class Durability:
             meta={
                 **session.counters(),
                 "closed_ids": closed_ids,
-                "epoch": epoch,
+                "epoch": self._identity.epoch_of(session.fleet, session.robot),
                 **kept,
             },
-            snapshot=snapshot,
+            snapshot=session.segmenter.to_bytes() if final is None else None,
             updated_s=self._wall_clock(),
         )
 
@@ -142,7 +140,7 @@ class Durability:
         self, session: RobotSession, status: str, now_s: float, out: Outcome, closed: ClosedIds
     ) -> None:
         """Put the session's record in the outcome and restart its checkpoint clock."""
-        record = self.record(session, status, closed.of(session.key), is_open=True)
+        record = self.record(session, status, closed.of(session.key))
         out.checkpoints.append((session, record))
         session.frames_since_checkpoint = 0
         session.checkpoint_s = now_s

@@ -513,7 +513,7 @@ class SessionTable:
         if self._store is not None:
             closed_ids = self._closed.of(key)
             record = self._durability.record(
-                session, "closed", closed_ids, is_open=False, final_graph=final_graph
+                session, "closed", closed_ids, final=(final, final_graph)
             )
             out.checkpoints.append((session, record))
         self._final_states[key] = final
