@@ -87,3 +87,33 @@ def test_an_old_areas_session_keeps_only_the_pools_its_proposer_can_name() -> No
     assert oldest is not None
     assert tracker.pool.starts[0][0] >= oldest
     assert len(tracker.pool.starts) < tracker.params.proposal.history_frames
+
+
+def test_many_segments_past_a_small_bound_match_a_plain_list() -> None:
+    """Compaction and growth of the flat buffers keep exactly the newest ``bound``."""
+    rng = np.random.default_rng(3)
+    for bound in (1, 2, 3, 8, 13):
+        closed, kept = ClosedSegments(bound), []
+        for segment_id in range(60):
+            size = int(rng.integers(0, 40))
+            features = tuple(sorted({int(v) for v in rng.integers(0, 10_000, size)}))
+            segment = _segment(segment_id, features)
+            closed.append(segment)
+            kept = [*kept, segment][-bound:]
+            assert list(closed) == kept
+            rows, arrays = closed.pack()
+            assert submaps_unpack(rows, arrays) == kept
+
+
+def test_ids_past_32_bits_widen_the_store_and_keep_the_older_ones() -> None:
+    closed = ClosedSegments(10, [_segment(0, (1, 2**31 - 1)), _segment(1, (-(2**31),))])
+    closed.append(_segment(2, (2**31, -(2**40))))
+    closed.append(_segment(3, (2**62,)))
+    wanted = [(1, 2**31 - 1), (-(2**31),), (2**31, -(2**40)), (2**62,)]
+    assert [s.features for s in closed] == wanted
+
+
+def test_no_bound_keeps_nothing() -> None:
+    closed = ClosedSegments(0, SEGMENTS)
+    assert len(closed) == 0
+    assert list(closed) == []
