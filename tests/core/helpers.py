@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import io
 import itertools
+import json
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import sparse
 
 from lessmap.core import Partitioner, PartitionerState, Transition
+from lessmap.core.paper.framing import unframe
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from numpy.typing import NDArray
 
@@ -215,3 +218,21 @@ def assert_same_state(a: PartitionerState, b: PartitionerState) -> None:
     for field in fields(a):
         if field.name not in {"graph", "history"}:
             assert getattr(a, field.name) == getattr(b, field.name), field.name
+
+
+# -- snapshots as older versions wrote them ---------------------------------------------------
+
+
+def as_npz_area_snapshot(data: bytes, edit: Callable[[dict[str, Any]], None]) -> bytes:
+    """An area snapshot rewritten as versions 7-9 stored it: an ``.npz`` with a ``meta`` array.
+
+    ``edit`` changes the meta in place first (its version, the fields that version lacked).
+    """
+    from lessmap.core.areas import snapshot
+
+    meta, arrays = unframe(data, snapshot._MAGIC, snapshot._ARRAYS)
+    edit(meta)
+    old = {"meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays}
+    buffer = io.BytesIO()
+    np.savez(buffer, **old)  # type: ignore[arg-type]
+    return buffer.getvalue()

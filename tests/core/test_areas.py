@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import io
-import json
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -12,7 +11,10 @@ import pytest
 from lessmap.core import GraphError, PartitionParams, StaleFrameError
 from lessmap.core.areas.snapshot import AREAS_SNAPSHOT_VERSION, from_bytes, to_bytes
 from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
-from tests.core.helpers import Frames, room_walk
+from tests.core.helpers import Frames, as_npz_area_snapshot, room_walk
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 def track(
@@ -128,8 +130,8 @@ def test_garbage_and_other_versions_are_graph_errors() -> None:
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(b"garbage")
     data = to_bytes(AreaTracker())
-    assert AREAS_SNAPSHOT_VERSION == 9
-    with pytest.raises(GraphError, match="not an area snapshot"):
+    assert AREAS_SNAPSHOT_VERSION == 10
+    with pytest.raises(GraphError, match="area snapshot damaged"):
         from_bytes(data[: len(data) // 2])
 
 
@@ -138,20 +140,28 @@ def test_a_version_7_snapshot_resumes_under_the_default_bound() -> None:
     tracker = AreaTracker(AreaParams(max_area_sightings=50))
     for seq in range(40):
         tracker.observe(seq, seq * 0.1, [seq % 12, (seq + 1) % 12, 100 + seq % 5])
-    with np.load(io.BytesIO(to_bytes(tracker)), allow_pickle=False) as archive:
-        arrays = {name: archive[name] for name in archive.files}
-    meta = json.loads(arrays["meta"].tobytes().decode())
-    meta["version"] = 7
-    del meta["params"]["max_area_sightings"]
-    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    old = from_bytes(buffer.getvalue())
+    data = to_bytes(tracker)
+
+    def as_version(version: int) -> Callable[[dict[str, Any]], None]:
+        def edit(meta: dict[str, Any]) -> None:
+            meta["version"] = version
+            del meta["params"]["max_area_sightings"]
+
+        return edit
+
+    old = from_bytes(as_npz_area_snapshot(data, as_version(7)))
     assert old.params == replace(tracker.params, max_area_sightings=100_000)
     assert old.sightings == tracker.sightings > 0
-    meta["version"] = 6
-    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    with pytest.raises(GraphError, match="version 6, expected one of 7, 8, 9"):
-        from_bytes(buffer.getvalue())
+    with pytest.raises(GraphError, match="version 6, expected one of 7, 8, 9, 10"):
+        from_bytes(as_npz_area_snapshot(data, as_version(6)))
+
+
+def test_a_version_9_snapshot_reads_as_the_same_tracker() -> None:
+    """Records stored before the framing (an ``.npz`` archive) resume exactly."""
+    tracker = AreaTracker()
+    for seq in range(60):
+        tracker.observe(seq, seq * 0.1, [seq % 12, (seq + 1) % 12, 100 + seq % 5])
+    data = to_bytes(tracker)
+    old = as_npz_area_snapshot(data, lambda meta: meta.update(version=9))
+    assert old.startswith(b"PK")  # a zip archive, as version 9 was written
+    assert to_bytes(from_bytes(old)) == data

@@ -93,7 +93,8 @@ def test_many_segments_past_a_small_bound_match_a_plain_list() -> None:
     """Compaction and growth of the flat buffers keep exactly the newest ``bound``."""
     rng = np.random.default_rng(3)
     for bound in (1, 2, 3, 8, 13):
-        closed, kept = ClosedSegments(bound), []
+        closed = ClosedSegments(bound)
+        kept: list[Submap] = []
         for segment_id in range(60):
             size = int(rng.integers(0, 40))
             features = tuple(sorted({int(v) for v in rng.integers(0, 10_000, size)}))

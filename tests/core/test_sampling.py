@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import io
-import json
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,7 +13,7 @@ from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler, mix_ids
 from lessmap.core.areas.snapshot import from_bytes, to_bytes
 from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.core.segmenter import make_segmenter, segmenter_from_bytes
-from tests.core.helpers import Frames, room_walk
+from tests.core.helpers import Frames, as_npz_area_snapshot, room_walk
 from tests.core.test_areas import track
 
 SAMPLED = AreaParams(max_features_kept=64)
@@ -165,15 +164,12 @@ def test_a_version_8_snapshot_resumes_keeping_every_feature() -> None:
     tracker = AreaTracker(AreaParams(max_features_kept=0))
     for seq in range(30):
         tracker.observe(seq, seq * 0.1, list(range(seq, seq + 12)))
-    with np.load(io.BytesIO(to_bytes(tracker)), allow_pickle=False) as archive:
-        arrays = {name: archive[name] for name in archive.files}
-    meta = json.loads(arrays["meta"].tobytes().decode())
-    meta["version"] = 8
-    del meta["params"]["max_features_kept"], meta["sample_threshold"]
-    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    old = from_bytes(buffer.getvalue())
+
+    def as_version_8(meta: dict[str, Any]) -> None:
+        meta["version"] = 8
+        del meta["params"]["max_features_kept"], meta["sample_threshold"]
+
+    old = from_bytes(as_npz_area_snapshot(to_bytes(tracker), as_version_8))
     assert old.params.max_features_kept == 0
     assert old.sampler.threshold == KEEP_ALL
     old.observe(30, 3.0, list(range(1000, 3000)))  # far over the default cap: all kept

@@ -1,15 +1,17 @@
 """An ``AreaTracker``'s whole state as bytes and back, bit-exact.
 
-Format: an uncompressed NumPy ``.npz`` archive (``allow_pickle=False``), like the paper
-partitioner's (``lessmap.core.paper.snapshot``): ``proposer`` holds that snapshot's bytes, ragged
-int64 arrays hold the areas' counts (in their dicts' order, which the likelihoods of rule 5
-are summed in) and the kept frames, and ``meta`` is a UTF-8 JSON document of the scalars,
-the areas' frame counts and the merged areas. The version number changes whenever the layout
-does (2: frame counts per area and merges, for recognition and merging; 3: the parameter
-``familiar_relative``; 4: ``weak_ncut`` and ``weak_frames``; 5: ``blind_span`` and
-``blind_margin``; 6: ``seam_frames``; 7: ``period_steps``, the last stamp steps and the
-kept frames that follow a stamp gap; 8: ``max_area_sightings``; 9: ``max_features_kept`` and
-the sampler's threshold).
+Format: a ``lessmap.core.paper.framing`` record with the magic ``LMAREA1`` + newline, like the
+paper partitioner's (``lessmap.core.paper.snapshot``): ``proposer`` (uint8) holds that
+snapshot's bytes, ragged int64 arrays hold the areas' counts (in their dicts' order, which
+the likelihoods of rule 5 are summed in) and the kept frames, and ``meta`` is the JSON
+document of the scalars, the areas' frame counts and the merged areas. Versions 7-9 were
+NumPy ``.npz`` archives with ``meta`` as an array; they are still read, never written.
+The version number changes whenever the layout does (2: frame counts per area and merges,
+for recognition and merging; 3: the parameter ``familiar_relative``; 4: ``weak_ncut`` and
+``weak_frames``; 5: ``blind_span`` and ``blind_margin``; 6: ``seam_frames``; 7:
+``period_steps``, the last stamp steps and the kept frames that follow a stamp gap; 8:
+``max_area_sightings``; 9: ``max_features_kept`` and the sampler's threshold; 10: the
+framing instead of ``.npz``).
 """
 
 from __future__ import annotations
@@ -28,16 +30,33 @@ from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler
 from lessmap.core.areas.tracker import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.paper import snapshot
+from lessmap.core.paper.framing import frame, unframe
 from lessmap.core.paper.submaps import Reason
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Sequence
 
-AREAS_SNAPSHOT_VERSION = 9
+AREAS_SNAPSHOT_VERSION = 10
+_MAGIC = b"LMAREA1\n"
 #: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions
 #: checkpointed before the bound resume under it. Versions 7 and 8 have no sampling: their
 #: sessions resume keeping every feature (``max_features_kept`` 0), as they did.
-READABLE_VERSIONS = (7, 8, AREAS_SNAPSHOT_VERSION)
+READABLE_VERSIONS = (7, 8, 9, AREAS_SNAPSHOT_VERSION)
+_ARRAYS = {
+    "proposer": "|u1",
+    **dict.fromkeys(
+        (
+            "frame_offsets",
+            "frame_values",
+            "area_offsets",
+            "area_features",
+            "area_counts",
+            "segment_features",
+            "segment_counts",
+        ),
+        "<i8",
+    ),
+}
 
 _POOL_FIELDS = {"pool_first_seq": "first_seq", "pool_frames": "frames", "pool_index": "index"}
 _INT_FIELDS = (
@@ -107,7 +126,6 @@ def to_bytes(tracker: AreaTracker) -> bytes:
     area_offsets, area_features = _pack(tracker.areas)  # a dict's keys, in its order
     _, area_counts = _pack([counts.values() for counts in tracker.areas])
     arrays = {
-        "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
         "proposer": np.frombuffer(snapshot.to_bytes(tracker.proposer), dtype=np.uint8),
         "frame_offsets": frame_offsets,
         "frame_values": frame_values,
@@ -117,9 +135,16 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         "segment_features": np.asarray(list(tracker.segment_counts), dtype=np.int64),
         "segment_counts": np.asarray(list(tracker.segment_counts.values()), dtype=np.int64),
     }
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]
-    return buffer.getvalue()
+    return frame(_MAGIC, meta, arrays)
+
+
+def _read(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The meta and arrays of a record, or of an ``.npz`` archive (versions 7-9)."""
+    if data.startswith(_MAGIC):
+        return unframe(data, _MAGIC, _ARRAYS, "area snapshot")
+    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    return json.loads(arrays.pop("meta").tobytes().decode()), arrays
 
 
 def from_bytes(data: bytes) -> AreaTracker:
@@ -129,9 +154,7 @@ def from_bytes(data: bytes) -> AreaTracker:
         GraphError: the bytes are not an area snapshot of a supported version.
     """
     try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-            arrays = {name: archive[name] for name in archive.files}
-        meta = json.loads(arrays["meta"].tobytes().decode())
+        meta, arrays = _read(data)
         if meta.get("version") not in READABLE_VERSIONS:
             msg = f"area snapshot version {meta.get('version')!r}, expected one of "
             msg += ", ".join(map(str, READABLE_VERSIONS))

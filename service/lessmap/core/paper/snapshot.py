@@ -1,21 +1,16 @@
 """A partitioner's whole state as bytes and back, bit-exact.
 
-Format (version 2): the 8-byte magic ``LMSNAP2`` + newline, the CRC-32 of the rest (4 bytes,
-little-endian), the length of the header (4 bytes, little-endian), the header (UTF-8 JSON:
-``meta``, the scalars, and ``arrays``, a list of [name, dtype, shape, offset, bytes]), then
-the arrays' raw bytes (int64, little-endian). Readable from any language with JSON and a
-CRC; the CRC catches a damaged record, as the zip archive's did; the standard library only
-(the core imports no codec). Version 1, an uncompressed NumPy ``.npz`` archive with a JSON
-``meta`` entry, is still read (records stored before an upgrade), never written (why:
-``docs/decisions/0001-snapshot-format-v2.md``).
+Format (version 2): a ``lessmap.core.paper.framing`` record with the magic ``LMSNAP2`` + newline,
+``meta`` the scalars, every array int64. The CRC catches a damaged record, as the zip
+archive's did; the standard library only (the core imports no codec). Version 1, an
+uncompressed NumPy ``.npz`` archive with a JSON ``meta`` entry, is still read (records
+stored before an upgrade), never written (why: ``docs/decisions/0001-snapshot-format-v2.md``).
 """
 
 from __future__ import annotations
 
 import io
 import json
-import struct
-import zlib
 from dataclasses import asdict
 from functools import lru_cache
 from itertools import chain
@@ -25,15 +20,13 @@ import numpy as np
 
 from lessmap.core.errors import GraphError
 from lessmap.core.paper.covgraph import CovGraphState
+from lessmap.core.paper.framing import frame, unframe
 from lessmap.core.paper.params import PartitionParams
 from lessmap.core.paper.partitioner import FrameRecord, Partitioner, PartitionerState
 from lessmap.core.paper.submaps import Submap
 
 SNAPSHOT_VERSION = 2
 _MAGIC = b"LMSNAP2\n"
-_CRC = struct.Struct("<I")
-_LENGTH = struct.Struct("<I")
-_DTYPES = {"<i8": np.int64}  # every array of a snapshot is int64
 _ARRAYS = (
     "history_seqs",
     "feature_ids",
@@ -107,66 +100,11 @@ def to_bytes(partitioner: Partitioner) -> bytes:
         "closed_offsets": closed_offsets,
         "closed_values": closed_values,
     }
-    blobs: list[bytes] = []
-    table: list[list[Any]] = []
-    offset = 0
-    for name, array in arrays.items():
-        kind = "<i8"
-        blob = np.ascontiguousarray(array, dtype=kind).tobytes()
-        table.append([name, kind, list(array.shape), offset, len(blob)])
-        blobs.append(blob)
-        offset += len(blob)
-    header = json.dumps({"meta": meta, "arrays": table}, separators=(",", ":")).encode()
-    rest = b"".join([_LENGTH.pack(len(header)), header, *blobs])
-    return _MAGIC + _CRC.pack(zlib.crc32(rest)) + rest
-
-
-def _array(name: str, entry: Any, data: memoryview) -> np.ndarray:
-    """One array of the header's table, checked against its declared dtype and shape."""
-    if not (isinstance(entry, list) and len(entry) == 5):
-        msg = f"array {name!r}: malformed entry"
-        raise GraphError(msg)
-    _name, kind, shape, offset, size = entry
-    dtype = _DTYPES.get(kind)
-    if (
-        dtype is None
-        or not isinstance(shape, list)
-        or not all(type(n) is int and n >= 0 for n in shape)
-        or type(offset) is not int
-        or type(size) is not int
-        or not 0 <= offset <= offset + size <= len(data)
-    ):
-        msg = f"array {name!r}: unsupported entry {entry!r:.80}"
-        raise GraphError(msg)
-    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
-    if count * 8 != size:
-        msg = f"array {name!r}: {size} bytes for shape {shape}"
-        raise GraphError(msg)
-    return np.frombuffer(data[offset : offset + size], dtype=dtype).reshape(shape).copy()
+    return frame(_MAGIC, meta, {name: np.asarray(a, dtype=np.int64) for name, a in arrays.items()})
 
 
 def _read_v2(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    start = len(_MAGIC) + _CRC.size
-    if len(data) < start + _LENGTH.size:
-        msg = "snapshot truncated"
-        raise GraphError(msg)
-    (crc,) = _CRC.unpack_from(data, len(_MAGIC))
-    rest = memoryview(data)[start:]
-    if zlib.crc32(rest) != crc:
-        msg = "snapshot damaged: CRC-32 mismatch"
-        raise GraphError(msg)
-    (length,) = _LENGTH.unpack_from(rest)
-    header = json.loads(bytes(rest[_LENGTH.size : _LENGTH.size + length]).decode())
-    if not isinstance(header, dict):
-        msg = "snapshot header is not a JSON object"
-        raise GraphError(msg)
-    meta, table = header.get("meta"), header.get("arrays")
-    if not isinstance(meta, dict) or not isinstance(table, list):
-        msg = "snapshot header has no meta object and arrays list"
-        raise GraphError(msg)
-    entries = {entry[0]: entry for entry in table if isinstance(entry, list) and entry}
-    blobs = rest[_LENGTH.size + length :]
-    arrays = {name: _array(name, entries.get(name), blobs) for name in _ARRAYS}
+    meta, arrays = unframe(data, _MAGIC, dict.fromkeys(_ARRAYS, "<i8"))
     meta["history_seqs"] = arrays.pop("history_seqs").tolist()
     return meta, arrays
 
