@@ -16,6 +16,7 @@ from lessmap.core.paper.framing import unframe
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
+    from types import ModuleType
 
     from numpy.typing import NDArray
 
@@ -223,14 +224,15 @@ def assert_same_state(a: PartitionerState, b: PartitionerState) -> None:
 # -- snapshots as older versions wrote them ---------------------------------------------------
 
 
-def as_npz_area_snapshot(data: bytes, edit: Callable[[dict[str, Any]], None]) -> bytes:
-    """An area snapshot rewritten as versions 7-9 stored it: an ``.npz`` with a ``meta`` array.
+def as_npz_snapshot(
+    data: bytes, module: ModuleType, edit: Callable[[dict[str, Any]], None]
+) -> bytes:
+    """A method's snapshot rewritten as its versions before the framing stored it.
 
-    ``edit`` changes the meta in place first (its version, the fields that version lacked).
+    That is an ``.npz`` archive with a ``meta`` array; ``module`` is the method's snapshot
+    module, and ``edit`` changes the meta in place first (its version, fields it lacked).
     """
-    from lessmap.core.areas import snapshot
-
-    meta, arrays = unframe(data, snapshot._MAGIC, snapshot._ARRAYS)
+    meta, arrays = unframe(data, module._MAGIC, module._ARRAYS)
     edit(meta)
     old = {"meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays}
     buffer = io.BytesIO()

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from lessmap.core import GraphError, PartitionParams, StaleFrameError
+from lessmap.core.areas import snapshot
 from lessmap.core.areas.snapshot import AREAS_SNAPSHOT_VERSION, from_bytes, to_bytes
 from lessmap.core.areas.tracker import AreaParams, AreaTracker, AreaTransition
-from tests.core.helpers import Frames, as_npz_area_snapshot, room_walk
+from tests.core.helpers import Frames, as_npz_snapshot, room_walk
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -149,11 +150,11 @@ def test_a_version_7_snapshot_resumes_under_the_default_bound() -> None:
 
         return edit
 
-    old = from_bytes(as_npz_area_snapshot(data, as_version(7)))
+    old = from_bytes(as_npz_snapshot(data, snapshot, as_version(7)))
     assert old.params == replace(tracker.params, max_area_sightings=100_000)
     assert old.sightings == tracker.sightings > 0
     with pytest.raises(GraphError, match="version 6, expected one of 7, 8, 9, 10"):
-        from_bytes(as_npz_area_snapshot(data, as_version(6)))
+        from_bytes(as_npz_snapshot(data, snapshot, as_version(6)))
 
 
 def test_a_version_9_snapshot_reads_as_the_same_tracker() -> None:
@@ -162,6 +163,6 @@ def test_a_version_9_snapshot_reads_as_the_same_tracker() -> None:
     for seq in range(60):
         tracker.observe(seq, seq * 0.1, [seq % 12, (seq + 1) % 12, 100 + seq % 5])
     data = to_bytes(tracker)
-    old = as_npz_area_snapshot(data, lambda meta: meta.update(version=9))
+    old = as_npz_snapshot(data, snapshot, lambda meta: meta.update(version=9))
     assert old.startswith(b"PK")  # a zip archive, as version 9 was written
     assert to_bytes(from_bytes(old)) == data

@@ -10,6 +10,7 @@ from lessmap.core.rooms import snapshot
 from lessmap.core.rooms.params import RoomParams
 from lessmap.core.rooms.tracker import RoomTracker
 from lessmap.core.rooms.window import FrameWindow
+from tests.core.helpers import as_npz_snapshot
 
 ROOM_M = 10.0  # rooms side by side along x: room k spans [10 k, 10 k + 10)
 SPACING_M = 0.5  # wall landmarks, two walls a room
@@ -133,6 +134,22 @@ def test_a_restored_tracker_goes_on_with_the_same_decisions_and_bytes() -> None:
 def test_damaged_bytes_are_one_error() -> None:
     with pytest.raises(GraphError, match="not a room snapshot"):
         snapshot.from_bytes(b"garbage")
+    data = snapshot.to_bytes(RoomTracker())
+    with pytest.raises(GraphError, match="room snapshot damaged"):
+        snapshot.from_bytes(data[: len(data) // 2])
+
+
+def test_a_version_1_snapshot_reads_as_the_same_tracker() -> None:
+    """Records stored before the framing (an ``.npz`` archive) resume exactly."""
+    tracker = RoomTracker()
+    run(tracker, walk(along(1.0, 29.0, 0.1), seed=2))
+    data = snapshot.to_bytes(tracker)
+    old = as_npz_snapshot(data, snapshot, lambda meta: meta.update(version=1))
+    assert old.startswith(b"PK")  # a zip archive, as version 1 was written
+    assert snapshot.to_bytes(snapshot.from_bytes(old)) == data
+    too_new = as_npz_snapshot(data, snapshot, lambda meta: meta.update(version=3))
+    with pytest.raises(GraphError, match="version 3, expected 1 or 2"):
+        snapshot.from_bytes(too_new)
 
 
 def test_a_stale_frame_is_refused() -> None:

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from lessmap.core import GraphError
+from lessmap.core.areas import snapshot
 from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler, mix_ids
 from lessmap.core.areas.snapshot import from_bytes, to_bytes
 from lessmap.core.areas.tracker import AreaParams, AreaTracker
 from lessmap.core.segmenter import make_segmenter, segmenter_from_bytes
-from tests.core.helpers import Frames, as_npz_area_snapshot, room_walk
+from tests.core.helpers import Frames, as_npz_snapshot, room_walk
 from tests.core.test_areas import track
 
 SAMPLED = AreaParams(max_features_kept=64)
@@ -169,7 +170,7 @@ def test_a_version_8_snapshot_resumes_keeping_every_feature() -> None:
         meta["version"] = 8
         del meta["params"]["max_features_kept"], meta["sample_threshold"]
 
-    old = from_bytes(as_npz_area_snapshot(to_bytes(tracker), as_version_8))
+    old = from_bytes(as_npz_snapshot(to_bytes(tracker), snapshot, as_version_8))
     assert old.params.max_features_kept == 0
     assert old.sampler.threshold == KEEP_ALL
     old.observe(30, 3.0, list(range(1000, 3000)))  # far over the default cap: all kept

@@ -1,10 +1,11 @@
 """A ``RoomTracker``'s whole state as bytes and back, bit-exact.
 
-Format: an uncompressed NumPy ``.npz`` archive (``allow_pickle=False``), as the other
-methods' snapshots: ``meta`` is a UTF-8 JSON document of the parameters and scalars (floats
-as hex strings, which keep them exact), int64 arrays hold the window's frames, the kept
-seqs, the cuts and the segment's and areas' counts in their dicts' order, and float64 arrays
-the window's similarities and lag profile.
+Format (version 2): a ``lessmap.core.paper.framing`` record with the magic ``LMROOM1`` +
+newline, as the other methods' snapshots: ``meta`` is the JSON document of the parameters
+and scalars (floats as hex strings, which keep them exact), int64 arrays hold the window's
+frames, the kept seqs, the cuts and the segment's and areas' counts in their dicts' order,
+and float64 arrays the window's similarities and lag profile. Version 1 was an ``.npz``
+archive with ``meta`` as an array: still read, never written.
 """
 
 from __future__ import annotations
@@ -18,11 +19,34 @@ import numpy as np
 
 from lessmap.core.areas.snapshot import _pack, _unpack
 from lessmap.core.errors import GraphError
+from lessmap.core.paper.framing import frame, unframe
 from lessmap.core.rooms.params import RoomParams
 from lessmap.core.rooms.tracker import RoomTracker
 from lessmap.core.rooms.window import Cut
 
-ROOMS_SNAPSHOT_VERSION = 1
+ROOMS_SNAPSHOT_VERSION = 2
+_READABLE_VERSIONS = (1, ROOMS_SNAPSHOT_VERSION)
+_MAGIC = b"LMROOM1\n"
+_ARRAYS = {
+    **dict.fromkeys(
+        (
+            "frame_seqs",
+            "frame_offsets",
+            "frame_values",
+            "lag_seen",
+            "cuts",
+            "seqs",
+            "segment_features",
+            "segment_counts",
+            "area_offsets",
+            "area_features",
+            "area_counts",
+        ),
+        "<i8",
+    ),
+    "rows": "<f8",
+    "lag_mean": "<f8",
+}
 _INT_FIELDS = (
     "segment_id",
     "segment_first_seq",
@@ -66,7 +90,6 @@ def to_bytes(tracker: RoomTracker) -> bytes:
     span = (window.frames.maxlen or 1) - 1
     rows = np.stack(list(window.rows)) if window.rows else np.zeros((0, span))
     arrays = {
-        "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
         "frame_seqs": np.asarray([seq for seq, _ in window.frames], dtype=np.int64),
         "frame_offsets": frame_offsets,
         "frame_values": frame_values,
@@ -83,24 +106,29 @@ def to_bytes(tracker: RoomTracker) -> bytes:
         "area_features": area_features,
         "area_counts": area_counts,
     }
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]
-    return buffer.getvalue()
+    return frame(_MAGIC, meta, arrays)
+
+
+def _read(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The meta and arrays of a record, or of an ``.npz`` archive (version 1)."""
+    if data.startswith(_MAGIC):
+        return unframe(data, _MAGIC, _ARRAYS, "room snapshot")
+    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    return json.loads(arrays.pop("meta").tobytes().decode()), arrays
 
 
 def from_bytes(data: bytes) -> RoomTracker:
     """Rebuild a room tracker from ``to_bytes`` output.
 
     Raises:
-        GraphError: the bytes are not a room snapshot of this version.
+        GraphError: the bytes are not a room snapshot of a supported version.
     """
     try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-            arrays = {name: archive[name] for name in archive.files}
-        meta = json.loads(arrays["meta"].tobytes().decode())
-        if meta.get("version") != ROOMS_SNAPSHOT_VERSION:
+        meta, arrays = _read(data)
+        if meta.get("version") not in _READABLE_VERSIONS:
             msg = f"room snapshot version {meta.get('version')!r}, expected "
-            msg += str(ROOMS_SNAPSHOT_VERSION)
+            msg += " or ".join(map(str, _READABLE_VERSIONS))
             raise GraphError(msg)
         tracker = RoomTracker(_params(meta["params"]))
         window = tracker.window
