@@ -56,6 +56,9 @@ class GoodRun:
 
     latencies_s: list[float]
     exact: bool
+    # Transitions decided over more than one frame: the service coalesced the robot's frames
+    # (it lagged), so its decisions may differ from the per-frame offline run's.
+    coalesced: int
     idle_kib: int
     peak_kib: int
     load_before: float
@@ -68,6 +71,7 @@ class GoodRun:
             "p99_ms": percentile_ms(self.latencies_s, 0.99),
             "max_ms": 1000 * max(self.latencies_s, default=float("nan")),
             "exact": self.exact,
+            "coalesced": self.coalesced,
             "peak_over_idle_mib": (self.peak_kib - self.idle_kib) / 1024,
             "load_before": self.load_before,
             "load_after": self.load_after,
@@ -109,12 +113,15 @@ def run_good_robot(
     published: dict[int, float] = {}
     latencies: list[float] = []
     got: list[int] = []
+    coalesced: list[int] = []
     try:
         other = beside(endpoint)
         with FleetClient(fleet, "good", session=session) as client:
 
             def on_transition(t: Transition) -> None:
                 got.append(t.seq)
+                if t.batch_frames > 1:
+                    coalesced.append(t.seq)
                 latencies.append(time.monotonic() - published[t.seq])
 
             client.on_transition(on_transition)
@@ -147,4 +154,7 @@ def run_good_robot(
             stop_process(other)
         session.close()
         stop_process(service)
-    return GoodRun(latencies, got == expected, idle_kib, peak_kib, load_before, os.getloadavg()[0])
+    exact = got == expected
+    return GoodRun(
+        latencies, exact, len(coalesced), idle_kib, peak_kib, load_before, os.getloadavg()[0]
+    )

@@ -108,12 +108,14 @@ def main() -> None:
     args = parser.parse_args()
     results = {name: run(name, args.rate, args.heavy_rate) for name in args.scenarios.split(",")}
     base = results.get("alone")
-    print(f"{'scenario':<10} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'p99 x':>6} exact  load")
+    columns = f"{'scenario':<10} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'p99 x':>6}"
+    print(columns + " exact  coalesced  load")
     for name, r in results.items():
         ratio = float(r["p99_ms"]) / float(base["p99_ms"]) if base else float("nan")
         print(
             f"{name:<10} {r['p50_ms']:>8.1f} {r['p99_ms']:>8.1f} {r['max_ms']:>8.1f} "
-            f"{ratio:>6.2f} {r['exact']!s:<6} {r['load_before']:.1f}->{r['load_after']:.1f}"
+            f"{ratio:>6.2f} {r['exact']!s:<6} {r['coalesced']:>9} "
+            f"{r['load_before']:.1f}->{r['load_after']:.1f}"
         )
     old, new = results.get("heavy-old"), results.get("heavy")
     if old and new:

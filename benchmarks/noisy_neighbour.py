@@ -68,12 +68,12 @@ def main() -> None:
     results = {name: run(name, args.rate) for name in args.scenarios.split(",")}
     base = results.get("alone")
     header = f"{'scenario':<8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'p99 x':>6}"
-    print(header + " exact  peak-idle MiB")
+    print(header + " exact  coalesced  peak-idle MiB")
     for name, r in results.items():
         ratio = float(r["p99_ms"]) / float(base["p99_ms"]) if base else float("nan")
         print(
             f"{name:<8} {r['p50_ms']:>8.1f} {r['p99_ms']:>8.1f} {r['max_ms']:>8.1f} "
-            f"{ratio:>6.2f} {r['exact']!s:<6} {r['peak_over_idle_mib']:>8.0f}"
+            f"{ratio:>6.2f} {r['exact']!s:<6} {r['coalesced']:>9} {r['peak_over_idle_mib']:>8.0f}"
         )
 
 
