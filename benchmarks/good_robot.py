@@ -50,6 +50,17 @@ def percentile_ms(seconds: list[float], q: float) -> float:
     return 1000 * float(np.quantile(seconds, q, method="inverted_cdf"))
 
 
+def first_difference(expected: list[int], got: list[int]) -> str:
+    """Where two lists of transition seqs first differ, in words ("" when equal)."""
+    if got == expected:
+        return ""
+    pairs = enumerate(zip(expected, got, strict=False))
+    at = next((i for i, (e, g) in pairs if e != g), min(len(expected), len(got)))
+    wanted = expected[at] if at < len(expected) else None
+    found = got[at] if at < len(got) else None
+    return f"{len(got)} transitions, offline {len(expected)}; #{at}: seq {found}, offline {wanted}"
+
+
 @dataclass(frozen=True, slots=True)
 class GoodRun:
     """What one scenario measured of the good robot and the service."""
@@ -59,12 +70,13 @@ class GoodRun:
     # Transitions decided over more than one frame: the service coalesced the robot's frames
     # (it lagged), so its decisions may differ from the per-frame offline run's.
     coalesced: int
+    difference: str  # where the transitions first differ from the offline run's ("" if none)
     idle_kib: int
     peak_kib: int
     load_before: float
     load_after: float
 
-    def figures(self) -> dict[str, float | bool]:
+    def figures(self) -> dict[str, float | bool | str]:
         """p50/p99/max in ms, exactness, peak RSS over idle and the load averages."""
         return {
             "p50_ms": percentile_ms(self.latencies_s, 0.50),
@@ -72,6 +84,7 @@ class GoodRun:
             "max_ms": 1000 * max(self.latencies_s, default=float("nan")),
             "exact": self.exact,
             "coalesced": self.coalesced,
+            "difference": self.difference,
             "peak_over_idle_mib": (self.peak_kib - self.idle_kib) / 1024,
             "load_before": self.load_before,
             "load_after": self.load_after,
@@ -154,7 +167,13 @@ def run_good_robot(
             stop_process(other)
         session.close()
         stop_process(service)
-    exact = got == expected
     return GoodRun(
-        latencies, exact, len(coalesced), idle_kib, peak_kib, load_before, os.getloadavg()[0]
+        latencies,
+        got == expected,
+        len(coalesced),
+        first_difference(expected, got),
+        idle_kib,
+        peak_kib,
+        load_before,
+        os.getloadavg()[0],
     )

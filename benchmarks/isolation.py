@@ -33,7 +33,7 @@ HEAVY_FEATURES = 600
 _NO_QOS = '[{id:"none",messages:["put"],key_exprs:["nothing/**"],overwrite:{}}]'
 
 
-def run(scenario: str, rate_hz: float, heavy_rate_hz: float) -> dict[str, float | bool]:
+def run(scenario: str, rate_hz: float, heavy_rate_hz: float) -> dict[str, float | bool | str]:
     """Run one scenario against a fresh service; return its figures."""
     args: list[str] = []
     if scenario.endswith("-old") and scenario.startswith("slow"):
@@ -123,6 +123,9 @@ def main() -> None:
             f"heavy lane: p99 {float(old['p99_ms']):.0f} -> {float(new['p99_ms']):.0f} ms "
             f"({float(old['p99_ms']) / float(new['p99_ms']):.1f}x lower)"
         )
+    for name, r in results.items():
+        if r["difference"]:
+            print(f"{name}: the transitions differ from the offline run's: {r['difference']}")
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from lessmap_schemas.codec import encode
 from lessmap_schemas.messages import Frame
 
 
-def run(scenario: str, rate_hz: float) -> dict[str, float | bool]:
+def run(scenario: str, rate_hz: float) -> dict[str, float | bool | str]:
     """Run one scenario against a fresh service (default settings); return its figures."""
     measured = run_good_robot(
         "areas",  # the default method
@@ -75,6 +75,9 @@ def main() -> None:
             f"{name:<8} {r['p50_ms']:>8.1f} {r['p99_ms']:>8.1f} {r['max_ms']:>8.1f} "
             f"{ratio:>6.2f} {r['exact']!s:<6} {r['coalesced']:>9} {r['peak_over_idle_mib']:>8.0f}"
         )
+    for name, r in results.items():
+        if r["difference"]:
+            print(f"{name}: the transitions differ from the offline run's: {r['difference']}")
 
 
 if __name__ == "__main__":
