@@ -16,8 +16,6 @@ framing instead of ``.npz``).
 
 from __future__ import annotations
 
-import io
-import json
 from dataclasses import asdict
 from functools import lru_cache
 from itertools import chain
@@ -30,7 +28,7 @@ from lessmap.core.areas.sampling import KEEP_ALL, FeatureSampler
 from lessmap.core.areas.tracker import AreaParams, AreaTracker, Candidate
 from lessmap.core.errors import GraphError
 from lessmap.core.paper import snapshot
-from lessmap.core.paper.framing import frame, unframe
+from lessmap.core.paper.framing import frame, unframe_or_npz
 from lessmap.core.paper.submaps import Reason
 
 if TYPE_CHECKING:
@@ -138,15 +136,6 @@ def to_bytes(tracker: AreaTracker) -> bytes:
     return frame(_MAGIC, meta, arrays)
 
 
-def _read(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """The meta and arrays of a record, or of an ``.npz`` archive (versions 7-9)."""
-    if data.startswith(_MAGIC):
-        return unframe(data, _MAGIC, _ARRAYS, "area snapshot")
-    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-        arrays = {name: archive[name] for name in archive.files}
-    return json.loads(arrays.pop("meta").tobytes().decode()), arrays
-
-
 def from_bytes(data: bytes) -> AreaTracker:
     """Rebuild an area tracker from ``to_bytes`` output.
 
@@ -154,7 +143,7 @@ def from_bytes(data: bytes) -> AreaTracker:
         GraphError: the bytes are not an area snapshot of a supported version.
     """
     try:
-        meta, arrays = _read(data)
+        meta, arrays = unframe_or_npz(data, _MAGIC, _ARRAYS, "area snapshot")
         if meta.get("version") not in READABLE_VERSIONS:
             msg = f"area snapshot version {meta.get('version')!r}, expected one of "
             msg += ", ".join(map(str, READABLE_VERSIONS))

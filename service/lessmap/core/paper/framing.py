@@ -10,6 +10,7 @@ members cost more than the state they held (``docs/decisions/0001-snapshot-forma
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 import zlib
@@ -85,6 +86,30 @@ def unframe(
     return meta, {
         name: _array(name, kind, entries.get(name), blobs) for name, kind in kinds.items()
     }
+
+
+def unframe_or_npz(
+    data: bytes, magic: bytes, kinds: Mapping[str, str], what: str = "snapshot"
+) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    """``unframe``, or ``read_npz`` for records written before the framing."""
+    if data.startswith(magic):
+        return unframe(data, magic, kinds, what)
+    return read_npz(data, what)
+
+
+def read_npz(data: bytes, what: str = "snapshot") -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    """The meta and arrays of an ``.npz`` archive with a JSON ``meta`` array (older records).
+
+    Raises:
+        GraphError: the meta is not a JSON object (numpy and json raise their own errors).
+    """
+    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    meta = json.loads(arrays.pop("meta").tobytes().decode())
+    if not isinstance(meta, dict):
+        msg = f"{what} meta is not a JSON object"
+        raise GraphError(msg)
+    return meta, arrays
 
 
 def _array(name: str, wanted: str, entry: Any, data: memoryview) -> NDArray[Any]:

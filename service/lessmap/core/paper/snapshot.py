@@ -9,8 +9,6 @@ stored before an upgrade), never written (why: ``docs/decisions/0001-snapshot-fo
 
 from __future__ import annotations
 
-import io
-import json
 from dataclasses import asdict
 from functools import lru_cache
 from itertools import chain
@@ -20,7 +18,7 @@ import numpy as np
 
 from lessmap.core.errors import GraphError
 from lessmap.core.paper.covgraph import CovGraphState
-from lessmap.core.paper.framing import frame, unframe
+from lessmap.core.paper.framing import frame, read_npz, unframe
 from lessmap.core.paper.params import PartitionParams
 from lessmap.core.paper.partitioner import FrameRecord, Partitioner, PartitionerState
 from lessmap.core.paper.submaps import Submap
@@ -111,12 +109,7 @@ def _read_v2(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
 
 def _read_v1(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """A version-1 snapshot (npz, JSON meta; the stamp as a float hex string)."""
-    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-        arrays = {name: archive[name] for name in archive.files}
-    meta = json.loads(arrays.pop("meta").tobytes().decode())
-    if not isinstance(meta, dict):
-        msg = "snapshot meta is not a JSON object"
-        raise GraphError(msg)
+    meta, arrays = read_npz(data)
     if meta.get("version") != 1:
         msg = f"snapshot version {meta.get('version')!r}, expected 1 or {SNAPSHOT_VERSION}"
         raise GraphError(msg)

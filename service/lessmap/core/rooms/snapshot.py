@@ -10,8 +10,6 @@ archive with ``meta`` as an array: still read, never written.
 
 from __future__ import annotations
 
-import io
-import json
 from dataclasses import asdict
 from typing import Any
 
@@ -19,7 +17,7 @@ import numpy as np
 
 from lessmap.core.areas.snapshot import _pack, _unpack
 from lessmap.core.errors import GraphError
-from lessmap.core.paper.framing import frame, unframe
+from lessmap.core.paper.framing import frame, unframe_or_npz
 from lessmap.core.rooms.params import RoomParams
 from lessmap.core.rooms.tracker import RoomTracker
 from lessmap.core.rooms.window import Cut
@@ -109,15 +107,6 @@ def to_bytes(tracker: RoomTracker) -> bytes:
     return frame(_MAGIC, meta, arrays)
 
 
-def _read(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """The meta and arrays of a record, or of an ``.npz`` archive (version 1)."""
-    if data.startswith(_MAGIC):
-        return unframe(data, _MAGIC, _ARRAYS, "room snapshot")
-    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-        arrays = {name: archive[name] for name in archive.files}
-    return json.loads(arrays.pop("meta").tobytes().decode()), arrays
-
-
 def from_bytes(data: bytes) -> RoomTracker:
     """Rebuild a room tracker from ``to_bytes`` output.
 
@@ -125,7 +114,7 @@ def from_bytes(data: bytes) -> RoomTracker:
         GraphError: the bytes are not a room snapshot of a supported version.
     """
     try:
-        meta, arrays = _read(data)
+        meta, arrays = unframe_or_npz(data, _MAGIC, _ARRAYS, "room snapshot")
         if meta.get("version") not in _READABLE_VERSIONS:
             msg = f"room snapshot version {meta.get('version')!r}, expected "
             msg += " or ".join(map(str, _READABLE_VERSIONS))
