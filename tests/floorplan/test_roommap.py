@@ -11,7 +11,9 @@ from lessmap.floorplan.roommap import (
     label_cells,
     merge_overlapping,
     nearest_samples,
+    passage_regions,
     room_map,
+    split_at_doorways,
 )
 
 RES_M = 0.1
@@ -132,6 +134,60 @@ def test_door_regions_split_at_the_door_only() -> None:
     assert door_regions(grid, 0.2).max() == 1  # the door is wider: one region
 
 
+def test_an_area_the_stream_carried_through_a_door_becomes_two_rooms() -> None:
+    grid = two_rooms()
+    xy = walk(grid, 2, 38)
+    areas = np.ones(len(xy), dtype=np.int64)  # the stream missed the change at the door
+    regions = door_regions(grid, 0.6)
+    labels = room_map(nearest_samples(grid, xy), areas, regions)
+    truth = room_of_cols(grid)
+    left, right = labels[truth == 1], labels[truth == 2]
+    assert len(np.unique(left)) == len(np.unique(right)) == 1
+    assert left[0] != right[0]
+    assert {int(left[0]), int(right[0])} == {1, 2}  # the larger part keeps the area's 1
+    assert len(np.unique(room_map(nearest_samples(grid, xy), areas)[grid.free])) == 1
+
+
+def test_split_at_doorways_numbers_the_smaller_parts_above_every_area() -> None:
+    doorways = np.array([[1, 1, 1, 2, 2, 0, 3]], dtype=np.int32)
+    labels = np.array([[4, 4, 2, 4, 2, 2, 0]], dtype=np.int32)
+    out = split_at_doorways(labels, doorways)
+    # area 4: two cells in region 1 (kept), one in region 2; area 2: one cell in each of
+    # regions 0, 1 and 2, a tie kept by region 0; the rest numbered by (region, area)
+    assert out.tolist() == [[4, 4, 5, 7, 6, 2, 0]]
+    assert split_at_doorways(np.zeros((2, 2), np.int32), np.ones((2, 2), np.int32)).max() == 0
+
+
+def wide_opening() -> OccupancyGrid:
+    """Rooms A (cols 1-29) and B (cols 36-64), 3 m tall, joined by a 1 m wide, 0.6 m long gap."""
+    free = np.zeros((32, 66), dtype=bool)
+    free[1:31, 1:30] = True
+    free[1:31, 36:65] = True
+    free[11:21, 30:36] = True
+    return OccupancyGrid(free=free, resolution_m=RES_M)
+
+
+def test_wider_passages_split_two_areas_sharing_a_doorway_region() -> None:
+    grid = wide_opening()
+    xy = grid.cell_to_xy(np.full(60, 16.0), np.arange(3, 63, dtype=float))
+    areas = np.where(xy[:, 0] < 4.0, 1, 2)  # the change decided 0.4 m into B
+    doorways_only = RoomMapParams(door_width_m=0.6, wider_passages_m=())
+    assert len(passage_regions(grid, doorways_only)) == 1
+    assert door_regions(grid, 0.6).max() == 1  # the gap is wider than a door: one region
+    field = nearest_samples(grid, xy)
+    one_level = room_map(field, areas, passage_regions(grid, doorways_only))
+    params = RoomMapParams(door_width_m=0.6, wider_passages_m=(1.2,))
+    levels = passage_regions(grid, params)
+    assert len(levels) == 2
+    labels = room_map(field, areas, levels, params.region_share, params.opening_share)
+    in_b = np.zeros(grid.shape, dtype=bool)
+    in_b[1:31, 36:65] = True
+    assert (one_level[in_b] == 1).any()  # rule 1: B's entrance painted with A's late area
+    assert (labels[in_b] == 2).all()
+    assert (labels[1:31, 1:30] == 1).all()
+    assert passage_regions(grid, RoomMapParams(door_width_m=0)) == ()
+
+
 def test_areas_of_two_robots_that_cover_one_room_merge() -> None:
     one = np.array([[1, 1, 2, 2, 0]])
     other = np.array([[7, 7, 0, 0, 3]])  # its 7 is the first's 1; its 3 overlaps nothing
@@ -165,3 +221,7 @@ def test_parameters_are_checked() -> None:
         RoomMapParams(max_distance_m=0)
     with pytest.raises(ValueError, match="door_width_m"):
         RoomMapParams(door_width_m=-1)
+    with pytest.raises(ValueError, match="opening_share"):
+        RoomMapParams(opening_share=1.5)
+    with pytest.raises(ValueError, match="wider_passages_m"):
+        RoomMapParams(wider_passages_m=(0.0,))

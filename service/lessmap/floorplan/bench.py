@@ -36,9 +36,9 @@ from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
 from lessmap.floorplan.metric import PrecisionRecall, StreamScore, precision_recall, stream_score
 from lessmap.floorplan.roommap import (
     RoomMapParams,
-    door_regions,
     merged_room_map,
     nearest_samples,
+    passage_regions,
     room_map,
 )
 from lessmap.floorplan.simcases import (
@@ -111,7 +111,7 @@ def evaluate_case(
     if missing:
         msg = f"{run.truth}: no truth for robot(s) {', '.join(missing)}"
         raise FloorplanError(msg)
-    regions = door_regions(grid, params.door_width_m) if params.door_width_m > 0 else None
+    regions = passage_regions(grid, params)
     fields = [nearest_samples(grid, poses[r].xy, params) for r in robots]
     everyone = nearest_samples(grid, np.concatenate([poses[r].xy for r in robots]), params)
 
@@ -119,7 +119,9 @@ def evaluate_case(
         labels: list[NDArray[np.int64]],
     ) -> tuple[tuple[PrecisionRecall, ...], PrecisionRecall]:
         own = tuple(
-            precision_recall(room_map(f, a, regions, params.region_share), truth_rooms)
+            precision_recall(
+                room_map(f, a, regions, params.region_share, params.opening_share), truth_rooms
+            )
             for f, a in zip(fields, labels, strict=True)
         )
         fleet = merged_room_map(fields, everyone, labels, regions, params)
@@ -144,8 +146,8 @@ def evaluate_case(
     true_labels = [_true_rooms(poses[r].seqs, tracks[r]) for r in robots]
     own, fleet = maps(true_labels)
     results.append(MethodResult(method="truth", stream=None, robot_maps=own, fleet_map=fleet))
-    if regions is not None:
-        geometry = precision_recall(regions, truth_rooms)
+    if regions:
+        geometry = precision_recall(regions[0], truth_rooms)
         results.append(
             MethodResult(method="geometry", stream=None, robot_maps=(geometry,), fleet_map=geometry)
         )

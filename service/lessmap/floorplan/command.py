@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
     from lessmap.floorplan.mapfile import write_room_map
     from lessmap.floorplan.metric import precision_recall
-    from lessmap.floorplan.roommap import RoomMapParams, door_regions, fleet_room_map
+    from lessmap.floorplan.roommap import RoomMapParams, fleet_room_map, passage_regions
     from lessmap.floorplan.streams import (
         frame_areas,
         method_cuts,
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             (p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()
         ]
         shown.stage("labelling the map")
-        regions = door_regions(grid, params.door_width_m) if params.door_width_m > 0 else None
+        regions = passage_regions(grid, params)
         rooms = fleet_room_map(grid, robots, params, regions)
         if not rooms.any():
             msg = (

@@ -9,9 +9,13 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
 3. **Doorways.** Free space is cut into regions at passages narrower than ``door_width_m``
    (cores: cells over half a door from walls, each cell joining its nearest). A region with
    no pose stays 0 (seen, not visited); one an area holds ``region_share`` of goes to it
-   whole (a late decision paints nothing); others keep rule 1's labels (wide openings).
+   whole (a late decision paints nothing). What no area holds is cut again at each of the
+   ``wider_passages_m`` in turn (openings), where ``opening_share`` decides; what is left
+   keeps rule 1's labels.
 4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
    robots' poses, one holds half of the other's; then rules 1-3 over all poses.
+5. **A room stops at a doorway.** An area's cells in two doorway regions are two rooms: a
+   change the stream missed (a dip into an office) or a wrong revisit would join them.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from numpy.typing import NDArray
 
     from lessmap.floorplan.grid import OccupancyGrid
@@ -37,7 +43,9 @@ __all__ = [
     "merge_overlapping",
     "merged_room_map",
     "nearest_samples",
+    "passage_regions",
     "room_map",
+    "split_at_doorways",
 ]
 
 SQRT2 = float(np.sqrt(2.0))
@@ -49,8 +57,11 @@ class RoomMapParams:
 
     max_distance_m: float = 8.0  # rule 2: about a room's depth seen from its middle
     snap_m: float = 0.5  # rule 2: a pose this near a wall still counts
-    door_width_m: float = 1.2  # rule 3: passages narrower than this split regions; 0: off
-    region_share: float = 0.6  # rule 3: the share of a region one area must hold
+    door_width_m: float = 1.2  # rules 3, 5: passages narrower than this split regions; 0: off
+    # rule 3: wide openings are tried only where doorways left two areas sharing a region
+    wider_passages_m: tuple[float, ...] = (1.6, 2.0, 2.5, 3.0)
+    region_share: float = 0.6  # rule 3: the share of a doorway region one area must hold
+    opening_share: float = 0.5  # rule 3: the same at the wider passages: the majority
     merge_m: float = 1.5  # rule 4: cells this near a robot's poses show where its areas are
 
     def __post_init__(self) -> None:
@@ -60,9 +71,16 @@ class RoomMapParams:
         if not (self.snap_m >= 0 and self.door_width_m >= 0):
             msg = "snap_m and door_width_m must be >= 0"
             raise ValueError(msg)
-        if not 0.5 <= self.region_share <= 1.0:
-            msg = f"region_share must be in [0.5, 1], got {self.region_share}"
+        if any(w <= 0 for w in self.wider_passages_m):
+            msg = f"wider_passages_m must all be > 0, got {self.wider_passages_m}"
             raise ValueError(msg)
+        for name, share in (
+            ("region_share", self.region_share),
+            ("opening_share", self.opening_share),
+        ):
+            if not 0.5 <= share <= 1.0:
+                msg = f"{name} must be in [0.5, 1], got {share}"
+                raise ValueError(msg)
 
 
 @dataclass(frozen=True, slots=True)
@@ -214,45 +232,96 @@ def door_regions(grid: OccupancyGrid, door_width_m: float) -> NDArray[np.int32]:
     return out
 
 
+def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray[np.int32], ...]:
+    """Rule 3's regions at the doorway width, then at each wider passage; () when off."""
+    if params.door_width_m <= 0:
+        return ()
+    wider = sorted(w for w in params.wider_passages_m if w > params.door_width_m)
+    return tuple(door_regions(grid, width) for width in (params.door_width_m, *wider))
+
+
 def room_map(
     field: SampleField,
     labels: NDArray[np.int64],
-    regions: NDArray[np.int32] | None = None,
+    regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
     region_share: float = RoomMapParams().region_share,
+    opening_share: float = RoomMapParams().opening_share,
 ) -> NDArray[np.int32]:
-    """Label the free cells the trajectory reaches with its areas (rules 1-3).
+    """Label the free cells the trajectory reaches with its areas (rules 1-3 and 5).
 
     Args:
         field: from ``nearest_samples``.
         labels: each sample's area (>= 1).
-        regions: from ``door_regions`` (rule 3), or None for rule 1 alone.
-        region_share: the share of a region's labelled cells one area must hold.
+        regions: ``passage_regions`` (doorways first), one ``door_regions`` array, or None
+            for rule 1 alone.
+        region_share: the share of a doorway region's labelled cells one area must hold.
+        opening_share: the same in the regions of the wider passages.
+
+    An area cut by rule 5 keeps its number on its largest part; the others get new numbers
+    above every area's.
     """
     cells = label_cells(field, labels)
-    if regions is None:
+    levels = (regions,) if isinstance(regions, np.ndarray) else tuple(regions or ())
+    if not levels:
         return cells
-    visited = np.zeros(int(regions.max()) + 1, dtype=bool)
-    visited[regions.ravel()[field.source_cells]] = True
+    doorways = levels[0]
+    visited = np.zeros(int(doorways.max()) + 1, dtype=bool)
+    visited[doorways.ravel()[field.source_cells]] = True
     visited[0] = True  # cells outside every region keep rule 1's label
-    cells[~visited[regions]] = 0
-    both = (cells > 0) & (regions > 0)
+    cells[~visited[doorways]] = 0
+    undecided = cells > 0
+    for index, level in enumerate(levels):
+        if not undecided.any():
+            break
+        share = region_share if index == 0 else opening_share
+        cells, undecided = _give_dominated(cells, level, undecided, share)
+    return split_at_doorways(cells, doorways)
+
+
+def _give_dominated(
+    cells: NDArray[np.int32], regions: NDArray[np.int32], undecided: NDArray[np.bool_], share: float
+) -> tuple[NDArray[np.int32], NDArray[np.bool_]]:
+    """Give each region's undecided cells to an area holding ``share`` of them (rule 3)."""
+    both = undecided & (regions > 0)
     if not both.any():
-        return cells
+        return cells, undecided
     pairs = np.stack([regions[both], cells[both]], axis=1).astype(np.int64)
     unique, counts = np.unique(pairs, axis=0, return_counts=True)
     totals = np.bincount(unique[:, 0], weights=counts)
     order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
     first = np.unique(unique[order, 0], return_index=True)[1]
     best = unique[order][first]
-    best_counts = counts[order][first]
-    dominant = best_counts >= region_share * totals[best[:, 0]]
+    dominant = counts[order][first] >= share * totals[best[:, 0]]
     owner = np.zeros(int(regions.max()) + 1, dtype=np.int32)
     owner[best[dominant, 0]] = best[dominant, 1]
     snapped = owner[regions]
+    take = both & (snapped > 0)
     out = cells.copy()
-    # a dominated region takes its area where the trajectory reached (rule 2 still holds)
-    take = (snapped > 0) & (cells > 0)
     out[take] = snapped[take]
+    return out, undecided & ~take
+
+
+def split_at_doorways(labels: NDArray[np.int32], doorways: NDArray[np.int32]) -> NDArray[np.int32]:
+    """Rule 5: an area's cells in several doorway regions become one room per region.
+
+    The largest part keeps the area's number (ties: the lower region); the others are
+    numbered from the largest label + 1, in order of (region, area).
+    """
+    named = labels > 0
+    if not named.any():
+        return labels
+    top = int(labels.max()) + 1
+    keys = doorways[named].astype(np.int64) * top + labels[named]
+    pieces, inverse, sizes = np.unique(keys, return_inverse=True, return_counts=True)
+    area = pieces % top
+    order = np.lexsort((pieces // top, -sizes, area))
+    largest = np.zeros(pieces.size, dtype=bool)
+    largest[order[np.r_[True, area[order][1:] != area[order][:-1]]]] = True
+    number = np.where(largest, area, 0)
+    others = np.flatnonzero(~largest)
+    number[others] = top + np.arange(others.size)
+    out = labels.copy()
+    out[named] = number[inverse.ravel()]
     return out
 
 
@@ -303,7 +372,7 @@ def fleet_room_map(
     grid: OccupancyGrid,
     robots: list[tuple[NDArray[np.float64], NDArray[np.int64]]],
     params: RoomMapParams | None = None,
-    regions: NDArray[np.int32] | None = None,
+    regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
 ) -> NDArray[np.int32]:
     """One room map from several robots' labelled trajectories (``(xy, areas)`` each).
 
@@ -313,7 +382,7 @@ def fleet_room_map(
     fields = [nearest_samples(grid, xy, params) for xy, _ in robots]
     labels = [areas for _, areas in robots]
     if len(robots) == 1:
-        return room_map(fields[0], labels[0], regions, params.region_share)
+        return room_map(fields[0], labels[0], regions, params.region_share, params.opening_share)
     everyone = nearest_samples(grid, np.concatenate([xy for xy, _ in robots]), params)
     return merged_room_map(fields, everyone, labels, regions, params)
 
@@ -322,7 +391,7 @@ def merged_room_map(
     fields: list[SampleField],
     everyone: SampleField,
     labels: list[NDArray[np.int64]],
-    regions: NDArray[np.int32] | None = None,
+    regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
     params: RoomMapParams | None = None,
 ) -> NDArray[np.int32]:
     """Several robots' room map, their areas merged where they name the same place (rule 4).
@@ -331,15 +400,15 @@ def merged_room_map(
         fields: each robot's field (``nearest_samples`` of its poses).
         everyone: the field of all poses, robots concatenated in the order of ``fields``.
         labels: each robot's areas of its poses (>= 1).
-        regions: ``door_regions`` for rule 3, or None.
+        regions: ``passage_regions`` for rules 3 and 5, or None.
         params: ``region_share`` and ``merge_m``.
     """
     params = params or RoomMapParams()
     own = []
     for field, areas in zip(fields, labels, strict=True):
-        near = room_map(field, areas, regions, params.region_share)
+        near = room_map(field, areas, regions, params.region_share, params.opening_share)
         near[field.distance_m > params.merge_m] = 0
         own.append(near)
     lookups = merge_overlapping(own, top_labels=[int(a.max(initial=0)) for a in labels])
     merged = np.concatenate([lookup[a] for lookup, a in zip(lookups, labels, strict=True)])
-    return room_map(everyone, merged, regions, params.region_share)
+    return room_map(everyone, merged, regions, params.region_share, params.opening_share)
