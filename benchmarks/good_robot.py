@@ -28,8 +28,10 @@ from lessmap.cli.segment import segment, segment_areas
 from lessmap.config.settings import ServiceSettings
 from lessmap.core.areas.tracker import AreaParams
 from lessmap.files.frames import read_frames
+from lessmap.runtime.workers import usable_cores
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_client.session import open_session
+from lessmap_schemas import keys
 
 if TYPE_CHECKING:
     import zenoh
@@ -59,6 +61,30 @@ def first_difference(expected: list[int], got: list[int]) -> str:
     wanted = expected[at] if at < len(expected) else None
     found = got[at] if at < len(got) else None
     return f"{len(got)} transitions, offline {len(expected)}; #{at}: seq {found}, offline {wanted}"
+
+
+def serve_workers(serve_args: tuple[str, ...]) -> int:
+    """How many workers ``serve`` runs with these arguments (``--workers N``, else the cores)."""
+    for index, arg in enumerate(serve_args):
+        if arg == "--workers" and index + 1 < len(serve_args):
+            return int(serve_args[index + 1])
+        if arg.startswith("--workers="):
+            return int(arg.split("=", 1)[1])
+    return usable_cores()
+
+
+def wait_for_workers(session: zenoh.Session, count: int, timeout_s: float) -> None:
+    """Wait until ``count`` service instances declare their tokens; raise after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        replies = session.liveliness().get(keys.instances(), timeout=1.0)
+        live = sum(1 for reply in replies if reply.ok is not None)
+        if live >= count:
+            return
+        if time.monotonic() > deadline:
+            msg = f"{live} of {count} service worker(s) up after {timeout_s:.0f} s"
+            raise RuntimeError(msg)
+        time.sleep(0.2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,6 +168,9 @@ def run_good_robot(
                 if not robot.wait_for_service(20.0):
                     msg = "the service did not come up"
                     raise RuntimeError(msg)
+                # serve starts its workers one after another; a robot that starts before the
+                # last has joined sees its session moved (with --memory-only, restarted)
+                wait_for_workers(session, serve_workers(serve_args), 30.0)
                 time.sleep(0.5)
                 idle_kib = proc_status_kib(service.pid, "VmRSS")
                 traffic = threading.Thread(target=loader, args=(session, fleet, stop))

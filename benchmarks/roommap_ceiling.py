@@ -21,7 +21,7 @@ import numpy as np
 
 from lessmap.floorplan.grid import load_grid, room_labels
 from lessmap.floorplan.metric import precision_recall
-from lessmap.floorplan.roommap import RoomMapParams, door_regions, nearest_samples, room_map
+from lessmap.floorplan.roommap import RoomMapParams, nearest_samples, passage_regions, room_map
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,8 +56,9 @@ def main(argv: list[str] | None = None) -> int:
         xy = grid.cell_to_xy(pick[:, 0].astype(float), pick[:, 1].astype(float))
         labels = truth[pick[:, 0], pick[:, 1]].astype(np.int64)
         field = nearest_samples(grid, xy, params)
-        regions = door_regions(grid, params.door_width_m)
-        maps = (room_map(field, labels), room_map(field, labels, regions), regions)
+        levels = passage_regions(grid, params)
+        with_doorways = room_map(field, labels, levels, params.region_share, params.opening_share)
+        maps = (room_map(field, labels), with_doorways, levels[0])
         row = []
         for column, labelled in zip(columns, maps, strict=True):
             score = precision_recall(labelled, truth)

@@ -20,7 +20,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Segment FRAMES (or read a lessmap segment output), then label every free cell of MAP "
         "the robots walked with its area: a cell takes the area of the geodesically nearest "
-        "pose, and a region between doorways mostly one area's is given to it whole. Writes "
+        "pose, a region between doorways mostly one area's is given to it whole, and a room "
+        "never crosses a doorway. Writes "
         "OUT.pgm + OUT.yaml (map_server: grey = room 1..254, 0 free without a room, 255 "
         "occupied; negate 1) and OUT.png (colours); prints one JSON line. Poses must be in "
         "the map's frame (an image's bottom-left corner is (0, 0) unless a YAML says otherwise)."
@@ -38,7 +39,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--method",
         choices=("areas", "rooms", "paper"),
-        default="areas",
+        default="rooms",
         help="segmentation method when no --transitions are given (default %(default)s)",
     )
     parser.add_argument(
@@ -66,7 +67,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--door-width-m",
         type=float,
         default=defaults.door_width_m,
-        help="passages narrower than this bound regions; 0: no regions (default %(default)s)",
+        help="passages narrower than this bound rooms (rules 3, 5); 0: off (default %(default)s)",
     )
 
 
