@@ -100,8 +100,16 @@ class Replication:
     # -- take-over ---------------------------------------------------------------------------
 
     def fetch(self, session: zenoh.Session | None, partitions: Sequence[int]) -> int:
-        """Ask every instance for the partitions' checkpoints; keep the newest per robot."""
-        if session is None or self.store.path is None or len(self._ownership.live) < 2:
+        """Ask every instance for the partitions' checkpoints; keep the newest per robot.
+
+        Memory-only instances ask too: a hand-over's records are on the old owner's shelf.
+        Their own shelf's records of these partitions go first: handed out earlier, they
+        are older than the session's state wherever it ran since (or it was lost with it).
+        """
+        if self.store.shelf is not None:
+            moving = set(partitions)
+            self.store.shelf.drop_where(lambda fleet, robot: partition_of(fleet, robot) in moving)
+        if session is None or len(self._ownership.live) < 2:
             return 0
         replies: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         ended = threading.Semaphore(0)

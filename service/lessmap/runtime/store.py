@@ -16,6 +16,7 @@ Rules of this file:
    The service never dies of it.
 5. Retention: rows not updated for ``retention_s`` are deleted, and while the file holds more
    than ``max_bytes`` the oldest rows of sessions no longer in memory go first.
+6. Without a file (memory only) the records a hand-over saves go to a ``MemoryShelf``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 
 from lessmap.runtime.memory import release_free_memory, trim_heap
 from lessmap.runtime.record import RobotKey, SessionRecord
+from lessmap.runtime.shelf import MemoryShelf
 from lessmap.runtime.store_file import (
     CHECK_EVERY_S,
     StoreHealth,
@@ -71,6 +73,7 @@ class CheckpointStore:
         clock: Any = time.time,
     ) -> None:
         self.path = None if state_dir is None else state_dir / STORE_FILE
+        self.shelf = MemoryShelf() if self.path is None else None  # rule 6
         self.retention_s = retention_s
         self.max_bytes = max_bytes
         self._clock = clock
@@ -97,6 +100,11 @@ class CheckpointStore:
         self.health = StoreHealth(self.path)  # rule 4
         self._file_id: tuple[int, int] | None = None  # (device, inode) of the open file
         self._checked_s = 0.0
+
+    @property
+    def durable_or_shelved(self) -> bool:
+        """True with a file, or with a shelf for hand-overs (rule 6): sessions may resume."""
+        return self.path is not None or self.shelf is not None
 
     @property
     def durable(self) -> bool:
@@ -200,7 +208,8 @@ class CheckpointStore:
 
     def save(self, record: SessionRecord) -> None:
         """Queue a record for writing (the robot's previous pending record is replaced)."""
-        if self.path is None:
+        if self.shelf is not None:
+            self.shelf.put(record)
             return
         with self._cond:
             self._pending[record.key] = record
@@ -208,7 +217,8 @@ class CheckpointStore:
 
     def delete(self, key: RobotKey) -> None:
         """Queue the removal of a robot's record."""
-        if self.path is None:
+        if self.shelf is not None:
+            self.shelf.drop(key)
             return
         with self._cond:
             self._pending[key] = None
@@ -239,6 +249,8 @@ class CheckpointStore:
             sqlite3.DatabaseError: the file could not be read (the caller reports it and
                 starts the session fresh).
         """
+        if self.shelf is not None:
+            return self.shelf.get(key)
         with self._cond:
             if key in self._pending:
                 return self._pending[key]
@@ -259,8 +271,8 @@ class CheckpointStore:
 
         Reads the file (call it off the receive path). Returns True when saved.
         """
-        if self.path is None:
-            return False
+        if self.shelf is not None:
+            return self.shelf.offer(record)
         try:
             current = self.load(record.key)
         except sqlite3.Error:
@@ -312,6 +324,8 @@ class CheckpointStore:
 
     def records_where(self, keep: Callable[[str, str], bool]) -> list[SessionRecord]:
         """The latest record (pending or written) of every robot for which ``keep`` is True."""
+        if self.shelf is not None:
+            return self.shelf.where(keep)
         with self._cond:
             # The batch being written first, the pending records over it (they are newer).
             pending = {k: r for k, r in (self._writing | self._pending).items() if keep(*k)}

@@ -8,6 +8,8 @@ Invariants (with a ``CheckpointStore`` that reaches a file):
    where its checkpoint stands (the segmenter's bytes, its counters and gap ranges).
 3. Idle sessions are evicted to the store instead of being closed (without a file they
    close); a full shard evicts those idle ``EVICT_MIN_IDLE_S`` or more, longest idle first.
+   Without a file, a hand-over still checkpoints: the store's memory shelf carries the
+   records to the new owner, which resumes them as with a file (``resumes``).
 4. The table never saves a checkpoint: it travels in the outcome and ``commit_checkpoints``
    saves it after the outcome was published, so no checkpoint (kept, shipped, answered)
    covers a transition that is not on the wire yet, and none of a session with a fenced
@@ -70,9 +72,16 @@ class Durability:
         wall_clock: Callable[[], float],
     ) -> None:
         self.store = store if store is not None and store.path is not None else None
+        # Where sessions resume from: the file, or without one the hand-over shelf.
+        self._source = store if store is not None and store.durable_or_shelved else None
         self._policy = policy
         self._identity = identity
         self._wall_clock = wall_clock
+
+    @property
+    def resumes(self) -> bool:
+        """True when a session not in memory may have a record to resume from."""
+        return self._source is not None
 
     def phase(self, session: RobotSession, now_s: float) -> None:
         """Start a session's checkpoint clock at a phase of its own.
@@ -149,13 +158,14 @@ class Durability:
         self, key: RobotKey, out: Outcome, now_s: float, closed: ClosedIds
     ) -> RobotSession | None:
         """The robot's checkpointed session, back from the store, if it has an open one."""
-        assert self.store is not None
+        source = self._source
+        assert source is not None
         fleet, robot = key
         # A record of this outcome is not saved yet (an eviction earlier in the same batch).
         record = next((r for _s, r in reversed(out.checkpoints) if r.key == key), None)
         try:
             if record is None:
-                record = self.store.load(key)
+                record = source.load(key)
         except sqlite3.Error as exc:
             out.reject(
                 fleet, robot, None, ErrorCode.INTERNAL, f"state store unreadable: {exc}", None
@@ -188,18 +198,20 @@ class Durability:
                 f"checkpoint unreadable ({type(exc).__name__}); the session starts fresh",
                 None,
             )
-            self.store.delete(key)
+            source.delete(key)
             return None
+        if source.shelf is not None:
+            source.shelf.drop(key)  # resumed: the shelf holds it no longer
         self.phase(session, now_s)
         return session
 
     # -- what the store answers for robots not in memory ---------------------------------
 
     def _load(self, key: RobotKey) -> SessionRecord | None:
-        if self.store is None:
+        if self._source is None:
             return None
         try:
-            return self.store.load(key)
+            return self._source.load(key)
         except sqlite3.Error:
             return None
 

@@ -266,7 +266,7 @@ class SessionTable:
             return
         session_id = run[0].session
         current = self._open.get(key)
-        if current is None and self._store is not None:
+        if current is None and self._durability.resumes:
             current = self._resume(key, out, now_s)
         if current is None or current.session != session_id:
             if (key, session_id) in self._closed:
@@ -478,7 +478,7 @@ class SessionTable:
         self, key: RobotKey, end: SessionEnd, now_s: float, out: Outcome, *, ask_cache: bool = True
     ) -> None:
         current = self._open.get(key)
-        if current is None and self._store is not None:
+        if current is None and self._durability.resumes:
             current = self._resume(key, out, now_s)  # it ended while no instance ran
         if current is not None and current.hold_until_s is not None:
             current.held_end = end  # after the held frames: the end waits for the catch-up
@@ -561,7 +561,7 @@ class SessionTable:
             if not leaving(*key):
                 continue
             self._holds.drop(session)
-            if self._store is not None:
+            if self._durability.resumes:  # without a file, the store's shelf carries it
                 self._durability.checkpoint(session, "open", now_s, out, self._closed)
             self._drop(key, session)
             out.evicted += 1
