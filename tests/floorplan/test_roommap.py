@@ -146,6 +146,8 @@ def test_an_area_the_stream_carried_through_a_door_becomes_two_rooms() -> None:
     assert left[0] != right[0]
     assert {int(left[0]), int(right[0])} == {1, 2}  # the larger part keeps the area's 1
     assert len(np.unique(room_map(nearest_samples(grid, xy), areas)[grid.free])) == 1
+    joined = RoomMapParams(door_width_m=0.6, split_at_doorways=False)
+    assert len(np.unique(room_map(nearest_samples(grid, xy), areas, regions, joined))) == 2  # 0, 1
 
 
 def test_split_at_doorways_numbers_the_smaller_parts_above_every_area() -> None:
@@ -179,7 +181,7 @@ def test_wider_passages_split_two_areas_sharing_a_doorway_region() -> None:
     params = RoomMapParams(door_width_m=0.6, wider_passages_m=(1.2,))
     levels = passage_regions(grid, params)
     assert len(levels) == 2
-    labels = room_map(field, areas, levels, params.region_share, params.opening_share)
+    labels = room_map(field, areas, levels, params)
     in_b = np.zeros(grid.shape, dtype=bool)
     in_b[1:31, 36:65] = True
     assert (one_level[in_b] == 1).any()  # rule 1: B's entrance painted with A's late area

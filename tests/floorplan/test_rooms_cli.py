@@ -102,6 +102,23 @@ def test_one_robot_with_given_transitions(
     assert record["segmentation"] == str(segmented)
     assert record["transitions"] > 0
     assert "benchmark" not in record
+    # the paper cuts rooms into pieces; without rule 5 pieces that share an area (a revisit)
+    # may join across a doorway, so there are no more rooms than with it
+    code, [joined], err = rooms_in_process(
+        capsys,
+        run_files.frames,
+        "--map",
+        run_files.grid_map,
+        "--transitions",
+        segmented,
+        "--robot",
+        "robot1",
+        "--join-across-doorways",
+        "-o",
+        tmp_path / "joined",
+    )
+    assert (code, err) == (0, "")
+    assert joined["rooms"] <= record["rooms"]
 
 
 def test_the_benchmark_maps_read_with_their_ground_truth() -> None:

@@ -119,9 +119,7 @@ def evaluate_case(
         labels: list[NDArray[np.int64]],
     ) -> tuple[tuple[PrecisionRecall, ...], PrecisionRecall]:
         own = tuple(
-            precision_recall(
-                room_map(f, a, regions, params.region_share, params.opening_share), truth_rooms
-            )
+            precision_recall(room_map(f, a, regions, params), truth_rooms)
             for f, a in zip(fields, labels, strict=True)
         )
         fleet = merged_room_map(fields, everyone, labels, regions, params)
@@ -336,6 +334,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tolerance-m", type=float, default=1.0)
     parser.add_argument("--door-width-m", type=float, default=defaults.door_width_m)
     parser.add_argument("--max-distance-m", type=float, default=defaults.max_distance_m)
+    parser.add_argument(
+        "--join-across-doorways",
+        action="store_true",
+        help=(
+            "an area's room may span doorway regions (rule 5 off): for maps whose "
+            "furniture narrows rooms below a door's width"
+        ),
+    )
     parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")
     parser.add_argument("--work", type=Path, help="keep the runs' files in this folder")
     parser.add_argument("--markdown", type=Path, help="also write the tables to this file")
@@ -357,7 +363,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise FloorplanError(msg)
         try:
             params = RoomMapParams(
-                max_distance_m=args.max_distance_m, door_width_m=args.door_width_m
+                max_distance_m=args.max_distance_m,
+                door_width_m=args.door_width_m,
+                split_at_doorways=not args.join_across_doorways,
             )
         except ValueError as exc:
             raise FloorplanError(str(exc)) from None

@@ -69,6 +69,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=defaults.door_width_m,
         help="passages narrower than this bound rooms (rules 3, 5); 0: off (default %(default)s)",
     )
+    parser.add_argument(
+        "--join-across-doorways",
+        action="store_true",
+        help=(
+            "an area's room may span doorway regions (rule 5 off): for maps whose "
+            "furniture narrows rooms below a door's width"
+        ),
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -93,7 +101,11 @@ def run(args: argparse.Namespace) -> int:
         msg = f"-o {args.out}: no folder {args.out.parent}"
         raise ConfigError(msg)
     try:
-        params = RoomMapParams(max_distance_m=args.max_distance_m, door_width_m=args.door_width_m)
+        params = RoomMapParams(
+            max_distance_m=args.max_distance_m,
+            door_width_m=args.door_width_m,
+            split_at_doorways=not args.join_across_doorways,
+        )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     with progress(args) as shown:

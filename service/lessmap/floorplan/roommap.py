@@ -15,7 +15,8 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
 4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
    robots' poses, one holds half of the other's; then rules 1-3 over all poses.
 5. **A room stops at a doorway.** An area's cells in two doorway regions are two rooms: a
-   change the stream missed (a dip into an office) or a wrong revisit would join them.
+   change the stream missed (a dip into an office) or a wrong revisit would join them
+   (``split_at_doorways``).
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class RoomMapParams:
     max_distance_m: float = 8.0  # rule 2: about a room's depth seen from its middle
     snap_m: float = 0.5  # rule 2: a pose this near a wall still counts
     door_width_m: float = 1.2  # rules 3, 5: passages narrower than this split regions; 0: off
+    # rule 5; off for maps whose furniture narrows rooms below a door (it would cut them)
+    split_at_doorways: bool = True
     # rule 3: wide openings are tried only where doorways left two areas sharing a region
     wider_passages_m: tuple[float, ...] = (1.6, 2.0, 2.5, 3.0)
     region_share: float = 0.6  # rule 3: the share of a doorway region one area must hold
@@ -244,8 +247,7 @@ def room_map(
     field: SampleField,
     labels: NDArray[np.int64],
     regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
-    region_share: float = RoomMapParams().region_share,
-    opening_share: float = RoomMapParams().opening_share,
+    params: RoomMapParams | None = None,
 ) -> NDArray[np.int32]:
     """Label the free cells the trajectory reaches with its areas (rules 1-3 and 5).
 
@@ -254,12 +256,12 @@ def room_map(
         labels: each sample's area (>= 1).
         regions: ``passage_regions`` (doorways first), one ``door_regions`` array, or None
             for rule 1 alone.
-        region_share: the share of a doorway region's labelled cells one area must hold.
-        opening_share: the same in the regions of the wider passages.
+        params: the shares of rule 3 and whether rule 5 applies; default ``RoomMapParams()``.
 
     An area cut by rule 5 keeps its number on its largest part; the others get new numbers
     above every area's.
     """
+    params = params or RoomMapParams()
     cells = label_cells(field, labels)
     levels = (regions,) if isinstance(regions, np.ndarray) else tuple(regions or ())
     if not levels:
@@ -273,9 +275,9 @@ def room_map(
     for index, level in enumerate(levels):
         if not undecided.any():
             break
-        share = region_share if index == 0 else opening_share
+        share = params.region_share if index == 0 else params.opening_share
         cells, undecided = _give_dominated(cells, level, undecided, share)
-    return split_at_doorways(cells, doorways)
+    return split_at_doorways(cells, doorways) if params.split_at_doorways else cells
 
 
 def _give_dominated(
@@ -382,7 +384,7 @@ def fleet_room_map(
     fields = [nearest_samples(grid, xy, params) for xy, _ in robots]
     labels = [areas for _, areas in robots]
     if len(robots) == 1:
-        return room_map(fields[0], labels[0], regions, params.region_share, params.opening_share)
+        return room_map(fields[0], labels[0], regions, params)
     everyone = nearest_samples(grid, np.concatenate([xy for xy, _ in robots]), params)
     return merged_room_map(fields, everyone, labels, regions, params)
 
@@ -401,14 +403,14 @@ def merged_room_map(
         everyone: the field of all poses, robots concatenated in the order of ``fields``.
         labels: each robot's areas of its poses (>= 1).
         regions: ``passage_regions`` for rules 3 and 5, or None.
-        params: ``region_share`` and ``merge_m``.
+        params: rule 3's shares, rule 5 and ``merge_m``.
     """
     params = params or RoomMapParams()
     own = []
     for field, areas in zip(fields, labels, strict=True):
-        near = room_map(field, areas, regions, params.region_share, params.opening_share)
+        near = room_map(field, areas, regions, params)
         near[field.distance_m > params.merge_m] = 0
         own.append(near)
     lookups = merge_overlapping(own, top_labels=[int(a.max(initial=0)) for a in labels])
     merged = np.concatenate([lookup[a] for lookup, a in zip(lookups, labels, strict=True)])
-    return room_map(everyone, merged, regions, params.region_share, params.opening_share)
+    return room_map(everyone, merged, regions, params)
