@@ -1,7 +1,7 @@
 """What the room-map rules can reach on the benchmark's floor plans, whatever the segmentation.
 
     python -m benchmarks.roommap_ceiling                 # ../shared/floorplans, 400 poses
-    python -m benchmarks.roommap_ceiling --poses 100 --furnished
+    python -m benchmarks.roommap_ceiling --poses 100 --furnished --join-across-doorways
 
 Run from the repository root. Per map, ``--poses`` poses are drawn uniformly (seeded) over
 the ground-truth rooms' cells and labelled with their true room, a robot that went
@@ -33,6 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--poses", type=int, default=400)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--furnished", action="store_true", help="the maps with furniture")
+    parser.add_argument(
+        "--join-across-doorways", action="store_true", help="rule 5 off, as in lessmap rooms"
+    )
     args = parser.parse_args(argv)
     names = sorted(
         p.name.removesuffix("_gt_segmentation.png")
@@ -41,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     if not names:
         sys.stderr.write(f"no *_gt_segmentation.png in {args.floorplans}\n")
         return 1
-    params = RoomMapParams()
+    params = RoomMapParams(split_at_doorways=not args.join_across_doorways)
     columns = ("nearest pose", "with doorways", "doorways alone")
     print("| map | " + " | ".join(columns) + " |")
     print("|---|" + "---|" * len(columns))
