@@ -38,6 +38,7 @@ import statistics
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -99,6 +100,77 @@ def time_core(frames: Sequence[tuple[int, Frame]], robots: int, method: Method) 
     return time.process_time() - started
 
 
+@dataclass(slots=True)
+class Worker:
+    """A shard's worker as the service builds it (``build_worker``): fed in this thread."""
+
+    shard: Shard
+    outbox: Outbox
+    store: CheckpointStore
+
+    def feed(self, items: Sequence[Inbound]) -> None:
+        """Hand the items on as the receiver does, and run the worker's loop until idle."""
+        refused = self.shard.offer_many(list(items))
+        assert not refused
+        self.shard._collect()
+        while self.shard._lanes:
+            self.shard._round()
+
+
+def build_worker(
+    session: zenoh.Session,
+    robots: int,
+    folder: Path | None,
+    *,
+    method: Method,
+    transition_cache: int = 16,
+) -> Worker:
+    """A real ``Shard`` with its ``SessionTable``, ``Outbox`` and store (``folder`` None: none)."""
+    fields = ServiceSettings.model_fields
+    every, interval = (
+        fields[f].default for f in ("checkpoint_every_frames", "checkpoint_interval_s")
+    )
+    max_pairs, max_edges = (
+        fields[f].default for f in ("max_pairs_per_frame", "max_edges_per_session")
+    )
+    store = CheckpointStore(folder)
+    store.open()
+    outbox = Outbox(
+        session,
+        ServiceMetrics(),
+        instance="bench",
+        policy=EgressPolicy(
+            transition_cache=transition_cache,
+            max_publishers=robots,
+            error_rate_per_s=10.0,
+            error_burst=10,
+        ),
+        store=store,
+    )
+    table = SessionTable(
+        Segmenting(params=PartitionParams.from_profile("laser"), method=method),
+        SessionLimits(
+            max_sessions=robots,
+            max_nodes=100_000,
+            max_batch_frames=256,
+            idle_timeout_s=3600.0,
+            max_pairs_per_frame=max_pairs,
+            max_edges_per_session=max_edges,
+        ),
+        identity=Identity(instance="bench"),
+        store=None if folder is None else store,
+        durability=DurabilityPolicy(every_frames=every, interval_s=interval),
+    )
+    shard = Shard(
+        0,
+        table,
+        outbox,
+        limits=DEFAULT_LIMITS,
+        policy=ShardPolicy(queue_depth=1 << 20, queue_bytes=1 << 30),
+    )
+    return Worker(shard, outbox, store)
+
+
 def time_worker(
     session: zenoh.Session,
     items: Sequence[Inbound],
@@ -109,61 +181,15 @@ def time_worker(
     method: Method,
 ) -> float:
     """CPU seconds of a shard's worker loop on the encoded frames (module docstring)."""
-    fields = ServiceSettings.model_fields
-    every, interval = (
-        fields[f].default for f in ("checkpoint_every_frames", "checkpoint_interval_s")
-    )
-    max_pairs, max_edges = (
-        fields[f].default for f in ("max_pairs_per_frame", "max_edges_per_session")
-    )
     with tempfile.TemporaryDirectory() as folder:
-        store = CheckpointStore(None if memory_only else Path(folder))
-        store.open()
-        metrics = ServiceMetrics()
-        outbox = Outbox(
-            session,
-            metrics,
-            instance="bench",
-            policy=EgressPolicy(
-                transition_cache=16,
-                max_publishers=robots,
-                error_rate_per_s=10.0,
-                error_burst=10,
-            ),
-            store=store,
-        )
-        table = SessionTable(
-            Segmenting(params=PartitionParams.from_profile("laser"), method=method),
-            SessionLimits(
-                max_sessions=robots,
-                max_nodes=100_000,
-                max_batch_frames=256,
-                idle_timeout_s=3600.0,
-                max_pairs_per_frame=max_pairs,
-                max_edges_per_session=max_edges,
-            ),
-            identity=Identity(instance="bench"),
-            store=None if memory_only else store,
-            durability=DurabilityPolicy(every_frames=every, interval_s=interval),
-        )
-        shard = Shard(
-            0,
-            table,
-            outbox,
-            limits=DEFAULT_LIMITS,
-            policy=ShardPolicy(queue_depth=1 << 20, queue_bytes=1 << 30),
-        )
+        worker = build_worker(session, robots, None if memory_only else Path(folder), method=method)
         started = time.process_time()
         for at in range(0, len(items), per_sweep):
-            refused = shard.offer_many(list(items[at : at + per_sweep]))
-            assert not refused
-            shard._collect()
-            while shard._lanes:
-                shard._round()
-        store.close()  # the writer thread's work is counted: it is the service's too
+            worker.feed(items[at : at + per_sweep])
+        worker.store.close()  # the writer thread's work is counted: it is the service's too
         spent = time.process_time() - started
-        applied = outbox.frames_applied
-        outbox.close()
+        applied = worker.outbox.frames_applied
+        worker.outbox.close()
     assert applied == len(items), f"{applied} of {len(items)} frames applied"
     return spent
 
