@@ -20,16 +20,18 @@ if TYPE_CHECKING:
     from lessmap.runtime.record import RobotKey, SessionRecord
 
 KEEP_S = 120.0  # far above a hand-over's release wait and fetch (seconds each)
+_PRUNE_EVERY_S = 1.0  # a resume burst after a big hand-over must not scan the shelf per frame
 
 
 class MemoryShelf:
-    """The newest record of each robot, for ``keep_s``; safe from any thread."""
+    """The newest record of each robot, for ``keep_s`` (pruned once a second); thread-safe."""
 
     def __init__(self, keep_s: float = KEEP_S, clock: Callable[[], float] = time.monotonic) -> None:
         self._keep_s = keep_s
         self._clock = clock
         self._lock = threading.Lock()
         self._records: dict[RobotKey, tuple[SessionRecord, float]] = {}
+        self._next_prune = float("-inf")
 
     def __len__(self) -> int:
         with self._lock:
@@ -77,6 +79,10 @@ class MemoryShelf:
             return [record for key, (record, _) in self._records.items() if keep(*key)]
 
     def _prune(self) -> None:
-        oldest = self._clock() - self._keep_s
+        now = self._clock()
+        if now < self._next_prune:
+            return
+        self._next_prune = now + _PRUNE_EVERY_S
+        oldest = now - self._keep_s
         for key in [k for k, (_, at) in self._records.items() if at < oldest]:
             del self._records[key]
