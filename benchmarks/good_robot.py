@@ -24,11 +24,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from benchmarks.fleet.process import free_port, proc_status_kib, stop_process
+from lessmap.cli.app import command_parser
 from lessmap.cli.segment import segment, segment_areas
-from lessmap.config.settings import ServiceSettings
+from lessmap.config.settings import ServiceSettings, settings_from_args
 from lessmap.core.areas.tracker import AreaParams
 from lessmap.files.frames import read_frames
-from lessmap.runtime.workers import usable_cores
+from lessmap.runtime.workers import worker_count
 from lessmap_client import FleetClient, RobotPublisher
 from lessmap_client.session import open_session
 from lessmap_schemas import keys
@@ -63,14 +64,11 @@ def first_difference(expected: list[int], got: list[int]) -> str:
     return f"{len(got)} transitions, offline {len(expected)}; #{at}: seq {found}, offline {wanted}"
 
 
-def serve_workers(serve_args: tuple[str, ...]) -> int:
-    """How many workers ``serve`` runs with these arguments (``--workers N``, else the cores)."""
-    for index, arg in enumerate(serve_args):
-        if arg == "--workers" and index + 1 < len(serve_args):
-            return int(serve_args[index + 1])
-        if arg.startswith("--workers="):
-            return int(arg.split("=", 1)[1])
-    return usable_cores()
+def serve_workers(serve_args: list[str]) -> int:
+    """How many workers ``lessmap serve SERVE_ARGS`` runs: its own flags and settings decide."""
+    parser, _run = command_parser("serve")
+    parsed = parser.parse_args(serve_args)
+    return worker_count(settings_from_args(parsed, parsed.settings_flags))
 
 
 def wait_for_workers(session: zenoh.Session, count: int, timeout_s: float) -> None:
@@ -140,9 +138,9 @@ def run_good_robot(
     else:
         segment_areas(frames, AreaParams(), lambda _robot, c: expected.append(c.transition.seq))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = [sys.executable, "-m", "lessmap", "serve", "-m", "router", "-l", endpoint]
-    args += ["--cfg", "scouting/multicast/enabled:false", "--memory-only"]
-    args += ["--method", method, *serve_args]
+    options = ["-m", "router", "-l", endpoint, "--cfg", "scouting/multicast/enabled:false"]
+    options += ["--memory-only", "--method", method, *serve_args]
+    args = [sys.executable, "-m", "lessmap", "serve", *options]
     load_before = os.getloadavg()[0]
     service = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     other: subprocess.Popen[bytes] | None = None
@@ -170,7 +168,7 @@ def run_good_robot(
                     raise RuntimeError(msg)
                 # serve starts its workers one after another; a robot that starts before the
                 # last has joined sees its session moved (with --memory-only, restarted)
-                wait_for_workers(session, serve_workers(serve_args), 30.0)
+                wait_for_workers(session, serve_workers(options), 30.0)
                 time.sleep(0.5)
                 idle_kib = proc_status_kib(service.pid, "VmRSS")
                 traffic = threading.Thread(target=loader, args=(session, fleet, stop))

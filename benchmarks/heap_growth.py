@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import sys
 import tempfile
 import tracemalloc
@@ -27,12 +26,8 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from benchmarks.fleet.loadgen import robot_name
-from benchmarks.service_overhead import FLEET, build_worker, fleet_frames
+from benchmarks.service_overhead import as_received, build_worker, fleet_frames, local_peer
 from lessmap.core.segmenter import DEFAULT_METHOD, Method
-from lessmap.runtime.shard import Inbound
-from lessmap_schemas import keys
-from lessmap_schemas.codec import encode
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -61,16 +56,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.robots < 1 or args.seconds <= 0 or args.rate <= 0:
         sys.stderr.write("heap_growth: --robots, --seconds and --rate must be > 0\n")
         return 2
-    items = [
-        Inbound(0.0, keys.frames(FLEET, robot_name(robot)), encode(frame))
-        for robot, frame in fleet_frames(args.robots, args.seconds, args.rate)
-    ]
+    items = as_received(fleet_frames(args.robots, args.seconds, args.rate))
     thirds = {len(items) // 3: "1/3", 2 * len(items) // 3: "2/3", len(items): "end"}
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("peer"))
-    conf.insert_json5("scouting/multicast/enabled", "false")
     snapshots: list[tuple[str, tracemalloc.Snapshot]] = []
-    with zenoh.open(conf) as session, tempfile.TemporaryDirectory() as folder:
+    with zenoh.open(local_peer()) as session, tempfile.TemporaryDirectory() as folder:
         worker = build_worker(
             session,
             args.robots,

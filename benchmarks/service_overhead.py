@@ -88,6 +88,22 @@ def fleet_frames(robots: int, seconds: float, rate_hz: float) -> list[tuple[int,
     return out
 
 
+def as_received(frames: Sequence[tuple[int, Frame]]) -> list[Inbound]:
+    """The frames encoded and addressed as the receiver hands them to a shard."""
+    return [
+        Inbound(0.0, keys.frames(FLEET, robot_name(robot)), encode(frame))
+        for robot, frame in frames
+    ]
+
+
+def local_peer() -> zenoh.Config:
+    """A Zenoh peer that finds no one: the outbox's puts stay in this process."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("peer"))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
 def time_core(frames: Sequence[tuple[int, Frame]], robots: int, method: Method) -> float:
     """Thread CPU seconds of the core alone on the frames: apply and decide every frame."""
     params = PartitionParams.from_profile("laser")
@@ -286,16 +302,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
     method = Method(args.method)
     frames = fleet_frames(args.robots, args.seconds, args.rate)
-    items = [
-        Inbound(0.0, keys.frames(FLEET, robot_name(robot)), encode(frame))
-        for robot, frame in frames
-    ]
+    items = as_received(frames)
     per_sweep = max(1, round(200 * args.rate * args.sweep_ms / 1000))
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("peer"))
-    conf.insert_json5("scouting/multicast/enabled", "false")
     runs: dict[str, list[float]] = {"core": [], "worker": [], "receive": []}
-    with zenoh.open(conf) as session, threadpool_limits(limits=1):
+    with zenoh.open(local_peer()) as session, threadpool_limits(limits=1):
         for _ in range(args.repeats):
             runs["core"].append(time_core(frames, args.robots, method))
             runs["worker"].append(

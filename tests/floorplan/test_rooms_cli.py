@@ -85,37 +85,19 @@ def test_one_robot_with_given_transitions(
             check=True,
             timeout=120,
         )
+    given = (run_files.frames, "--map", run_files.grid_map, "--transitions", segmented)
     code, [record], err = rooms_in_process(
-        capsys,
-        run_files.frames,
-        "--map",
-        run_files.grid_map,
-        "--transitions",
-        segmented,
-        "--robot",
-        "robot1",
-        "-o",
-        tmp_path / "one",
+        capsys, *given, "--robot", "robot1", "-o", tmp_path / "one"
     )
     assert (code, err) == (0, "")
     assert record["robots"] == ["robot1"]
     assert record["segmentation"] == str(segmented)
     assert record["transitions"] > 0
     assert "benchmark" not in record
-    # the paper cuts rooms into pieces; without rule 5 pieces that share an area (a revisit)
-    # may join across a doorway, so there are no more rooms than with it
+    # the flag reaches the rules (tests/floorplan/test_roommap.py shows what it changes):
+    # without rule 5 no area is cut at a doorway, so there are no more rooms than with it
     code, [joined], err = rooms_in_process(
-        capsys,
-        run_files.frames,
-        "--map",
-        run_files.grid_map,
-        "--transitions",
-        segmented,
-        "--robot",
-        "robot1",
-        "--join-across-doorways",
-        "-o",
-        tmp_path / "joined",
+        capsys, *given, "--robot", "robot1", "--join-across-doorways", "-o", tmp_path / "joined"
     )
     assert (code, err) == (0, "")
     assert joined["rooms"] <= record["rooms"]

@@ -9,6 +9,7 @@ robot may see a ``SEQ_GAP``. B's process is stopped by its PID.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import re
 import subprocess
@@ -51,11 +52,13 @@ def names_on_both(first: str, second: str, fleet: str, count: int) -> list[str]:
     return sorted([*on_second[:2], *on_first[: count - 2]])
 
 
-def start_second(endpoint: str, instance: str, log: Path) -> subprocess.Popen[bytes]:
+def start_second(endpoint: str, instance: str, log: Path) -> ServeProcess:
+    """A second instance, a Zenoh client of the first's router."""
     args = [sys.executable, "-m", "lessmap", "-v", "serve", "-m", "client", "-e", endpoint]
     args += ["--cfg", "scouting/multicast/enabled:false", "--instance", instance, *OPTIONS]
     with log.open("wb") as out:
-        return subprocess.Popen(args, stdout=out, stderr=out)
+        process = subprocess.Popen(args, stdout=out, stderr=out)
+    return ServeProcess(endpoint, process, log, instance)
 
 
 def test_memory_only_instances_move_sessions_without_restarting_them(
@@ -76,46 +79,41 @@ def test_memory_only_instances_move_sessions_without_restarting_them(
     wait_until(lambda: f"serving as {first.instance}" in first.log(), 60.0, "A", first.log)
     session = client_session(first.endpoint)
     errors: list[Error] = []
-    second_log = tmp_path / "second.log"
-    second: subprocess.Popen[bytes] | None = None
+    started: list[ServeProcess] = []  # B, stopped by its PID whatever happens
     try:
         with FleetClient(fleet_name, session=session) as client:
             publishers = {
                 r: RobotPublisher(fleet_name, r, session=session, on_error=errors.append)
                 for r in by_robot
             }
-            try:
-                for publisher in publishers.values():
-                    assert publisher.wait_for_service(30.0)
-                for index in range(FRAMES_EACH):
-                    if index == BEFORE_THE_MOVE:
-                        second = start_second(first.endpoint, second_name, second_log)
-                        wait_until(
-                            lambda: TOOK.search(second_log.read_text()) is not None,
-                            90.0,
-                            "B taking its partitions",
-                            second_log.read_text,
-                        )
+
+            def publish(indices: range) -> None:
+                for index in indices:
                     for robot, publisher in publishers.items():
                         frame = by_robot[robot][index]
                         publisher.publish(frame.features, stamp_s=frame.stamp_s, seq=frame.seq)
                     time.sleep(0.005)
+
+            try:
+                for publisher in publishers.values():
+                    assert publisher.wait_for_service(30.0)
+                publish(range(BEFORE_THE_MOVE))
+                second = start_second(first.endpoint, second_name, tmp_path / "b.log")
+                started.append(second)
+                wait_until(lambda: TOOK.search(second.log()) is not None, 90.0, "B", second.log)
+                publish(range(BEFORE_THE_MOVE, FRAMES_EACH))
             finally:
                 for publisher in publishers.values():
                     publisher.close()
             got = drain(client, quiet_s=2.0)
     finally:
-        if second is not None:
-            second.terminate()
-            try:
-                second.wait(20)
-            except subprocess.TimeoutExpired:
-                second.kill()
-                second.wait(10)
+        for proc in started:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.terminate(timeout_s=20.0)  # killed by PID after the timeout
     handed = [int(n) for n in HANDED.findall(first.log())]
-    fetched = [int(n) for n in TOOK.findall(second_log.read_text())]
+    fetched = [int(n) for n in TOOK.findall(second.log())]
     assert max(handed) >= 2, first.log()[-3000:]  # the sessions on B's partitions moved
-    assert max(fetched) >= 2, second_log.read_text()[-3000:]  # and B fetched their records
+    assert max(fetched) >= 2, second.log()[-3000:]  # and B fetched their records
     assert [e for e in errors if e.code == ErrorCode.SEQ_GAP] == []
     received: dict[str, list[dict[str, object]]] = {}
     for t in got:

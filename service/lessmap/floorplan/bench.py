@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lessmap.files.frames import read_frames
+from lessmap.floorplan.command import add_room_map_options, room_map_params
 from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
 from lessmap.floorplan.metric import PrecisionRecall, StreamScore, precision_recall, stream_score
 from lessmap.floorplan.roommap import (
@@ -306,7 +307,6 @@ def _simulator(spec: str, floorplans: Path, furnished: bool) -> Simulator:
 
 def build_parser() -> argparse.ArgumentParser:
     """The benchmark's options."""
-    defaults = RoomMapParams()
     parser = argparse.ArgumentParser(
         prog="python -m lessmap.floorplan.bench",
         description="Room segmentation on floor plans: stream scores and the room-map "
@@ -332,16 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     parser.add_argument("--tolerance-m", type=float, default=1.0)
-    parser.add_argument("--door-width-m", type=float, default=defaults.door_width_m)
-    parser.add_argument("--max-distance-m", type=float, default=defaults.max_distance_m)
-    parser.add_argument(
-        "--join-across-doorways",
-        action="store_true",
-        help=(
-            "an area's room may span doorway regions (rule 5 off): for maps whose "
-            "furniture narrows rooms below a door's width"
-        ),
-    )
+    add_room_map_options(parser)
     parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")
     parser.add_argument("--work", type=Path, help="keep the runs' files in this folder")
     parser.add_argument("--markdown", type=Path, help="also write the tables to this file")
@@ -362,11 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             msg = "--jobs must be >= 1 and --tolerance-m > 0"
             raise FloorplanError(msg)
         try:
-            params = RoomMapParams(
-                max_distance_m=args.max_distance_m,
-                door_width_m=args.door_width_m,
-                split_at_doorways=not args.join_across_doorways,
-            )
+            params = room_map_params(args)
         except ValueError as exc:
             raise FloorplanError(str(exc)) from None
         simulator = _simulator(args.simulator, args.floorplans, args.furnished)

@@ -11,12 +11,11 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import argparse
 
+    from lessmap.floorplan.roommap import RoomMapParams
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Define ``lessmap rooms``."""
-    from lessmap.floorplan.roommap import RoomMapParams
-
-    defaults = RoomMapParams()
     parser.description = (
         "Segment FRAMES (or read a lessmap segment output), then label every free cell of MAP "
         "the robots walked with its area: a cell takes the area of the geodesically nearest "
@@ -57,6 +56,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--labels", type=Path, metavar="GT.png", help="ground-truth rooms: print P/R"
     )
     parser.add_argument("-o", "--out", required=True, type=Path, metavar="OUT_STEM")
+    add_room_map_options(parser)
+
+
+def add_room_map_options(parser: argparse.ArgumentParser) -> None:
+    """The room-map rules' options, shared with the floor-plan benchmark."""
+    from lessmap.floorplan.roommap import RoomMapParams
+
+    defaults = RoomMapParams()
     parser.add_argument(
         "--max-distance-m",
         type=float,
@@ -79,6 +86,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def room_map_params(args: argparse.Namespace) -> RoomMapParams:
+    """The ``RoomMapParams`` of ``add_room_map_options``; ValueError when out of range."""
+    from lessmap.floorplan.roommap import RoomMapParams
+
+    return RoomMapParams(
+        max_distance_m=args.max_distance_m,
+        door_width_m=args.door_width_m,
+        split_at_doorways=not args.join_across_doorways,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap rooms``."""
     import numpy as np
@@ -89,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
     from lessmap.floorplan.mapfile import write_room_map
     from lessmap.floorplan.metric import precision_recall
-    from lessmap.floorplan.roommap import RoomMapParams, fleet_room_map, passage_regions
+    from lessmap.floorplan.roommap import fleet_room_map, passage_regions
     from lessmap.floorplan.streams import (
         frame_areas,
         method_cuts,
@@ -101,11 +119,7 @@ def run(args: argparse.Namespace) -> int:
         msg = f"-o {args.out}: no folder {args.out.parent}"
         raise ConfigError(msg)
     try:
-        params = RoomMapParams(
-            max_distance_m=args.max_distance_m,
-            door_width_m=args.door_width_m,
-            split_at_doorways=not args.join_across_doorways,
-        )
+        params = room_map_params(args)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     with progress(args) as shown:

@@ -102,11 +102,6 @@ class CheckpointStore:
         self._checked_s = 0.0
 
     @property
-    def durable_or_shelved(self) -> bool:
-        """True with a file, or with a shelf for hand-overs (rule 6): sessions may resume."""
-        return self.path is not None or self.shelf is not None
-
-    @property
     def durable(self) -> bool:
         """True when a file is open (it may be refusing writes: ``health.lost``)."""
         return self._db is not None
@@ -265,6 +260,11 @@ class CheckpointStore:
                 key,
             ).fetchone()
         return None if row is None else _record(row)
+
+    def resumed(self, key: RobotKey) -> None:
+        """A session ``load`` gave back runs again: the shelf forgets it (a file keeps it)."""
+        if self.shelf is not None:
+            self.shelf.drop(key)
 
     def offer(self, record: SessionRecord) -> bool:
         """Save a record shipped by another instance if it is newer than what is held.

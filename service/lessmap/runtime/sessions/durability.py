@@ -73,7 +73,7 @@ class Durability:
     ) -> None:
         self.store = store if store is not None and store.path is not None else None
         # Where sessions resume from: the file, or without one the hand-over shelf.
-        self._source = store if store is not None and store.durable_or_shelved else None
+        self._source = store
         self._policy = policy
         self._identity = identity
         self._wall_clock = wall_clock
@@ -200,8 +200,7 @@ class Durability:
             )
             source.delete(key)
             return None
-        if source.shelf is not None:
-            source.shelf.drop(key)  # resumed: the shelf holds it no longer
+        source.resumed(key)
         self.phase(session, now_s)
         return session
 
