@@ -134,10 +134,11 @@ def test_client_needs_only_the_schemas(path: Path) -> None:
 
 #: Besides the runtime and the SDK, the bridges to other key spaces touch Zenoh directly:
 #: ``lessmap ros`` subscribes and publishes on rmw_zenoh's ROS 2 keys, which the SDK knows
-#: nothing of, and the viewer follows the robots' frames keys (their poses), which no SDK
-#: call subscribes to
+#: nothing of, and the viewer and a live room map follow the robots' frames keys (their
+#: poses), which no SDK call subscribes to
 #: (``lessmap view`` holds that session: opened before its WebSocket server, closed after).
 ZENOH_BRIDGES = (
+    "lessmap.floorplan.follow",
     "lessmap.ros.bridge",
     "lessmap.ros.cli_ros",
     "lessmap.ros.publisher",

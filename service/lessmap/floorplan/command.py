@@ -1,4 +1,8 @@
-"""``lessmap rooms``: a room map from a frames file with poses, written as map files."""
+"""``lessmap rooms``: a room map from a frames file with poses or a running fleet, as map files.
+
+A file is segmented (or its ``lessmap segment`` output read) and mapped once; a fleet
+(``--fleet``) is followed on the bus by ``follow`` and its map redrawn as it walks.
+"""
 
 from __future__ import annotations
 
@@ -8,9 +12,18 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from lessmap.cli.foreground import add_run_options
+from lessmap_client.cli_options import add_zenoh_options, positive_float
+
 if TYPE_CHECKING:
     import argparse
+    from collections.abc import Callable
 
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from lessmap.floorplan.grid import OccupancyGrid
+    from lessmap.floorplan.live import LiveTrajectories
     from lessmap.floorplan.roommap import RoomMapParams
 
 
@@ -23,9 +36,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "never crosses a doorway. Writes "
         "OUT.pgm + OUT.yaml (map_server: grey = room 1..254, 0 free without a room, 255 "
         "occupied; negate 1) and OUT.png (colours); prints one JSON line. Poses must be in "
-        "the map's frame (an image's bottom-left corner is (0, 0) unless a YAML says otherwise)."
+        "the map's frame (an image's bottom-left corner is (0, 0) unless a YAML says otherwise). "
+        "With --fleet F instead of FRAMES, follows a running fleet: its robots' poses from "
+        "their frames and the service's transitions, the files rewritten every --every "
+        "seconds while the map changes and once more at the end (--duration, SIGINT or "
+        "SIGTERM), a JSON line each time."
     )
-    parser.add_argument("frames", metavar="FRAMES", type=Path, help="frames file with poses")
+    parser.add_argument(
+        "frames", metavar="FRAMES", type=Path, nargs="?", help="frames file with poses"
+    )
     parser.add_argument(
         "--map", required=True, type=Path, help="occupancy map: an image or a map_server YAML"
     )
@@ -57,6 +76,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("-o", "--out", required=True, type=Path, metavar="OUT_STEM")
     add_room_map_options(parser)
+    live = parser.add_argument_group("a running fleet (instead of FRAMES)")
+    live.add_argument("--fleet", help="follow this fleet on the bus")
+    live.add_argument(
+        "--every",
+        type=positive_float,
+        default=10.0,
+        metavar="S",
+        help="redraw the map at most this often while it changes (default %(default)s)",
+    )
+    add_run_options(parser)
+    add_zenoh_options(parser)
 
 
 def add_room_map_options(parser: argparse.ArgumentParser) -> None:
@@ -99,15 +129,59 @@ def room_map_params(args: argparse.Namespace) -> RoomMapParams:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap rooms``."""
-    import numpy as np
-
+    from lessmap.cli.foreground import stop_signals
     from lessmap.cli.progress import progress
     from lessmap.errors import ConfigError
-    from lessmap.files.frames import read_frames
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
-    from lessmap.floorplan.mapfile import write_room_map
-    from lessmap.floorplan.metric import precision_recall
-    from lessmap.floorplan.roommap import fleet_room_map, passage_regions
+    from lessmap.floorplan.roommap import passage_regions
+
+    with stop_signals() as stop:  # first: a signal during start-up still ends cleanly
+        if (args.frames is None) == (args.fleet is None):
+            msg = "give FRAMES (a file) or --fleet F (a running fleet), one of them"
+            raise ConfigError(msg)
+        if args.fleet is not None and (args.transitions is not None or "*" in args.fleet):
+            msg = "--fleet names one fleet and uses the service's transitions (no --transitions)"
+            raise ConfigError(msg)
+        if args.out.name == "" or not args.out.resolve().parent.is_dir():
+            msg = f"-o {args.out}: no folder {args.out.parent}"
+            raise ConfigError(msg)
+        try:
+            params = room_map_params(args)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        with progress(args) as shown:
+            shown.stage(f"reading {args.map.name}")
+            grid = load_grid(args.map, args.resolution)
+            truth = None
+            if args.labels is not None:
+                truth = room_labels(args.labels, grid.resolution_m, min_room_m2=0.0)
+                if truth.shape != grid.shape:
+                    msg = f"--labels {args.labels}: {truth.shape} pixels, the map has {grid.shape}"
+                    raise FloorplanError(msg)
+            shown.stage("finding the map's doorways")
+            regions = passage_regions(grid, params)
+            if args.fleet is None:
+                return _from_file(args, grid, params, regions, truth, shown.stage)
+        from lessmap.floorplan.follow import follow_fleet
+
+        def draw(trajectories: LiveTrajectories) -> dict[str, Any] | None:
+            return _draw_live(args, grid, params, regions, truth, trajectories)
+
+        return follow_fleet(args, stop, draw)
+
+
+def _from_file(
+    args: argparse.Namespace,
+    grid: OccupancyGrid,
+    params: RoomMapParams,
+    regions: tuple[NDArray[np.int32], ...],
+    truth: NDArray[np.int32] | None,
+    stage: Callable[[str], None],
+) -> int:
+    """The room map of a frames file, segmented here or by a ``lessmap segment`` output."""
+    from lessmap.files.frames import read_frames
+    from lessmap.floorplan.grid import FloorplanError
+    from lessmap.floorplan.roommap import fleet_room_map
     from lessmap.floorplan.streams import (
         frame_areas,
         method_cuts,
@@ -115,72 +189,103 @@ def run(args: argparse.Namespace) -> int:
         read_transitions,
     )
 
-    if args.out.name == "" or not args.out.resolve().parent.is_dir():
-        msg = f"-o {args.out}: no folder {args.out.parent}"
-        raise ConfigError(msg)
-    try:
-        params = room_map_params(args)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    with progress(args) as shown:
-        shown.stage(f"reading {args.map.name}")
-        grid = load_grid(args.map, args.resolution)
-        truth = None
-        if args.labels is not None:
-            truth = room_labels(args.labels, grid.resolution_m, min_room_m2=0.0)
-            if truth.shape != grid.shape:
-                msg = f"--labels {args.labels}: {truth.shape} pixels, the map has {grid.shape}"
-                raise FloorplanError(msg)
-        shown.stage(f"reading {args.frames.name}")
-        frames = list(read_frames(args.frames))
-        if args.robot:
-            frames = [f for f in frames if f.robot in set(args.robot)]
-        if not frames:
-            which = f" of robot {', '.join(args.robot)}" if args.robot else ""
-            msg = f"{args.frames}: no frames{which}"
-            raise FloorplanError(msg)
-        poses = read_poses(frames, str(args.frames))
-        if args.transitions is not None:
-            cuts = read_transitions(args.transitions)
-            source = str(args.transitions)
-        else:
-            shown.stage(f"segmenting ({args.method})")
-            cuts = method_cuts(frames, args.method)
-            source = args.method
-        robots = [
-            (p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()
-        ]
-        shown.stage("labelling the map")
-        regions = passage_regions(grid, params)
-        rooms = fleet_room_map(grid, robots, params, regions)
-        if not rooms.any():
-            msg = (
-                f"{args.frames}: no pose lies on a free cell of {args.map} "
-                "(are the poses in the map's frame and metres?)"
-            )
-            raise FloorplanError(msg)
-        files = write_room_map(rooms, grid, args.out)
-        record: dict[str, Any] = {
-            "robots": sorted(poses),
-            "segmentation": source,
-            "transitions": sum(len(cuts.get(robot, [])) for robot in poses),
-            "rooms": len(np.unique(rooms[rooms > 0])),
-            "labelled_share": round(float((rooms > 0).sum() / grid.free.sum()), 4),
-            "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
-        }
-        if truth is not None:
-            shown.stage("scoring against --labels")
-            score = precision_recall(rooms, truth)
-            record["benchmark"] = {
-                "precision": _rounded(score.precision),
-                "recall": _rounded(score.recall),
-                "precision_pixels": _rounded(score.precision_pixels),
-                "recall_pixels": _rounded(score.recall_pixels),
-                "rooms": score.rooms,
-                "segments": score.segments,
-            }
+    stage(f"reading {args.frames.name}")
+    frames = list(read_frames(args.frames))
+    if args.robot:
+        frames = [f for f in frames if f.robot in set(args.robot)]
+    if not frames:
+        which = f" of robot {', '.join(args.robot)}" if args.robot else ""
+        msg = f"{args.frames}: no frames{which}"
+        raise FloorplanError(msg)
+    poses = read_poses(frames, str(args.frames))
+    if args.transitions is not None:
+        cuts = read_transitions(args.transitions)
+        source = str(args.transitions)
+    else:
+        stage(f"segmenting ({args.method})")
+        cuts = method_cuts(frames, args.method)
+        source = args.method
+    robots = [(p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()]
+    stage("labelling the map")
+    rooms = fleet_room_map(grid, robots, params, regions)
+    if not rooms.any():
+        msg = (
+            f"{args.frames}: no pose lies on a free cell of {args.map} "
+            "(are the poses in the map's frame and metres?)"
+        )
+        raise FloorplanError(msg)
+    record: dict[str, Any] = {
+        "robots": sorted(poses),
+        "segmentation": source,
+        "transitions": sum(len(cuts.get(robot, [])) for robot in poses),
+    }
+    if truth is not None:
+        stage("scoring against --labels")
+    record.update(_written(args, grid, rooms, truth))
     sys.stdout.write(json.dumps(record) + "\n")
     return 0
+
+
+def _draw_live(
+    args: argparse.Namespace,
+    grid: OccupancyGrid,
+    params: RoomMapParams,
+    regions: tuple[NDArray[np.int32], ...],
+    truth: NDArray[np.int32] | None,
+    trajectories: LiveTrajectories,
+) -> dict[str, Any] | None:
+    """The room map of what a fleet's robots walked so far, written; None before any pose."""
+    from lessmap.floorplan.grid import FloorplanError
+    from lessmap.floorplan.roommap import fleet_room_map
+
+    wanted = set(args.robot or ())
+    tracks = [t for t in trajectories.tracks() if not wanted or t.name.split("/")[0] in wanted]
+    if not tracks:
+        return None
+    rooms = fleet_room_map(grid, [(t.xy, t.areas + 1) for t in tracks], params, regions)
+    if not rooms.any():
+        msg = f"no pose lies on a free cell of {args.map} (are the poses in the map's frame?)"
+        raise FloorplanError(msg)
+    record: dict[str, Any] = {
+        "fleet": args.fleet,
+        "robots": sorted({t.name.split("/")[0] for t in tracks}),
+        "sessions": len(tracks),
+        "poses": sum(t.seqs.size for t in tracks),
+        "segmentation": "service",
+    }
+    record.update(_written(args, grid, rooms, truth))
+    return record
+
+
+def _written(
+    args: argparse.Namespace,
+    grid: OccupancyGrid,
+    rooms: NDArray[np.int32],
+    truth: NDArray[np.int32] | None,
+) -> dict[str, Any]:
+    """Write the room map's files; their names, the room count and the score against truth."""
+    import numpy as np
+
+    from lessmap.floorplan.mapfile import write_room_map
+    from lessmap.floorplan.metric import precision_recall
+
+    files = write_room_map(rooms, grid, args.out)
+    record: dict[str, Any] = {
+        "rooms": len(np.unique(rooms[rooms > 0])),
+        "labelled_share": round(float((rooms > 0).sum() / grid.free.sum()), 4),
+        "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
+    }
+    if truth is not None:
+        score = precision_recall(rooms, truth)
+        record["benchmark"] = {
+            "precision": _rounded(score.precision),
+            "recall": _rounded(score.recall),
+            "precision_pixels": _rounded(score.precision_pixels),
+            "recall_pixels": _rounded(score.recall_pixels),
+            "rooms": score.rooms,
+            "segments": score.segments,
+        }
+    return record
 
 
 def _rounded(value: float) -> float | None:

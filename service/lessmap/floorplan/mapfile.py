@@ -15,6 +15,8 @@
 from __future__ import annotations
 
 import colorsys
+import os
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -22,6 +24,7 @@ import numpy as np
 from lessmap.floorplan.grid import FloorplanError
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from pathlib import Path
 
     from numpy.typing import NDArray
@@ -88,26 +91,42 @@ def write_room_map(labels: NDArray[np.integer], grid: OccupancyGrid, stem: Path)
         stem.with_name(stem.name + ".png"),
     )
     grey = np.where(grid.free, rooms, OCCUPIED_GREY).astype(np.uint8)
-    Image.fromarray(grey, mode="L").save(files.pgm)
+    # Each file is written beside its name and renamed over it: a reader of a map that is
+    # redrawn (``lessmap rooms --fleet``) sees the old file or the new, never half of one.
+    with _replacing(files.pgm) as part:
+        Image.fromarray(grey, mode="L").save(part, format="PPM")
     ox, oy = grid.origin_xy
-    files.yaml.write_text(
-        f"image: {files.pgm.name}\n"
-        f"resolution: {grid.resolution_m!r}\n"
-        f"origin: [{ox!r}, {oy!r}, 0.0]\n"
-        "negate: 1\n"
-        "occupied_thresh: 0.999\n"
-        "free_thresh: 0.998\n"
-        "mode: trinary\n"
-        f"rooms: {count}  # grey 1..{count} = room, 0 = free without a room, 255 = occupied\n",
-        encoding="utf-8",
-    )
+    with _replacing(files.yaml) as part:
+        part.write_text(
+            f"image: {files.pgm.name}\n"
+            f"resolution: {grid.resolution_m!r}\n"
+            f"origin: [{ox!r}, {oy!r}, 0.0]\n"
+            "negate: 1\n"
+            "occupied_thresh: 0.999\n"
+            "free_thresh: 0.998\n"
+            "mode: trinary\n"
+            f"rooms: {count}  # grey 1..{count} = room, 0 = free without a room, 255 = occupied\n",
+            encoding="utf-8",
+        )
     rgb = np.zeros((*grid.shape, 3), dtype=np.uint8)
     rgb[grid.free] = UNLABELLED_RGB
     colours = room_colours(count)
     labelled = rooms > 0
     rgb[labelled] = colours[rooms[labelled]]
-    Image.fromarray(rgb, mode="RGB").save(files.png)
+    with _replacing(files.png) as part:
+        Image.fromarray(rgb, mode="RGB").save(part, format="PNG")
     return files
+
+
+@contextmanager
+def _replacing(path: Path) -> Iterator[Path]:
+    """A temporary name beside ``path``, renamed over it when the block succeeds."""
+    part = path.with_name(f".{path.name}.part")
+    try:
+        yield part
+        os.replace(part, path)
+    finally:
+        part.unlink(missing_ok=True)
 
 
 def read_room_labels(pgm: Path) -> NDArray[np.int32]:
