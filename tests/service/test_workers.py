@@ -64,19 +64,56 @@ def test_a_client_service_has_no_hub_and_a_router_keeps_its_loopback_endpoint() 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     hub = hub_config(load_settings(mode="router", listen=(endpoint,)), ())
     assert hub is not None
-    assert hub[1] == endpoint
+    assert hub.endpoint == endpoint
     embedded = hub_config(load_settings(), ())
     assert embedded is not None
-    assert embedded[1] == "tcp/127.0.0.1:7447"
+    assert embedded.endpoint == "tcp/127.0.0.1:7447"
 
 
 def test_a_peer_becomes_the_router_with_a_loopback_endpoint_for_its_workers() -> None:
     hub = hub_config(load_settings(mode="peer", listen=("tcp/0.0.0.0:7450",)), ())
     assert hub is not None
-    conf, endpoint = hub
-    assert json.loads(conf.get_json("mode")) == "router"
-    assert endpoint.startswith("tcp/127.0.0.1:")
-    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7450", endpoint]
+    assert json.loads(hub.config.get_json("mode")) == "router"
+    assert hub.endpoint.startswith("tcp/127.0.0.1:")
+    assert json.loads(hub.config.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7450", hub.endpoint]
+
+
+def test_with_a_private_folder_the_workers_meet_on_a_unix_socket(tmp_path: Path) -> None:
+    hub = hub_config(load_settings(), (), tmp_path)
+    assert hub is not None
+    assert hub.endpoint == f"unixsock-stream/{tmp_path / 'hub.sock'}"
+    assert json.loads(hub.config.get_json("listen/endpoints")) == [
+        "tcp/127.0.0.1:7447",
+        hub.endpoint,
+    ]
+    assert hub.worker_cfg == ()
+    # no access control: none is added
+    assert json.loads(hub.config.get_json("access_control"))["enabled"] is False
+
+
+def test_a_secured_hub_lets_its_socket_in_and_hands_the_workers_its_user(tmp_path: Path) -> None:
+    rule = {"id": "r", "permission": "allow", "messages": ["put"], "flows": ["ingress"],
+            "key_exprs": ["a/**"]}  # fmt: skip
+    access = {"enabled": True, "default_permission": "deny", "rules": [rule],
+              "subjects": [{"id": "s", "interfaces": ["lo"]}],
+              "policies": [{"rules": ["r"], "subjects": ["s"]}]}  # fmt: skip
+    cfg = [
+        f"access_control:{json.dumps(access)}",
+        'transport/auth/usrpwd/user:"svc"',
+        'transport/auth/usrpwd/password:"pw"',
+    ]
+    hub = hub_config(load_settings(), cfg, tmp_path)
+    assert hub is not None
+    merged = json.loads(hub.config.get_json("access_control"))
+    assert merged["default_permission"] == "deny"
+    assert [s["id"] for s in merged["subjects"]] == ["s", "lessmap-workers"]
+    assert merged["subjects"][1]["link_protocols"] == ["unixsock-stream"]
+    assert merged["policies"][1]["subjects"] == ["lessmap-workers"]
+    assert "lessmap/v4/@/**" in merged["rules"][1]["key_exprs"]
+    assert hub.worker_cfg == (
+        'transport/auth/usrpwd/user:"svc"',
+        'transport/auth/usrpwd/password:"pw"',
+    )
 
 
 def test_the_worker_file_carries_the_whole_settings(

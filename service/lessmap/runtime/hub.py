@@ -3,8 +3,12 @@
 Where the workers meet: unless the settings make the service a Zenoh client, the parent
 opens the Zenoh router a single instance would have been (the embedded one on
 ``tcp/127.0.0.1:7447``, or the ``-l``/``-c`` endpoints, with the same overrides), and the
-workers are its clients over loopback. A worker that dies leaves the router, the robots'
-links and the other workers untouched. In client mode every worker joins the named routers.
+workers are its clients over a Unix socket in the parent's private folder: only this OS
+user can open it, so a secured site's router gains no unauthenticated way in. Its access
+control gets one subject more, the workers' link protocol; with user/password
+authentication the workers present the configuration's own user. (A TCP loopback endpoint
+where Unix sockets are missing.) A worker that dies leaves the router, the robots' links
+and the other workers untouched. In client mode every worker joins the named routers.
 
 Before any worker starts, the checkpoints held in the workers' state directories are
 gathered into worker 0's (newest record per robot): worker 0 starts alone and takes every
@@ -20,7 +24,7 @@ import signal
 import socket
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import zenoh
 
@@ -29,6 +33,7 @@ from lessmap.runtime.store import STORE_FILE, CheckpointStore, StoreError
 from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, SignalEvent, Supervisor
 from lessmap.runtime.workers import worker_count, worker_settings, worker_state_dir
 from lessmap.runtime.zenoh_config import service_config
+from lessmap_schemas import keys
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -39,6 +44,45 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _MAX_PORT = 65535
+#: Unix socket paths are limited to ~108 bytes; a longer private folder is not used.
+_MAX_SOCKET_PATH = 100
+#: Everything the workers may do on the parent's router, over their socket only.
+_WORKER_ACCESS = {
+    "subject": {"id": "lessmap-workers", "link_protocols": ["unixsock-stream"]},
+    "rule": {
+        "id": "lessmap-workers",
+        "permission": "allow",
+        "flows": ["ingress", "egress"],
+        "messages": [
+            "put",
+            "delete",
+            "declare_subscriber",
+            "query",
+            "reply",
+            "declare_queryable",
+            "liveliness_token",
+            "liveliness_query",
+            "declare_liveliness_subscriber",
+        ],
+        # ``**`` skips verbatim chunks (``@``): the service's own keys and Zenoh's
+        # advanced publishers' (``@adv``) are named as well.
+        "key_exprs": [
+            "**",
+            f"{keys.KEY_PREFIX}/@/**",
+            "**/@adv/**",
+            f"{keys.KEY_PREFIX}/@/**/@adv/**",
+        ],
+    },
+    "policy": {"rules": ["lessmap-workers"], "subjects": ["lessmap-workers"]},
+}
+
+
+class Hub(NamedTuple):
+    """The parent's router config, where its workers connect, and their Zenoh overrides."""
+
+    config: zenoh.Config
+    endpoint: str
+    worker_cfg: tuple[str, ...]  # ``--cfg`` overrides, carried in the private worker files
 
 
 def serve_workers(
@@ -61,7 +105,12 @@ def serve_workers(
         raise ConfigError(msg)
     if not settings.memory_only:
         gather_checkpoints(settings, count)
-    hub = hub_config(settings, zenoh_cfg)
+    folder = Path(tempfile.mkdtemp(prefix="lessmap-workers-"))  # this user's only (0700)
+    try:
+        hub = hub_config(settings, zenoh_cfg, folder)
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
     stop = SignalEvent()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -70,18 +119,17 @@ def serve_workers(
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     router: zenoh.Session | None = None
-    folder = Path(tempfile.mkdtemp(prefix="lessmap-workers-"))
     try:
         if hub is not None:
-            router = _open(hub[0], settings)
-        endpoint = None if hub is None else hub[1]
+            router = _open(hub.config, settings)
+        endpoint = None if hub is None else hub.endpoint
         supervisor = Supervisor(
             [worker_settings(settings, i, endpoint) for i in range(count)],
             LaunchSpec(
                 folder,
                 verbose=verbose,
                 log_format=log_format,
-                zenoh_cfg=() if hub is not None else tuple(zenoh_cfg),
+                zenoh_cfg=hub.worker_cfg if hub is not None else tuple(zenoh_cfg),
             ),
             policy,
         )
@@ -108,13 +156,14 @@ def serve_workers(
 
 
 def hub_config(
-    settings: ServiceSettings, zenoh_cfg: Sequence[str]
-) -> tuple[zenoh.Config, str] | None:
-    """The parent's router config and the loopback endpoint its workers connect to.
+    settings: ServiceSettings, zenoh_cfg: Sequence[str], folder: Path | None = None
+) -> Hub | None:
+    """The parent's router config, where its workers connect, and their overrides.
 
     None in client mode: the workers join the routers themselves. A peer becomes a router
-    (it routes for its workers). The workers use a ``tcp/127.0.0.1`` endpoint the router
-    listens on, else one added on a free port.
+    (it routes for its workers). The workers connect to a Unix socket in ``folder`` (a
+    private folder); without one, or without Unix sockets, to a ``tcp/127.0.0.1`` endpoint
+    the router listens on, else one added on a free port.
 
     Raises:
         ConfigError: the Zenoh configuration is invalid.
@@ -124,14 +173,43 @@ def hub_config(
     if mode == "client":
         return None
     listen = _endpoints(conf.get_json("listen/endpoints"))
+    conf.insert_json5("mode", json.dumps("router"))
+    worker_cfg = _credentials(conf)
+    socket_path = "" if folder is None else str(folder / "hub.sock")
+    if socket_path and hasattr(socket, "AF_UNIX") and len(socket_path) <= _MAX_SOCKET_PATH:
+        endpoint = f"unixsock-stream/{socket_path}"
+        conf.insert_json5("listen/endpoints", json.dumps([*listen, endpoint]))
+        _allow_workers(conf)
+        return Hub(conf, endpoint, worker_cfg)
     loopback = [e for e in listen if e.startswith("tcp/127.0.0.1:") and not e.endswith(":0")]
     if loopback:
         endpoint = loopback[0]
     else:
         endpoint = f"tcp/127.0.0.1:{_free_port()}"
         conf.insert_json5("listen/endpoints", json.dumps([*listen, endpoint]))
-    conf.insert_json5("mode", json.dumps("router"))
-    return conf, endpoint
+    return Hub(conf, endpoint, worker_cfg)
+
+
+def _allow_workers(conf: zenoh.Config) -> None:
+    """Give the workers' socket link everything, where access control is on."""
+    access = json.loads(conf.get_json("access_control"))
+    if not access.get("enabled"):
+        return
+    for part, entry in (("subjects", "subject"), ("rules", "rule"), ("policies", "policy")):
+        access[part] = [*(access.get(part) or []), _WORKER_ACCESS[entry]]
+    conf.insert_json5("access_control", json.dumps(access))
+
+
+def _credentials(conf: zenoh.Config) -> tuple[str, ...]:
+    """The configuration's own user and password, for workers of a user/password site."""
+    usrpwd = json.loads(conf.get_json("transport/auth/usrpwd"))
+    user, password = usrpwd.get("user"), usrpwd.get("password")
+    if not (user and password):
+        return ()
+    return (
+        f"transport/auth/usrpwd/user:{json.dumps(user)}",
+        f"transport/auth/usrpwd/password:{json.dumps(password)}",
+    )
 
 
 def _free_port() -> int:
