@@ -11,12 +11,16 @@ from __future__ import annotations
 import json
 import re
 import stat
+import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
 
-from tests.conftest import wait_until
+from lessmap.security.certs import make_site
+from lessmap.security.siteconfig import render, usrpwd_client_config, usrpwd_router_config
+from lessmap_client import connect
+from tests.conftest import free_port, wait_until
 from tests.security.test_mtls_e2e import walk_two_rooms
 
 if TYPE_CHECKING:
@@ -71,3 +75,43 @@ def test_a_secured_service_with_two_workers_serves_its_fleet(
         assert transition is not None, service.log()
         seen.add(transition.robot)
     assert seen == {f"amr-{i}" for i in range(6)}
+
+
+def test_a_user_password_router_hands_its_workers_its_own_user(
+    tmp_path: Path, serve: Callable[..., ServeProcess], fleet_name: str
+) -> None:
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    site = make_site(tmp_path / "site", [fleet_name], endpoint=endpoint)
+    folder = str(site.folder)
+    secrets = {"service": uuid.uuid4().hex, f"app.{fleet_name}": uuid.uuid4().hex}
+    credentials = site.folder / "credentials.txt"
+    credentials.write_text("".join(f"{user}:{word}\n" for user, word in secrets.items()))
+    credentials.chmod(0o600)
+    router = usrpwd_router_config(folder, [fleet_name], ["service"], endpoint)
+    router["transport"]["auth"]["usrpwd"] |= {"user": "service", "password": secrets["service"]}
+    router_file = site.folder / "router-usrpwd.json5"
+    router_file.write_text(render(router, "test"))
+    app_conf = usrpwd_client_config(folder, f"app.{fleet_name}", endpoint)
+    app_conf["transport"]["auth"]["usrpwd"]["password"] = secrets[f"app.{fleet_name}"]
+    app_file = site.folder / "app-usrpwd.json5"
+    app_file.write_text(render(app_conf, "test"))
+
+    service = serve(
+        "--zenoh-config",
+        str(router_file),
+        "--cfg",
+        f"listen/endpoints:{json.dumps([endpoint])}",
+        "--workers",
+        "2",
+        "--memory-only",
+    )
+    with connect(endpoint, config_file=str(app_file), timeout_s=20.0) as app:
+        workers = {f"{service.instance}-w0", f"{service.instance}-w1"}
+        wait_until(
+            lambda: {h.instance for h in app.health()} == workers,
+            60.0,
+            "both workers, logged in as the service, to answer",
+            service.log,
+        )
+    # the password went to the workers through their private files, not their command lines
+    assert secrets["service"] not in service.log()

@@ -230,3 +230,11 @@ def test_metrics_ports_past_the_last_port_are_one_line() -> None:
     settings = load_settings(metrics_port=65535, workers=2, memory_only=True)
     with pytest.raises(ConfigError, match="ports up to 65536"):
         serve_workers(settings)
+
+
+def test_a_router_that_checks_users_but_has_none_of_its_own_is_refused(tmp_path: Path) -> None:
+    dictionary = tmp_path / "users.txt"
+    dictionary.write_text("robot:secret\n")
+    cfg = [f"transport/auth/usrpwd/dictionary_file:{json.dumps(str(dictionary))}"]
+    with pytest.raises(ConfigError, match="workers need the configuration's own user"):
+        hub_config(load_settings(), cfg, tmp_path)

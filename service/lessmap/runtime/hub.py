@@ -201,10 +201,21 @@ def _allow_workers(conf: zenoh.Config) -> None:
 
 
 def _credentials(conf: zenoh.Config) -> tuple[str, ...]:
-    """The configuration's own user and password, for workers of a user/password site."""
+    """The configuration's own user and password, for workers of a user/password site.
+
+    Raises:
+        ConfigError: the router checks users but has none of its own to give.
+    """
     usrpwd = json.loads(conf.get_json("transport/auth/usrpwd"))
     user, password = usrpwd.get("user"), usrpwd.get("password")
     if not (user and password):
+        if usrpwd.get("dictionary_file"):
+            msg = (
+                "this router authenticates users (transport/auth/usrpwd/dictionary_file), so "
+                "its workers need the configuration's own user and password (one of the "
+                "dictionary's); give them, or run --workers 1, or -m client"
+            )
+            raise ConfigError(msg)
         return ()
     return (
         f"transport/auth/usrpwd/user:{json.dumps(user)}",
