@@ -146,3 +146,32 @@ def test_a_wrong_source_is_one_line(argv: tuple[str, ...], says: str, tmp_path: 
     assert done.returncode == 1
     [line] = done.stderr.strip().splitlines()
     assert says in line
+
+
+def test_a_follower_started_late_fetches_the_robots_recent_frames(
+    serve: Callable[..., ServeProcess], tmp_path: Path
+) -> None:
+    from lessmap_client import connect
+
+    service = serve("--memory-only")
+    fleet = f"late-{uuid.uuid4().hex[:6]}"
+    with connect(service.endpoint, timeout_s=20.0) as conn:
+        robot = conn.robot(fleet, "amr-1")
+        assert robot.wait_for_service(20.0)
+        for i in range(60):  # along the example plan's corridor (y = 6.75 m)
+            robot.publish(range(i, i + 12), stamp_s=0.1 * i, pose=(1.0 + 0.1 * i, 6.75, 0.0))
+        late = lessmap(
+            "rooms", "--fleet", fleet, "--map", EXAMPLE_YAML, "-o", tmp_path / "late",
+            "--duration", "3", "-e", service.endpoint, "--connect-timeout", "30",
+        )  # fmt: skip
+        live_only = lessmap(
+            "rooms", "--fleet", fleet, "--map", EXAMPLE_YAML, "-o", tmp_path / "live",
+            "--duration", "3", "--history", "0", "-e", service.endpoint,
+        )  # fmt: skip
+    assert late.returncode == 0, late.stderr
+    last = json.loads(late.stdout.splitlines()[-1])
+    assert last["final"] is True
+    assert (last["poses"], last["counts"]["frames"]) == (60, 60)
+    # without history nothing was sent while it listened: one line, exit code 1
+    assert live_only.returncode == 1
+    assert "no frame with a pose of fleet" in live_only.stderr

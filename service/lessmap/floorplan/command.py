@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lessmap.cli.foreground import add_run_options
-from lessmap_client.cli_options import add_zenoh_options, positive_float
+from lessmap_client.cli_options import add_zenoh_options, non_negative_int, positive_float
 
 if TYPE_CHECKING:
     import argparse
@@ -84,6 +84,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=10.0,
         metavar="S",
         help="redraw the map at most this often while it changes (default %(default)s)",
+    )
+    live.add_argument(
+        "--history",
+        type=non_negative_int,
+        default=1000,
+        metavar="N",
+        help="on joining, fetch up to N recent frames of each robot from its publication "
+        "cache (0: live frames only; default %(default)s)",
     )
     add_run_options(parser)
     add_zenoh_options(parser)

@@ -1,8 +1,11 @@
 """``lessmap rooms --fleet F``: the room map of a running fleet, redrawn as its robots walk.
 
-Two inputs, as the viewer's: the robots' frames for their poses (a plain Zenoh subscriber on
-the fleet's frames keys; no SDK call offers frames) and the service's transitions (an SDK
-subscription, with the recent history of each robot). Zenoh's and the SDK's threads only
+Two inputs, as the viewer's: the robots' frames for their poses (a Zenoh subscriber on the
+fleet's frames keys; no SDK call offers frames) and the service's transitions (an SDK
+subscription, with the recent history of each robot). The frames subscriber is an advanced
+one: on joining it fetches up to ``--history`` recent frames of each robot from the robot's
+own publication cache (the SDK's robots keep 1,000), and a frame lost on the way is fetched
+again, in order. Zenoh's and the SDK's threads only
 queue, bounded: what does not fit is counted, never waited for. The main thread applies the
 queue and, every ``--every`` seconds when something changed, draws the room map and replaces
 the files. Each file is written beside its name and renamed over it, so a map server or a
@@ -20,6 +23,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 import zenoh
+from zenoh import ext
 
 from lessmap.floorplan.grid import FloorplanError
 from lessmap.floorplan.live import LiveTrajectories
@@ -77,7 +81,17 @@ def follow_fleet(
     frames_key = keys.frames(args.fleet, keys.ANY)
     session = net.open_session()
     with session, Connection.from_session(session) as conn:
-        frames = session.declare_subscriber(frames_key, zenoh.handlers.Callback(on_frame))
+        frames = ext.declare_advanced_subscriber(
+            session,
+            frames_key,
+            on_frame,
+            history=(
+                ext.HistoryConfig(detect_late_publishers=True, max_samples=args.history)
+                if args.history > 0
+                else None
+            ),
+            recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+        )
         transitions = conn.subscribe_transitions(args.fleet, handler=put)
         log.info("following fleet %s at %s (frames on %s)", args.fleet, net.where, frames_key)
         started = time.monotonic()
