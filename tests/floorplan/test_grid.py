@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from PIL import Image
 
 from lessmap.floorplan.example import EXAMPLE_LABELS, EXAMPLE_MAP, EXAMPLE_YAML, draw_example
-from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
+from lessmap.floorplan.grid import FloorplanError, OccupancyGrid, load_grid, room_labels
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -80,3 +81,11 @@ def test_a_yaml_without_an_image_is_refused(tmp_path: Path) -> None:
     path.write_text("resolution: 0.05\n", encoding="utf-8")
     with pytest.raises(FloorplanError, match="needs image and resolution"):
         load_grid(path)
+
+
+def test_a_point_far_off_the_grid_is_outside_without_overflow() -> None:
+    grid = OccupancyGrid(free=np.ones((4, 6), dtype=bool), resolution_m=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "invalid value encountered in cast"
+        cells = grid.xy_to_cell(np.array([[1e300, -1e300], [-1e18, 1.2], [1.2, 0.7]]))
+    assert cells.tolist() == [[4, 6], [1, -1], [2, 2]]

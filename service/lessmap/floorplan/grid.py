@@ -65,9 +65,12 @@ class OccupancyGrid:
         """The cells (row, col) holding points in metres, shape (n, 2); may be outside."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         res = self.resolution_m
-        col = np.floor((xy[:, 0] - self.origin_xy[0]) / res).astype(np.int64)
-        row = self.shape[0] - 1 - np.floor((xy[:, 1] - self.origin_xy[1]) / res).astype(np.int64)
-        return np.stack([row, col], axis=-1)
+        # Clipped one cell beyond the grid first: a pose kilometres off (or 1e300) is still
+        # "outside", not an integer overflow.
+        rows, cols = self.shape
+        col = np.clip(np.floor((xy[:, 0] - self.origin_xy[0]) / res), -1, cols).astype(np.int64)
+        up = np.clip(np.floor((xy[:, 1] - self.origin_xy[1]) / res), -1, rows)
+        return np.stack([rows - 1 - up.astype(np.int64), col], axis=-1)
 
 
 def _grey(path: Path) -> NDArray[np.uint8]:
