@@ -18,18 +18,21 @@ class RoomParams:
 
     # Rule 1: a window side spans the frames over which the view keeps this CovRate with
     # its first frame, learnt from the stream; so its length follows speed, rate and range.
-    window_similarity: float = 0.7
+    # 0.6: a longer view of the area behind steadies the cut (fewer false peaks in rooms).
+    window_similarity: float = 0.6
     window_min_frames: int = 2  # a pair: at 2 frames a second, 3 frames put decisions 1.5 m late
     window_max_frames: int = 30  # the memory a side may take, and the decision's lag
     lag_smoothing: float = 0.02  # weight of a new frame in the learnt lag profile
-    ahead_share: float = 0.5  # the newer half's frames, as a share of the older half's
+    # The newer half's frames, as a share of the older half's: 0.35 of the longer older half
+    # keeps the newer half, and so the decision's lag, as short as 0.5 of a 0.7 window.
+    ahead_share: float = 0.35
     # Rule 2: the cut of a window, (within-side similarity) - (across-side similarity).
     cut_min: float = 0.1
     # A peak must stay the highest over this share of a newer half's cuts after it: a door
     # looked at from the room shows first, the door passed shows more.
     settle_share: float = 0.0
     # Rule 3: a cut is a room change only when the new side is not the segment's own.
-    known_share: float = 0.9  # of the new half's features, the area's own at least this
+    known_share: float = 0.8  # of the new half's features, the area's own at least this
     # ... unless the cut reaches sure_cut over at least sure_features new-half features:
     # a door's view seen from inside, not a glimpse through it or a turn among a few poles.
     sure_cut: float = 0.12
