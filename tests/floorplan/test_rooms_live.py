@@ -139,6 +139,8 @@ def test_a_fleet_without_frames_is_one_line(
         (("frames.jsonl", "--fleet", "f"), "give FRAMES (a file) or --fleet F"),
         (("--fleet", "f", "--transitions", "t.jsonl"), "no --transitions"),
         (("--fleet", "*"), "names one fleet"),
+        (("--fleet", "f", "--method", "paper"), "no --method"),
+        (("frames.jsonl", "--duration", "5"), "a file has no duration"),
     ],
 )
 def test_a_wrong_source_is_one_line(argv: tuple[str, ...], says: str, tmp_path: Path) -> None:

@@ -57,8 +57,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--method",
         choices=("areas", "rooms", "paper"),
-        default="rooms",
-        help="segmentation method when no --transitions are given (default %(default)s)",
+        default=None,
+        help="segmentation method of FRAMES when no --transitions are given (default rooms)",
     )
     parser.add_argument(
         "--transitions",
@@ -147,8 +147,16 @@ def run(args: argparse.Namespace) -> int:
         if (args.frames is None) == (args.fleet is None):
             msg = "give FRAMES (a file) or --fleet F (a running fleet), one of them"
             raise ConfigError(msg)
-        if args.fleet is not None and (args.transitions is not None or "*" in args.fleet):
-            msg = "--fleet names one fleet and uses the service's transitions (no --transitions)"
+        if args.fleet is not None and (
+            args.transitions is not None or args.method is not None or "*" in args.fleet
+        ):
+            msg = (
+                "--fleet names one fleet and uses the service's transitions "
+                "(no --transitions, no --method: the service's method applies)"
+            )
+            raise ConfigError(msg)
+        if args.fleet is None and args.duration is not None:
+            msg = "--duration bounds how long --fleet follows a fleet; a file has no duration"
             raise ConfigError(msg)
         if args.out.name == "" or not args.out.resolve().parent.is_dir():
             msg = f"-o {args.out}: no folder {args.out.parent}"
@@ -210,9 +218,10 @@ def _from_file(
         cuts = read_transitions(args.transitions)
         source = str(args.transitions)
     else:
-        stage(f"segmenting ({args.method})")
-        cuts = method_cuts(frames, args.method)
-        source = args.method
+        method = args.method or "rooms"
+        stage(f"segmenting ({method})")
+        cuts = method_cuts(frames, method)
+        source = method
     robots = [(p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()]
     stage("labelling the map")
     rooms = fleet_room_map(grid, robots, params, regions)
