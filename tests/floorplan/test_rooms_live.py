@@ -177,3 +177,62 @@ def test_a_follower_started_late_fetches_the_robots_recent_frames(
     # without history nothing was sent while it listened: one line, exit code 1
     assert live_only.returncode == 1
     assert "no frame with a pose of fleet" in live_only.stderr
+
+
+def test_a_last_map_that_cannot_be_drawn_is_one_line(
+    serve: Callable[..., ServeProcess], tmp_path: Path
+) -> None:
+    from lessmap_client import connect
+
+    service = serve("--memory-only")
+    fleet = f"off-{uuid.uuid4().hex[:6]}"
+    with connect(service.endpoint, timeout_s=20.0) as conn:
+        robot = conn.robot(fleet, "amr-1")
+        assert robot.wait_for_service(20.0)
+        for i in range(20):  # a kilometre east of the example plan
+            robot.publish(range(i, i + 12), stamp_s=0.1 * i, pose=(1000.0 + 0.1 * i, 6.75, 0.0))
+        off_map = lessmap(
+            "rooms", "--fleet", fleet, "--map", EXAMPLE_YAML, "-o", tmp_path / "off",
+            "--duration", "3", "-e", service.endpoint, "--connect-timeout", "30",
+        )  # fmt: skip
+        other_robot = lessmap(
+            "rooms", "--fleet", fleet, "--robot", "amr-2", "--map", EXAMPLE_YAML,
+            "-o", tmp_path / "other", "--duration", "3", "-e", service.endpoint,
+        )  # fmt: skip
+    for done, says in ((off_map, "no pose lies on a free cell"), (other_robot, "--robot")):
+        assert done.returncode == 1, done.stderr
+        [line] = done.stderr.strip().splitlines()
+        assert says in line
+        assert not done.stdout.strip()  # no map was written, none claimed
+
+
+def test_a_signal_ends_the_follower_between_redraws(
+    serve: Callable[..., ServeProcess], tmp_path: Path
+) -> None:
+    service = serve("--memory-only")
+    err_path = tmp_path / "follow.err"
+    with err_path.open("w") as err:
+        follower = subprocess.Popen(
+            [sys.executable, "-m", "lessmap", "-v", "rooms", "--fleet", "quiet", "--map",
+             str(EXAMPLE_YAML), "-o", str(tmp_path / "m"), "--every", "600",
+             "-e", service.endpoint, "--connect-timeout", "30"],
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+        )  # fmt: skip
+    try:
+        wait_until(
+            lambda: "following fleet" in err_path.read_text(),
+            60.0,
+            "the follower",
+            err_path.read_text,
+        )
+        follower.send_signal(signal.SIGINT)
+        follower.communicate(timeout=60)  # far below the 600 s until its next redraw
+    finally:
+        if follower.poll() is None:
+            os.kill(follower.pid, signal.SIGKILL)
+            follower.wait()
+    assert follower.returncode == 1  # it saw no frame: said in one line
+    assert "no frame with a pose of fleet quiet" in err_path.read_text()
+    assert "Traceback" not in err_path.read_text()

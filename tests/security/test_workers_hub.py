@@ -33,21 +33,23 @@ if TYPE_CHECKING:
 pytestmark = pytest.mark.timeout(180)
 
 
-def test_a_secured_service_with_two_workers_serves_its_fleet(
-    site: SecureSite,
-    serve: Callable[..., ServeProcess],
-    connect_as: Callable[..., Connection],
-) -> None:
-    service = serve(
+def serve_two_workers(
+    serve: Callable[..., ServeProcess], router_config: Path, endpoint: str
+) -> ServeProcess:
+    """``serve --workers 2`` as the router of ``router_config``, listening on ``endpoint`` only."""
+    return serve(
         "--zenoh-config",
-        str(site.site.router),
+        str(router_config),
         "--cfg",
-        f"listen/endpoints:{json.dumps([site.endpoint])}",
+        f"listen/endpoints:{json.dumps([endpoint])}",
         "--workers",
         "2",
         "--memory-only",
     )
-    app = connect_as("app")
+
+
+def both_answer(app: Connection, service: ServeProcess) -> set[str]:
+    """Wait until both workers answer the app's health query; their instance names."""
     workers = {f"{service.instance}-w0", f"{service.instance}-w1"}
     wait_until(
         lambda: {h.instance for h in app.health()} == workers,
@@ -55,6 +57,17 @@ def test_a_secured_service_with_two_workers_serves_its_fleet(
         "both workers to answer through the secured router",
         service.log,
     )
+    return workers
+
+
+def test_a_secured_service_with_two_workers_serves_its_fleet(
+    site: SecureSite,
+    serve: Callable[..., ServeProcess],
+    connect_as: Callable[..., Connection],
+) -> None:
+    service = serve_two_workers(serve, site.site.router, site.endpoint)
+    app = connect_as("app")
+    workers = both_answer(app, service)
     # the workers' link: a Unix socket in a folder only this user can open, no TCP port
     found = re.search(r"their router on unixsock-stream/(\S+?)(?:\s|$)", service.log())
     assert found is not None, service.log()
@@ -96,22 +109,8 @@ def test_a_user_password_router_hands_its_workers_its_own_user(
     app_file = site.folder / "app-usrpwd.json5"
     app_file.write_text(render(app_conf, "test"))
 
-    service = serve(
-        "--zenoh-config",
-        str(router_file),
-        "--cfg",
-        f"listen/endpoints:{json.dumps([endpoint])}",
-        "--workers",
-        "2",
-        "--memory-only",
-    )
+    service = serve_two_workers(serve, router_file, endpoint)
     with connect(endpoint, config_file=str(app_file), timeout_s=20.0) as app:
-        workers = {f"{service.instance}-w0", f"{service.instance}-w1"}
-        wait_until(
-            lambda: {h.instance for h in app.health()} == workers,
-            60.0,
-            "both workers, logged in as the service, to answer",
-            service.log,
-        )
+        both_answer(app, service)
     # the password went to the workers through their private files, not their command lines
     assert secrets["service"] not in service.log()

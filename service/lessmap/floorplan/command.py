@@ -197,7 +197,6 @@ def _from_file(
     """The room map of a frames file, segmented here or by a ``lessmap segment`` output."""
     from lessmap.files.frames import read_frames
     from lessmap.floorplan.grid import FloorplanError
-    from lessmap.floorplan.roommap import fleet_room_map
     from lessmap.floorplan.streams import (
         frame_areas,
         method_cuts,
@@ -223,22 +222,13 @@ def _from_file(
         cuts = method_cuts(frames, method)
         source = method
     robots = [(p.xy, frame_areas(p.seqs, cuts.get(robot, [])) + 1) for robot, p in poses.items()]
-    stage("labelling the map")
-    rooms = fleet_room_map(grid, robots, params, regions)
-    if not rooms.any():
-        msg = (
-            f"{args.frames}: no pose lies on a free cell of {args.map} "
-            "(are the poses in the map's frame and metres?)"
-        )
-        raise FloorplanError(msg)
+    stage("labelling the map" + (" and scoring it" if truth is not None else ""))
     record: dict[str, Any] = {
         "robots": sorted(poses),
         "segmentation": source,
         "transitions": sum(len(cuts.get(robot, [])) for robot in poses),
     }
-    if truth is not None:
-        stage("scoring against --labels")
-    record.update(_written(args, grid, rooms, truth))
+    record.update(_room_map_files(args, grid, params, regions, truth, robots, str(args.frames)))
     sys.stdout.write(json.dumps(record) + "\n")
     return 0
 
@@ -252,40 +242,52 @@ def _draw_live(
     trajectories: LiveTrajectories,
 ) -> dict[str, Any] | None:
     """The room map of what a fleet's robots walked so far, written; None before any pose."""
-    from lessmap.floorplan.grid import FloorplanError
-    from lessmap.floorplan.roommap import fleet_room_map
-
     wanted = set(args.robot or ())
-    tracks = [t for t in trajectories.tracks() if not wanted or t.name.split("/")[0] in wanted]
+    tracks = [t for t in trajectories.tracks() if not wanted or t.robot in wanted]
     if not tracks:
         return None
-    rooms = fleet_room_map(grid, [(t.xy, t.areas + 1) for t in tracks], params, regions)
-    if not rooms.any():
-        msg = f"no pose lies on a free cell of {args.map} (are the poses in the map's frame?)"
-        raise FloorplanError(msg)
     record: dict[str, Any] = {
         "fleet": args.fleet,
-        "robots": sorted({t.name.split("/")[0] for t in tracks}),
+        "robots": sorted({t.robot for t in tracks}),
         "sessions": len(tracks),
         "poses": sum(t.seqs.size for t in tracks),
         "segmentation": "service",
     }
-    record.update(_written(args, grid, rooms, truth))
+    robots = [(t.xy, t.areas + 1) for t in tracks]
+    record.update(
+        _room_map_files(args, grid, params, regions, truth, robots, f"fleet {args.fleet}")
+    )
     return record
 
 
-def _written(
+def _room_map_files(
     args: argparse.Namespace,
     grid: OccupancyGrid,
-    rooms: NDArray[np.int32],
+    params: RoomMapParams,
+    regions: tuple[NDArray[np.int32], ...],
     truth: NDArray[np.int32] | None,
+    robots: list[tuple[NDArray[np.float64], NDArray[np.int64]]],
+    source: str,
 ) -> dict[str, Any]:
-    """Write the room map's files; their names, the room count and the score against truth."""
+    """Draw the robots' room map and write its files; their names, rooms and score.
+
+    Raises:
+        FloorplanError: no pose lies on a free cell of the map.
+    """
     import numpy as np
 
+    from lessmap.floorplan.grid import FloorplanError
     from lessmap.floorplan.mapfile import write_room_map
     from lessmap.floorplan.metric import precision_recall
+    from lessmap.floorplan.roommap import fleet_room_map
 
+    rooms = fleet_room_map(grid, robots, params, regions)
+    if not rooms.any():
+        msg = (
+            f"{source}: no pose lies on a free cell of {args.map} "
+            "(are the poses in the map's frame and metres?)"
+        )
+        raise FloorplanError(msg)
     files = write_room_map(rooms, grid, args.out)
     record: dict[str, Any] = {
         "rooms": len(np.unique(rooms[rooms > 0])),

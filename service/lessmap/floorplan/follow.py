@@ -48,6 +48,8 @@ log = logging.getLogger(__name__)
 QUEUE_SIZE = 100_000
 #: A fleet whose transitions arrive but whose frames do not: said once, after this long.
 NO_FRAMES_WARNING_S = 10.0
+#: Longest wait for a message before the stop signal is looked at again.
+STOP_CHECK_S = 0.2
 
 Item = tuple[str, bytes] | Transition
 
@@ -95,15 +97,15 @@ def follow_fleet(
         transitions = conn.subscribe_transitions(args.fleet, handler=put)
         log.info("following fleet %s at %s (frames on %s)", args.fleet, net.where, frames_key)
         started = time.monotonic()
-        deadline = None if args.duration is None else started + args.duration
+        deadline = float("inf") if args.duration is None else started + args.duration
         next_draw = started + args.every
         warned = False
         try:
             while not stop.event.is_set():
                 now = time.monotonic()
-                if deadline is not None and now >= deadline:
+                if now >= deadline:
                     break
-                _apply(inbox, trajectories, until=min(next_draw, deadline or next_draw))
+                _apply(inbox, trajectories, until=min(next_draw, deadline, now + STOP_CHECK_S))
                 if not warned and _no_frames(trajectories, time.monotonic() - started):
                     warned = True
                     log.warning(
@@ -126,7 +128,6 @@ def follow_fleet(
             f"{trajectories.counts['frames without a pose']} without a pose)"
         )
         raise FloorplanError(msg)
-    trajectories.changed = True  # the last map is drawn whatever the last pass drew
     _draw(trajectories, draw, final=True)
     return 0
 
@@ -164,15 +165,25 @@ def _draw(
     *,
     final: bool = False,
 ) -> None:
-    if not trajectories.changed:
+    """Draw when something changed; the last map always, and its failure is the command's.
+
+    Raises:
+        FloorplanError: the last map cannot be drawn (poses off the map, no robot asked for).
+    """
+    if not (trajectories.changed or final):
         return
     trajectories.changed = False
     try:
         record = draw(trajectories)
-    except FloorplanError as exc:  # e.g. poses off the map: said, and the next pass retries
-        log.warning("no room map this time: %s", exc)
+    except FloorplanError as exc:
+        if final:
+            raise
+        log.warning("no room map this time: %s", exc)  # e.g. poses off the map: retried
         return
     if record is None:
+        if final:
+            msg = "no pose of the robots asked for (--robot) arrived"
+            raise FloorplanError(msg)
         return
     record["counts"] = dict(sorted(trajectories.counts.items()))
     record["final"] = final

@@ -53,6 +53,7 @@ class _Session:
 class LiveTrack:
     """One labelled trajectory: poses (m) in seq order and each pose's area."""
 
+    robot: str
     name: str  # robot/session, with #incarnation after lost state
     seqs: NDArray[np.int64]
     xy: NDArray[np.float64]
@@ -134,7 +135,8 @@ class LiveTrajectories:
                     continue
                 cuts = [c for (i, _), c in entry.cuts.items() if i == incarnation]
                 name = f"{robot}/{session}" + (f"#{incarnation}" if incarnation else "")
-                out.append(LiveTrack(name, seqs[mine], xy[mine], frame_areas(seqs[mine], cuts)))
+                areas = frame_areas(seqs[mine], cuts)
+                out.append(LiveTrack(robot, name, seqs[mine], xy[mine], areas))
         return out
 
     @property

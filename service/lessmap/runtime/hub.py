@@ -33,7 +33,7 @@ from lessmap.runtime.store import STORE_FILE, CheckpointStore, StoreError
 from lessmap.runtime.supervisor import LaunchSpec, RestartPolicy, SignalEvent, Supervisor
 from lessmap.runtime.workers import worker_count, worker_settings, worker_state_dir
 from lessmap.runtime.zenoh_config import service_config
-from lessmap_schemas import keys
+from lessmap.security.siteconfig import workers_access
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -46,35 +46,6 @@ log = logging.getLogger(__name__)
 _MAX_PORT = 65535
 #: Unix socket paths are limited to ~108 bytes; a longer private folder is not used.
 _MAX_SOCKET_PATH = 100
-#: Everything the workers may do on the parent's router, over their socket only.
-_WORKER_ACCESS = {
-    "subject": {"id": "lessmap-workers", "link_protocols": ["unixsock-stream"]},
-    "rule": {
-        "id": "lessmap-workers",
-        "permission": "allow",
-        "flows": ["ingress", "egress"],
-        "messages": [
-            "put",
-            "delete",
-            "declare_subscriber",
-            "query",
-            "reply",
-            "declare_queryable",
-            "liveliness_token",
-            "liveliness_query",
-            "declare_liveliness_subscriber",
-        ],
-        # ``**`` skips verbatim chunks (``@``): the service's own keys and Zenoh's
-        # advanced publishers' (``@adv``) are named as well.
-        "key_exprs": [
-            "**",
-            f"{keys.KEY_PREFIX}/@/**",
-            "**/@adv/**",
-            f"{keys.KEY_PREFIX}/@/**/@adv/**",
-        ],
-    },
-    "policy": {"rules": ["lessmap-workers"], "subjects": ["lessmap-workers"]},
-}
 
 
 class Hub(NamedTuple):
@@ -195,8 +166,9 @@ def _allow_workers(conf: zenoh.Config) -> None:
     access = json.loads(conf.get_json("access_control"))
     if not access.get("enabled"):
         return
+    workers = workers_access()
     for part, entry in (("subjects", "subject"), ("rules", "rule"), ("policies", "policy")):
-        access[part] = [*(access.get(part) or []), _WORKER_ACCESS[entry]]
+        access[part] = [*(access.get(part) or []), workers[entry]]
     conf.insert_json5("access_control", json.dumps(access))
 
 

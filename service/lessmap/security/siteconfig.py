@@ -42,6 +42,28 @@ ALL_MESSAGES = [
 READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 
 
+def workers_access() -> dict[str, dict[str, Any]]:
+    """The subject, rule and policy that let ``serve --workers N``'s workers in.
+
+    The workers reach their parent's router over a Unix socket in a private folder: the
+    subject is that link protocol, so no other session gains anything. ``**`` skips
+    verbatim chunks (``@``): the service's own keys and Zenoh's advanced publishers'
+    (``@adv``) are named as well.
+    """
+    name = "lessmap-workers"
+    return {
+        "subject": {"id": name, "link_protocols": ["unixsock-stream"]},
+        "rule": {
+            "id": name,
+            "permission": "allow",
+            "flows": ["ingress", "egress"],
+            "messages": ALL_MESSAGES,
+            "key_exprs": ["**", f"{P}/@/**", "**/@adv/**", f"{P}/@/**/@adv/**"],
+        },
+        "policy": {"rules": [name], "subjects": [name]},
+    }
+
+
 def robot_name(fleet: str, robot: str | None = None) -> str:
     """Return the certificate CN (or user name) of the robots of ``fleet``, or of one robot.
 
