@@ -43,7 +43,7 @@ from tests.service.test_failover_e2e import (
 from tests.service.test_serve_e2e import as_record, offline_transitions
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
     from pathlib import Path
 
 pytestmark = [pytest.mark.timeout(600), pytest.mark.slow]
@@ -100,8 +100,18 @@ def bare_site(tmp_path: Path) -> Iterator[Site]:
         proc.stop()
 
 
-def cached_transitions(session: zenoh.Session, wait_s: float = 3.0) -> list[Transition]:
-    """What the instances' transition caches hold now (a late joiner's history)."""
+def cached_transitions(
+    session: zenoh.Session,
+    complete: Callable[[list[Transition]], bool],
+    wait_s: float = 3.0,
+    max_wait_s: float = 30.0,
+) -> list[Transition]:
+    """What the instances' transition caches hold now (a late joiner's history).
+
+    Listens ``wait_s``, then on until ``complete`` holds or ``max_wait_s``: on a loaded
+    machine finding ten publishers and fetching their caches can take longer than a fixed
+    pause, and a reply that never comes still fails the comparison after the bound.
+    """
     got: list[Transition] = []
     subscriber = ext.declare_advanced_subscriber(
         session,
@@ -110,8 +120,11 @@ def cached_transitions(session: zenoh.Session, wait_s: float = 3.0) -> list[Tran
         history=ext.HistoryConfig(detect_late_publishers=True, max_samples=CACHE),
     )
     time.sleep(wait_s)
+    deadline = time.monotonic() + max_wait_s - wait_s
+    while not complete(list(got)) and time.monotonic() < deadline:
+        time.sleep(0.2)
     subscriber.undeclare()
-    return got
+    return list(got)
 
 
 def identity_conflicts(transitions: list[Transition]) -> list[str]:
@@ -135,7 +148,8 @@ def judge(
     for robot, counts in summary["per_robot"].items():
         assert counts["applied"] == counts["offered"], (robot, counts)
     time.sleep(1.0)  # the last transitions on their way
-    seen = [t for _, t in bus.got] + cached_transitions(session)
+    live = [t for _, t in bus.got]
+    seen = live + cached_transitions(session, lambda cached: compare(expected, live + cached) == [])
     assert compare(expected, seen) == []
     assert identity_conflicts(seen) == []
     return seen
