@@ -36,6 +36,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--join-across-doorways", action="store_true", help="rule 5 off, as in lessmap rooms"
     )
+    parser.add_argument(
+        "--furniture-max-m",
+        type=float,
+        default=RoomMapParams().furniture_max_m,
+        help="free-standing obstacles up to this long are furniture (0: off)",
+    )
     args = parser.parse_args(argv)
     names = sorted(
         p.name.removesuffix("_gt_segmentation.png")
@@ -44,7 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     if not names:
         sys.stderr.write(f"no *_gt_segmentation.png in {args.floorplans}\n")
         return 1
-    params = RoomMapParams(split_at_doorways=not args.join_across_doorways)
+    params = RoomMapParams(
+        split_at_doorways=not args.join_across_doorways, furniture_max_m=args.furniture_max_m
+    )
     columns = ("nearest pose", "with doorways", "doorways alone")
     print("| map | " + " | ".join(columns) + " |")
     print("|---|" + "---|" * len(columns))

@@ -8,6 +8,7 @@ from lessmap.floorplan.roommap import (
     RoomMapParams,
     door_regions,
     fleet_room_map,
+    furniture,
     label_cells,
     merge_overlapping,
     nearest_samples,
@@ -132,6 +133,48 @@ def test_door_regions_split_at_the_door_only() -> None:
     assert len(np.unique(regions[room_of_cols(grid) == 1])) == 1
     assert regions[10, 5] != regions[10, 30]
     assert door_regions(grid, 0.2).max() == 1  # the door is wider: one region
+
+
+def room_with(obstacle_rows: slice, obstacle_cols: slice) -> OccupancyGrid:
+    """One 3.9 x 1.8 m room (rows 1-18, cols 1-39) with one obstacle standing free in it."""
+    free = np.zeros((20, 41), dtype=bool)
+    free[1:19, 1:40] = True
+    free[obstacle_rows, obstacle_cols] = False
+    return OccupancyGrid(free=free, resolution_m=RES_M)
+
+
+def test_a_desk_standing_free_makes_no_doorway_a_wall_standing_free_does() -> None:
+    desk = room_with(slice(7, 13), slice(18, 23))  # 0.6 x 0.5 m: 0.6 m passages beside it
+    assert door_regions(desk, 0.8).max() == 2  # without the rule the desk cuts the room
+    regions = door_regions(desk, 0.8, furniture_max_m=1.0)
+    assert regions.max() == 1
+    assert (regions[~desk.free] == 0).all()  # the desk's own cells are no room's
+    assert furniture(desk, 1.0).sum() == 30
+    assert furniture(desk, 0.5).sum() == 0  # 0.6 m long: longer than that
+    assert furniture(desk, 0.0).sum() == 0
+    wall = room_with(slice(4, 16), slice(20, 21))  # 1.2 m long, 0.3 m gaps at both ends
+    assert door_regions(wall, 0.8, furniture_max_m=1.0).max() == 2
+    assert door_regions(wall, 0.8, furniture_max_m=1.5).max() == 1
+    # rule 5 with the stream's one area: one room around the desk, two without the rule
+    xy = walk(desk, 2, 38)
+    areas = np.ones(len(xy), dtype=np.int64)
+    field = nearest_samples(desk, xy)
+    for furniture_max_m, rooms in ((1.0, 1), (0.0, 2)):
+        params = RoomMapParams(door_width_m=0.8, furniture_max_m=furniture_max_m)
+        labels = room_map(field, areas, passage_regions(desk, params), params)
+        assert len(np.unique(labels[desk.free])) == rooms
+
+
+def test_an_obstacle_at_the_maps_edge_is_a_wall() -> None:
+    free = np.ones((10, 10), dtype=bool)
+    free[0, 3:5] = False  # short, but it reaches the edge
+    free[5:7, 5:7] = False
+    found = furniture(OccupancyGrid(free=free, resolution_m=RES_M), 1.0)
+    assert not found[0].any()
+    assert found[5:7, 5:7].all()
+    assert found.sum() == 4
+    with pytest.raises(ValueError, match="furniture_max_m"):
+        RoomMapParams(furniture_max_m=-1.0)
 
 
 def test_an_area_the_stream_carried_through_a_door_becomes_two_rooms() -> None:

@@ -130,6 +130,7 @@ def no_pose_frames(path: Path) -> Path:
         ("wrong_labels", "the map has"),
         ("no_folder", "no folder"),
         ("bad_distance", "max_distance_m"),
+        ("bad_furniture", "furniture_max_m"),
         ("map_elsewhere", "no pose lies on a free cell"),
     ],
 )
@@ -164,6 +165,8 @@ def test_bad_input_gives_one_line_and_exit_1(
         out = tmp_path / "none" / "out"
     elif case == "bad_distance":
         extra = ["--max-distance-m", "0"]
+    elif case == "bad_furniture":
+        extra = ["--furniture-max-m", "-1"]
     elif case == "map_elsewhere":
         far = tmp_path / "far.yaml"
         far.write_text(

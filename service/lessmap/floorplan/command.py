@@ -115,6 +115,15 @@ def add_room_map_options(parser: argparse.ArgumentParser) -> None:
         help="passages narrower than this bound rooms (rules 3, 5); 0: off (default %(default)s)",
     )
     parser.add_argument(
+        "--furniture-max-m",
+        type=float,
+        default=defaults.furniture_max_m,
+        help=(
+            "an obstacle joined to no wall and at most this long is furniture, never a "
+            "doorway's side (rules 3, 5); 0: off (default %(default)s)"
+        ),
+    )
+    parser.add_argument(
         "--join-across-doorways",
         action="store_true",
         help=(
@@ -131,6 +140,7 @@ def room_map_params(args: argparse.Namespace) -> RoomMapParams:
     return RoomMapParams(
         max_distance_m=args.max_distance_m,
         door_width_m=args.door_width_m,
+        furniture_max_m=args.furniture_max_m,
         split_at_doorways=not args.join_across_doorways,
     )
 

@@ -7,7 +7,9 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
 2. **Reach.** Cells beyond ``max_distance_m`` of walk from every pose stay 0; a pose on an
    occupied cell moves to the nearest free cell within ``snap_m``, else is dropped.
 3. **Doorways.** Free space is cut into regions at passages narrower than ``door_width_m``
-   (cores: cells over half a door from walls, each cell joining its nearest). A region with
+   (cores: cells over half a door from walls, each cell joining its nearest); an obstacle
+   joined to no wall and at most ``furniture_max_m`` long is furniture, never one side of a
+   doorway (``furniture``). A region with
    no pose stays 0 (seen, not visited); one an area holds ``region_share`` of goes to it
    whole (a late decision paints nothing). What no area holds is cut again at each of the
    ``wider_passages_m`` in turn (openings), where ``opening_share`` decides; what is left
@@ -40,6 +42,7 @@ __all__ = [
     "SampleField",
     "door_regions",
     "fleet_room_map",
+    "furniture",
     "label_cells",
     "merge_overlapping",
     "merged_room_map",
@@ -59,6 +62,9 @@ class RoomMapParams:
     max_distance_m: float = 8.0  # rule 2: about a room's depth seen from its middle
     snap_m: float = 0.5  # rule 2: a pose this near a wall still counts
     door_width_m: float = 1.2  # rules 3, 5: passages narrower than this split regions; 0: off
+    # rules 3, 5: a free-standing obstacle up to this long (a desk, a chair) never makes a
+    # doorway, or furniture would cut rooms in two; walls standing free are longer. 0: off
+    furniture_max_m: float = 1.5
     # rule 5; off for maps whose furniture narrows rooms below a door (it would cut them)
     split_at_doorways: bool = True
     # rule 3: wide openings are tried only where doorways left two areas sharing a region
@@ -71,8 +77,8 @@ class RoomMapParams:
         if not (self.max_distance_m > 0 and self.merge_m > 0):
             msg = "max_distance_m and merge_m must be > 0"
             raise ValueError(msg)
-        if not (self.snap_m >= 0 and self.door_width_m >= 0):
-            msg = "snap_m and door_width_m must be >= 0"
+        if not (self.snap_m >= 0 and self.door_width_m >= 0 and self.furniture_max_m >= 0):
+            msg = "snap_m, door_width_m and furniture_max_m must be >= 0"
             raise ValueError(msg)
         if any(w <= 0 for w in self.wider_passages_m):
             msg = f"wider_passages_m must all be > 0, got {self.wider_passages_m}"
@@ -215,13 +221,42 @@ def label_cells(field: SampleField, labels: NDArray[np.int64]) -> NDArray[np.int
     return out
 
 
-def door_regions(grid: OccupancyGrid, door_width_m: float) -> NDArray[np.int32]:
+def furniture(grid: OccupancyGrid, max_length_m: float) -> NDArray[np.bool_]:
+    """Occupied cells of free-standing obstacles no longer than ``max_length_m``.
+
+    An obstacle is an 8-connected set of occupied cells; it stands free when it touches no
+    wall (walls join up into long structures reaching the map's edge, so a short obstacle
+    not at the edge is a table, a chair or a cabinet). Its length is its bounding box's
+    longer side. ``max_length_m`` 0: none.
+    """
+    occupied = ~grid.free
+    out = np.zeros(occupied.shape, dtype=bool)
+    if max_length_m <= 0 or not occupied.any():
+        return out
+    labels, count = ndimage.label(occupied, structure=np.ones((3, 3)))
+    short = np.zeros(count + 1, dtype=bool)
+    longest = max_length_m / grid.resolution_m
+    for index, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is not None:
+            short[index] = max(box[0].stop - box[0].start, box[1].stop - box[1].start) <= longest
+    edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+    short[edge] = False
+    short[0] = False
+    out[:] = short[labels]
+    return out
+
+
+def door_regions(
+    grid: OccupancyGrid, door_width_m: float, furniture_max_m: float = 0.0
+) -> NDArray[np.int32]:
     """Rule 3's regions: free space cut at passages narrower than ``door_width_m``.
 
-    Returns an int32 array of the grid's shape: 0 on occupied cells and on free cells no
-    core reaches, regions 1..k otherwise.
+    Obstacles that ``furniture`` names (up to ``furniture_max_m`` long) count as free
+    here: a chair in a room narrows no doorway. Returns an int32 array of the grid's
+    shape: 0 on occupied cells (furniture too) and on free cells no core reaches, regions
+    1..k otherwise.
     """
-    free = grid.free
+    free = grid.free | furniture(grid, furniture_max_m)
     clearance = ndimage.distance_transform_edt(free) * grid.resolution_m
     cores, count = ndimage.label(clearance > door_width_m / 2, structure=np.ones((3, 3)))
     if count == 0:
@@ -230,7 +265,7 @@ def door_regions(grid: OccupancyGrid, door_width_m: float) -> NDArray[np.int32]:
     core_cells = np.flatnonzero(cores.ravel() > 0)
     nearest, _ = _nearest(graph, node, node.ravel()[core_cells], np.inf)
     out = np.zeros(free.shape, dtype=np.int32)
-    reached = nearest >= 0
+    reached = (nearest >= 0) & grid.free
     out[reached] = cores.ravel()[core_cells[nearest[reached]]]
     return out
 
@@ -240,7 +275,9 @@ def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray
     if params.door_width_m <= 0:
         return ()
     wider = sorted(w for w in params.wider_passages_m if w > params.door_width_m)
-    return tuple(door_regions(grid, width) for width in (params.door_width_m, *wider))
+    return tuple(
+        door_regions(grid, width, params.furniture_max_m) for width in (params.door_width_m, *wider)
+    )
 
 
 def room_map(
