@@ -15,6 +15,7 @@ from lessmap.floorplan.roommap import (
     passage_regions,
     room_map,
     split_at_doorways,
+    split_at_openings,
 )
 
 RES_M = 0.1
@@ -216,12 +217,12 @@ def test_wider_passages_split_two_areas_sharing_a_doorway_region() -> None:
     grid = wide_opening()
     xy = grid.cell_to_xy(np.full(60, 16.0), np.arange(3, 63, dtype=float))
     areas = np.where(xy[:, 0] < 4.0, 1, 2)  # the change decided 0.4 m into B
-    doorways_only = RoomMapParams(door_width_m=0.6, wider_passages_m=())
+    doorways_only = RoomMapParams(door_width_m=0.6, wider_passages_m=(), room_opening_m=0)
     assert len(passage_regions(grid, doorways_only)) == 1
     assert door_regions(grid, 0.6).max() == 1  # the gap is wider than a door: one region
     field = nearest_samples(grid, xy)
     one_level = room_map(field, areas, passage_regions(grid, doorways_only))
-    params = RoomMapParams(door_width_m=0.6, wider_passages_m=(1.2,))
+    params = RoomMapParams(door_width_m=0.6, wider_passages_m=(1.2,), room_opening_m=0)
     levels = passage_regions(grid, params)
     assert len(levels) == 2
     labels = room_map(field, areas, levels, params)
@@ -231,6 +232,38 @@ def test_wider_passages_split_two_areas_sharing_a_doorway_region() -> None:
     assert (labels[in_b] == 2).all()
     assert (labels[1:31, 1:30] == 1).all()
     assert passage_regions(grid, RoomMapParams(door_width_m=0)) == ()
+
+
+def test_a_room_stops_at_an_opening_when_the_part_beyond_is_a_room() -> None:
+    grid = wide_opening()  # rooms of 8.4 m² each, joined by a 1 m gap: no doorway at 0.6 m
+    xy = grid.cell_to_xy(np.full(60, 16.0), np.arange(3, 63, dtype=float))
+    areas = np.ones(len(xy), dtype=np.int64)  # the stream missed the change
+    field = nearest_samples(grid, xy)
+
+    def labels(room_opening_m: float, min_room_m2: float = 4.0) -> np.ndarray:
+        params = RoomMapParams(
+            door_width_m=0.6, room_opening_m=room_opening_m, min_room_m2=min_room_m2
+        )
+        return room_map(field, areas, passage_regions(grid, params), params)
+
+    split = labels(1.2)
+    assert len(np.unique(split[1:31, 1:30])) == len(np.unique(split[1:31, 36:65])) == 1
+    assert split[16, 10] != split[16, 50]  # A and B are two rooms
+    assert len(np.unique(labels(1.2, min_room_m2=10.0)[grid.free])) == 1  # B is under 10 m²
+    assert len(np.unique(labels(0.0)[grid.free])) == 1  # doorways only: one room
+    assert RoomMapParams(door_width_m=0.6, wider_passages_m=()).passage_widths_m == (0.6, 2.0)
+    with pytest.raises(ValueError, match="min_room_m2"):
+        RoomMapParams(min_room_m2=-1.0)
+
+
+def test_split_at_openings_keeps_small_parts_with_their_area() -> None:
+    regions = np.array([[1, 1, 1, 1, 2, 2, 2, 3]], dtype=np.int32)
+    labels = np.array([[5, 5, 5, 5, 5, 5, 5, 5]], dtype=np.int32)
+    out = split_at_openings(labels, regions, min_cells=2)
+    assert out[0, :4].tolist() == [5, 5, 5, 5]
+    assert len(set(out[0, 4:7].tolist())) == 1  # 3 cells: a room of its own
+    assert out[0, 4] != 5
+    assert out[0, 7] == 5  # one cell: stays with its area
 
 
 def test_areas_of_two_robots_that_cover_one_room_merge() -> None:

@@ -124,6 +124,21 @@ def add_room_map_options(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument(
+        "--room-opening-m",
+        type=float,
+        default=defaults.room_opening_m,
+        help=(
+            "a room also stops at openings narrower than this where the part beyond holds "
+            "--min-room-m2 (rule 5); 0: at doorways only (default %(default)s)"
+        ),
+    )
+    parser.add_argument(
+        "--min-room-m2",
+        type=float,
+        default=defaults.min_room_m2,
+        help="the smallest part beyond an opening that is a room (default %(default)s)",
+    )
+    parser.add_argument(
         "--join-across-doorways",
         action="store_true",
         help=(
@@ -141,6 +156,8 @@ def room_map_params(args: argparse.Namespace) -> RoomMapParams:
         max_distance_m=args.max_distance_m,
         door_width_m=args.door_width_m,
         furniture_max_m=args.furniture_max_m,
+        room_opening_m=args.room_opening_m,
+        min_room_m2=args.min_room_m2,
         split_at_doorways=not args.join_across_doorways,
     )
 

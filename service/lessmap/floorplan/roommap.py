@@ -18,7 +18,8 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
    robots' poses, one holds half of the other's; then rules 1-3 over all poses.
 5. **A room stops at a doorway.** An area's cells in two doorway regions are two rooms: a
    change the stream missed (a dip into an office) or a wrong revisit would join them
-   (``split_at_doorways``).
+   (``split_at_doorways``). So are its cells on two sides of an opening narrower than
+   ``room_opening_m`` where the part beyond holds ``min_room_m2`` (``split_at_openings``).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ __all__ = [
     "passage_regions",
     "room_map",
     "split_at_doorways",
+    "split_at_openings",
 ]
 
 SQRT2 = float(np.sqrt(2.0))
@@ -69,6 +71,10 @@ class RoomMapParams:
     split_at_doorways: bool = True
     # rule 3: wide openings are tried only where doorways left two areas sharing a region
     wider_passages_m: tuple[float, ...] = (1.6, 2.0, 2.5, 3.0)
+    # rule 5 also at openings this narrow (0: doorways only): an office open on its
+    # corridor is a room of its own, even where the stream did not cut at its door
+    room_opening_m: float = 2.0
+    min_room_m2: float = 4.0  # rule 5 at openings: a smaller part beyond is a nook, not a room
     region_share: float = 0.6  # rule 3: the share of a doorway region one area must hold
     opening_share: float = 0.5  # rule 3: the same at the wider passages: the majority
     merge_m: float = 1.5  # rule 4: cells this near a robot's poses show where its areas are
@@ -83,6 +89,9 @@ class RoomMapParams:
         if any(w <= 0 for w in self.wider_passages_m):
             msg = f"wider_passages_m must all be > 0, got {self.wider_passages_m}"
             raise ValueError(msg)
+        if not (self.room_opening_m >= 0 and self.min_room_m2 >= 0):
+            msg = "room_opening_m and min_room_m2 must be >= 0"
+            raise ValueError(msg)
         for name, share in (
             ("region_share", self.region_share),
             ("opening_share", self.opening_share),
@@ -90,6 +99,14 @@ class RoomMapParams:
             if not 0.5 <= share <= 1.0:
                 msg = f"{name} must be in [0.5, 1], got {share}"
                 raise ValueError(msg)
+
+    @property
+    def passage_widths_m(self) -> tuple[float, ...]:
+        """Rule 3's widths in order: the doorway, then the wider passages (and rule 5's opening)."""
+        if self.door_width_m <= 0:
+            return ()
+        wider = {*self.wider_passages_m, self.room_opening_m}
+        return (self.door_width_m, *sorted(w for w in wider if w > self.door_width_m))
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +121,7 @@ class SampleField:
     distance_m: NDArray[np.float64]  # (rows, cols): walk to the nearest source, inf = none
     source_cells: NDArray[np.int64]  # (m,) flat indices of the cells holding samples
     sample_source: NDArray[np.int64]  # (n,) each sample's index into source_cells, -1 dropped
+    resolution_m: float  # the grid's, for rules given in metres
 
 
 def _free_graph(free: NDArray[np.bool_]) -> tuple[sparse.csr_array, NDArray[np.int64]]:
@@ -188,6 +206,7 @@ def nearest_samples(
         distance_m=distance * grid.resolution_m,
         source_cells=source_cells.astype(np.int64),
         sample_source=sample_index,
+        resolution_m=grid.resolution_m,
     )
 
 
@@ -272,12 +291,7 @@ def door_regions(
 
 def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray[np.int32], ...]:
     """Rule 3's regions at the doorway width, then at each wider passage; () when off."""
-    if params.door_width_m <= 0:
-        return ()
-    wider = sorted(w for w in params.wider_passages_m if w > params.door_width_m)
-    return tuple(
-        door_regions(grid, width, params.furniture_max_m) for width in (params.door_width_m, *wider)
-    )
+    return tuple(door_regions(grid, w, params.furniture_max_m) for w in params.passage_widths_m)
 
 
 def room_map(
@@ -314,7 +328,15 @@ def room_map(
             break
         share = params.region_share if index == 0 else params.opening_share
         cells, undecided = _give_dominated(cells, level, undecided, share)
-    return split_at_doorways(cells, doorways) if params.split_at_doorways else cells
+    if not params.split_at_doorways:
+        return cells
+    cells = split_at_doorways(cells, doorways)
+    if params.room_opening_m > params.door_width_m:
+        opening = params.passage_widths_m.index(params.room_opening_m)
+        if opening < len(levels):  # a caller may pass the doorway level alone
+            min_cells = round(params.min_room_m2 / field.resolution_m**2)
+            cells = split_at_openings(cells, levels[opening], min_cells)
+    return cells
 
 
 def _give_dominated(
@@ -362,6 +384,23 @@ def split_at_doorways(labels: NDArray[np.int32], doorways: NDArray[np.int32]) ->
     out = labels.copy()
     out[named] = number[inverse.ravel()]
     return out
+
+
+def split_at_openings(
+    labels: NDArray[np.int32], regions: NDArray[np.int32], min_cells: int
+) -> NDArray[np.int32]:
+    """Rule 5 at openings: ``split_at_doorways`` at ``regions``, parts under ``min_cells`` kept.
+
+    A part smaller than ``min_cells`` (a nook, the end of a corridor past a pillar) keeps
+    its area's label; the others are numbered as ``split_at_doorways`` numbers them.
+    """
+    split = split_at_doorways(labels, regions)
+    moved = split != labels
+    if not moved.any():
+        return split
+    pieces, sizes = np.unique(split[moved], return_counts=True)
+    back = moved & np.isin(split, pieces[sizes < min_cells])
+    return np.where(back, labels, split)
 
 
 def merge_overlapping(
