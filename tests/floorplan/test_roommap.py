@@ -251,9 +251,40 @@ def test_a_room_stops_at_an_opening_when_the_part_beyond_is_a_room() -> None:
     assert split[16, 10] != split[16, 50]  # A and B are two rooms
     assert len(np.unique(labels(1.2, min_room_m2=10.0)[grid.free])) == 1  # B is under 10 m²
     assert len(np.unique(labels(0.0)[grid.free])) == 1  # doorways only: one room
-    assert RoomMapParams(door_width_m=0.6, wider_passages_m=()).passage_widths_m == (0.6, 2.0)
+    params = RoomMapParams(door_width_m=0.6, wider_passages_m=())
+    assert len(passage_regions(grid, params)) == 2  # the doorways, then rule 5's parts
     with pytest.raises(ValueError, match="min_room_m2"):
         RoomMapParams(min_room_m2=-1.0)
+
+
+def corridor_with_offices() -> tuple[OccupancyGrid, np.ndarray]:
+    """A 1.6 m wide, 14 m corridor (rows 1-16), four 3 x 3 m offices below behind 1 m doors.
+
+    Returns the grid and the true rooms (1 the corridor, 2-5 the offices).
+    """
+    free = np.zeros((50, 142), dtype=bool)
+    truth = np.zeros(free.shape, dtype=np.int64)
+    free[1:17, 1:141] = True
+    truth[1:17, 1:141] = 1
+    for k in range(4):
+        first = 2 + 35 * k
+        free[18:48, first : first + 30] = True
+        truth[18:48, first : first + 30] = 2 + k
+        free[17, first + 10 : first + 20] = True  # the door
+    return OccupancyGrid(free=free, resolution_m=RES_M), truth
+
+
+def test_a_narrow_corridor_is_not_shared_out_among_the_rooms_along_it() -> None:
+    grid, truth = corridor_with_offices()
+    cells = np.argwhere(truth > 0)[::7]
+    xy = grid.cell_to_xy(cells[:, 0].astype(float), cells[:, 1].astype(float))
+    areas = truth[cells[:, 0], cells[:, 1]]  # every room visited and named right
+    params = RoomMapParams()  # doors of 1.2 m, openings of 2 m: the corridor is narrower
+    parts = passage_regions(grid, params)[-1]
+    assert len(np.unique(parts[truth == 1])) == 1
+    labels = room_map(nearest_samples(grid, xy), areas, passage_regions(grid, params), params)
+    assert len(np.unique(labels[truth == 1])) == 1
+    assert len(np.unique(labels[grid.free])) == 5
 
 
 def test_split_at_openings_keeps_small_parts_with_their_area() -> None:

@@ -19,7 +19,8 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
 5. **A room stops at a doorway.** An area's cells in two doorway regions are two rooms: a
    change the stream missed (a dip into an office) or a wrong revisit would join them
    (``split_at_doorways``). So are its cells on two sides of an opening narrower than
-   ``room_opening_m`` where the part beyond holds ``min_room_m2`` (``split_at_openings``).
+   ``room_opening_m`` where the part beyond holds ``min_room_m2`` (``opening_parts``,
+   ``split_at_openings``).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ __all__ = [
     "merge_overlapping",
     "merged_room_map",
     "nearest_samples",
+    "opening_parts",
     "passage_regions",
     "room_map",
     "split_at_doorways",
@@ -102,11 +104,16 @@ class RoomMapParams:
 
     @property
     def passage_widths_m(self) -> tuple[float, ...]:
-        """Rule 3's widths in order: the doorway, then the wider passages (and rule 5's opening)."""
+        """Rule 3's widths in order: the doorway, then the wider passages above it."""
         if self.door_width_m <= 0:
             return ()
-        wider = {*self.wider_passages_m, self.room_opening_m}
-        return (self.door_width_m, *sorted(w for w in wider if w > self.door_width_m))
+        wider = sorted(w for w in self.wider_passages_m if w > self.door_width_m)
+        return (self.door_width_m, *wider)
+
+    @property
+    def splits_at_openings(self) -> bool:
+        """Whether rule 5 applies at ``room_opening_m`` as well as at doorways."""
+        return self.split_at_doorways and 0 < self.door_width_m < self.room_opening_m
 
 
 @dataclass(frozen=True, slots=True)
@@ -290,8 +297,45 @@ def door_regions(
 
 
 def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray[np.int32], ...]:
-    """Rule 3's regions at the doorway width, then at each wider passage; () when off."""
-    return tuple(door_regions(grid, w, params.furniture_max_m) for w in params.passage_widths_m)
+    """Rule 3's regions at the doorway width, then at each wider passage; () when off.
+
+    When rule 5 applies at openings, its parts (``opening_parts``) come last.
+    """
+    levels = tuple(door_regions(grid, w, params.furniture_max_m) for w in params.passage_widths_m)
+    if not (levels and params.splits_at_openings):
+        return levels
+    return (*levels, opening_parts(grid, levels[0], params.room_opening_m, params.furniture_max_m))
+
+
+def opening_parts(
+    grid: OccupancyGrid, doorways: NDArray[np.int32], width_m: float, furniture_max_m: float = 0.0
+) -> NDArray[np.int32]:
+    """Rule 5's parts at openings narrower than ``width_m``, within each doorway region.
+
+    A space wider than the opening is a core (cells over half the width from walls) with
+    the cells within √2 half-widths of it, by walking; what no core reaches (a corridor
+    narrower than the opening) is one more part of its doorway region. So the rooms open on
+    a wide corridor part from it, and a narrow corridor is never shared out among the
+    rooms along it. Returns int32 parts, 0 where ``doorways`` is 0.
+    """
+    free = grid.free | furniture(grid, furniture_max_m)
+    clearance = ndimage.distance_transform_edt(free) * grid.resolution_m
+    cores, count = ndimage.label(clearance > width_m / 2, structure=np.ones((3, 3)))
+    core_of = np.zeros(free.shape, dtype=np.int64)
+    if count:
+        graph, node = _free_graph(free)
+        core_cells = np.flatnonzero(cores.ravel() > 0)
+        # a rectangular room's corners lie √2 half-widths from its core
+        reach = SQRT2 * width_m / 2 / grid.resolution_m + 1.0
+        nearest, _ = _nearest(graph, node, node.ravel()[core_cells], reach)
+        reached = nearest >= 0
+        reached[reached] = doorways.ravel()[core_cells[nearest[reached]]] == doorways[reached]
+        core_of[reached] = cores.ravel()[core_cells[nearest[reached]]]  # its own region's
+    key = doorways.astype(np.int64) * (count + 1) + core_of
+    inside = doorways > 0
+    out = np.zeros(free.shape, dtype=np.int32)
+    out[inside] = np.unique(key[inside], return_inverse=True)[1].ravel() + 1
+    return out
 
 
 def room_map(
@@ -323,7 +367,8 @@ def room_map(
     visited[0] = True  # cells outside every region keep rule 1's label
     cells[~visited[doorways]] = 0
     undecided = cells > 0
-    for index, level in enumerate(levels):
+    rule3 = levels[: len(params.passage_widths_m)] if params.splits_at_openings else levels
+    for index, level in enumerate(rule3):
         if not undecided.any():
             break
         share = params.region_share if index == 0 else params.opening_share
@@ -331,11 +376,9 @@ def room_map(
     if not params.split_at_doorways:
         return cells
     cells = split_at_doorways(cells, doorways)
-    if params.room_opening_m > params.door_width_m:
-        opening = params.passage_widths_m.index(params.room_opening_m)
-        if opening < len(levels):  # a caller may pass the doorway level alone
-            min_cells = round(params.min_room_m2 / field.resolution_m**2)
-            cells = split_at_openings(cells, levels[opening], min_cells)
+    if params.splits_at_openings and len(levels) > len(params.passage_widths_m):
+        min_cells = round(params.min_room_m2 / field.resolution_m**2)
+        cells = split_at_openings(cells, levels[-1], min_cells)
     return cells
 
 
