@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 import uuid
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +26,7 @@ from lessmap.floorplan.mapfile import read_room_labels
 from tests.conftest import wait_until
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterator
 
     from tests.conftest import ServeProcess
 
@@ -150,18 +151,29 @@ def test_a_wrong_source_is_one_line(argv: tuple[str, ...], says: str, tmp_path: 
     assert says in line
 
 
+@contextmanager
+def robot_walked(endpoint: str, fleet: str, frames: int, x0_m: float) -> Iterator[None]:
+    """Robot amr-1 of ``fleet``, after sending ``frames`` frames; connected inside the block.
+
+    The frames go eastwards from ``x0_m`` along y = 6.75 m (the example plan's corridor);
+    the robot's publication cache keeps them while the block runs.
+    """
+    from lessmap_client import connect
+
+    with connect(endpoint, timeout_s=20.0) as conn:
+        robot = conn.robot(fleet, "amr-1")
+        assert robot.wait_for_service(20.0)
+        for i in range(frames):
+            robot.publish(range(i, i + 12), stamp_s=0.1 * i, pose=(x0_m + 0.1 * i, 6.75, 0.0))
+        yield
+
+
 def test_a_follower_started_late_fetches_the_robots_recent_frames(
     serve: Callable[..., ServeProcess], tmp_path: Path
 ) -> None:
-    from lessmap_client import connect
-
     service = serve("--memory-only")
     fleet = f"late-{uuid.uuid4().hex[:6]}"
-    with connect(service.endpoint, timeout_s=20.0) as conn:
-        robot = conn.robot(fleet, "amr-1")
-        assert robot.wait_for_service(20.0)
-        for i in range(60):  # along the example plan's corridor (y = 6.75 m)
-            robot.publish(range(i, i + 12), stamp_s=0.1 * i, pose=(1.0 + 0.1 * i, 6.75, 0.0))
+    with robot_walked(service.endpoint, fleet, frames=60, x0_m=1.0):
         late = lessmap(
             "rooms", "--fleet", fleet, "--map", EXAMPLE_YAML, "-o", tmp_path / "late",
             "--duration", "3", "-e", service.endpoint, "--connect-timeout", "30",
@@ -182,15 +194,9 @@ def test_a_follower_started_late_fetches_the_robots_recent_frames(
 def test_a_last_map_that_cannot_be_drawn_is_one_line(
     serve: Callable[..., ServeProcess], tmp_path: Path
 ) -> None:
-    from lessmap_client import connect
-
     service = serve("--memory-only")
     fleet = f"off-{uuid.uuid4().hex[:6]}"
-    with connect(service.endpoint, timeout_s=20.0) as conn:
-        robot = conn.robot(fleet, "amr-1")
-        assert robot.wait_for_service(20.0)
-        for i in range(20):  # a kilometre east of the example plan
-            robot.publish(range(i, i + 12), stamp_s=0.1 * i, pose=(1000.0 + 0.1 * i, 6.75, 0.0))
+    with robot_walked(service.endpoint, fleet, frames=20, x0_m=1000.0):  # a km east of it
         off_map = lessmap(
             "rooms", "--fleet", fleet, "--map", EXAMPLE_YAML, "-o", tmp_path / "off",
             "--duration", "3", "-e", service.endpoint, "--connect-timeout", "30",

@@ -256,20 +256,54 @@ def furniture(grid: OccupancyGrid, max_length_m: float) -> NDArray[np.bool_]:
     longer side. ``max_length_m`` 0: none.
     """
     occupied = ~grid.free
-    out = np.zeros(occupied.shape, dtype=bool)
     if max_length_m <= 0 or not occupied.any():
-        return out
+        return np.zeros(occupied.shape, dtype=bool)
     labels, count = ndimage.label(occupied, structure=np.ones((3, 3)))
     short = np.zeros(count + 1, dtype=bool)
     longest = max_length_m / grid.resolution_m
     for index, box in enumerate(ndimage.find_objects(labels), start=1):
         if box is not None:
             short[index] = max(box[0].stop - box[0].start, box[1].stop - box[1].start) <= longest
-    edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
-    short[edge] = False
+    short[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = False
     short[0] = False
-    out[:] = short[labels]
+    out: NDArray[np.bool_] = short[labels]
     return out
+
+
+@dataclass(frozen=True, slots=True)
+class _Floor:
+    """What rules 3 and 5 cut, whatever the width: free cells and furniture (one per map)."""
+
+    grid: OccupancyGrid
+    walkable: NDArray[np.bool_]  # free cells and furniture
+    clearance_m: NDArray[np.float64]  # to the nearest wall
+    graph: sparse.csr_array  # the walkable cells, 8-connected
+    node: NDArray[np.int64]
+
+    @classmethod
+    def of(cls, grid: OccupancyGrid, furniture_max_m: float) -> _Floor:
+        walkable = grid.free | furniture(grid, furniture_max_m)
+        clearance = ndimage.distance_transform_edt(walkable) * grid.resolution_m
+        graph, node = _free_graph(walkable)
+        return cls(grid, walkable, clearance, graph, node)
+
+    def cores(self, width_m: float) -> tuple[NDArray[np.int32], NDArray[np.int64]]:
+        """Cells over half ``width_m`` from walls, labelled 8-connected; their flat indices."""
+        cores, _ = ndimage.label(self.clearance_m > width_m / 2, structure=np.ones((3, 3)))
+        return cores.astype(np.int32), np.flatnonzero(cores.ravel() > 0).astype(np.int64)
+
+    def nearest_core(
+        self, cores: NDArray[np.int32], core_cells: NDArray[np.int64], reach_m: float = np.inf
+    ) -> NDArray[np.int64]:
+        """Per cell, the core nearest by walking within ``reach_m``; 0 for none."""
+        out = np.zeros(self.walkable.shape, dtype=np.int64)
+        if core_cells.size == 0:
+            return out
+        limit = reach_m / self.grid.resolution_m
+        nearest, _ = _nearest(self.graph, self.node, self.node.ravel()[core_cells], limit)
+        reached = nearest >= 0
+        out[reached] = cores.ravel()[core_cells[nearest[reached]]]
+        return out
 
 
 def door_regions(
@@ -282,18 +316,13 @@ def door_regions(
     shape: 0 on occupied cells (furniture too) and on free cells no core reaches, regions
     1..k otherwise.
     """
-    free = grid.free | furniture(grid, furniture_max_m)
-    clearance = ndimage.distance_transform_edt(free) * grid.resolution_m
-    cores, count = ndimage.label(clearance > door_width_m / 2, structure=np.ones((3, 3)))
-    if count == 0:
-        return np.zeros(free.shape, dtype=np.int32)
-    graph, node = _free_graph(free)
-    core_cells = np.flatnonzero(cores.ravel() > 0)
-    nearest, _ = _nearest(graph, node, node.ravel()[core_cells], np.inf)
-    out = np.zeros(free.shape, dtype=np.int32)
-    reached = (nearest >= 0) & grid.free
-    out[reached] = cores.ravel()[core_cells[nearest[reached]]]
-    return out
+    return _door_regions(_Floor.of(grid, furniture_max_m), door_width_m)
+
+
+def _door_regions(floor: _Floor, width_m: float) -> NDArray[np.int32]:
+    regions = floor.nearest_core(*floor.cores(width_m))
+    regions[~floor.grid.free] = 0
+    return regions.astype(np.int32)
 
 
 def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray[np.int32], ...]:
@@ -301,10 +330,13 @@ def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray
 
     When rule 5 applies at openings, its parts (``opening_parts``) come last.
     """
-    levels = tuple(door_regions(grid, w, params.furniture_max_m) for w in params.passage_widths_m)
-    if not (levels and params.splits_at_openings):
+    if not params.passage_widths_m:
+        return ()
+    floor = _Floor.of(grid, params.furniture_max_m)
+    levels = tuple(_door_regions(floor, width) for width in params.passage_widths_m)
+    if not params.splits_at_openings:
         return levels
-    return (*levels, opening_parts(grid, levels[0], params.room_opening_m, params.furniture_max_m))
+    return (*levels, _opening_parts(floor, levels[0], params.room_opening_m))
 
 
 def opening_parts(
@@ -318,22 +350,22 @@ def opening_parts(
     a wide corridor part from it, and a narrow corridor is never shared out among the
     rooms along it. Returns int32 parts, 0 where ``doorways`` is 0.
     """
-    free = grid.free | furniture(grid, furniture_max_m)
-    clearance = ndimage.distance_transform_edt(free) * grid.resolution_m
-    cores, count = ndimage.label(clearance > width_m / 2, structure=np.ones((3, 3)))
-    core_of = np.zeros(free.shape, dtype=np.int64)
-    if count:
-        graph, node = _free_graph(free)
-        core_cells = np.flatnonzero(cores.ravel() > 0)
-        # a rectangular room's corners lie √2 half-widths from its core
-        reach = SQRT2 * width_m / 2 / grid.resolution_m + 1.0
-        nearest, _ = _nearest(graph, node, node.ravel()[core_cells], reach)
-        reached = nearest >= 0
-        reached[reached] = doorways.ravel()[core_cells[nearest[reached]]] == doorways[reached]
-        core_of[reached] = cores.ravel()[core_cells[nearest[reached]]]  # its own region's
-    key = doorways.astype(np.int64) * (count + 1) + core_of
+    return _opening_parts(_Floor.of(grid, furniture_max_m), doorways, width_m)
+
+
+def _opening_parts(floor: _Floor, doorways: NDArray[np.int32], width_m: float) -> NDArray[np.int32]:
+    cores, core_cells = floor.cores(width_m)
+    # a rectangular room's corners lie √2 half-widths from its core (+ a cell's rounding)
+    reach_m = SQRT2 * width_m / 2 + floor.grid.resolution_m
+    core_of = floor.nearest_core(cores, core_cells, reach_m)
+    # a core claims cells of its own doorway region only, never across a doorway
+    region_of_core = np.zeros(int(cores.max(initial=0)) + 1, dtype=np.int64)
+    free_core = core_cells[doorways.ravel()[core_cells] > 0]  # furniture cells are in none
+    region_of_core[cores.ravel()[free_core]] = doorways.ravel()[free_core]
+    core_of[region_of_core[core_of] != doorways] = 0
+    key = doorways.astype(np.int64) * (region_of_core.size + 1) + core_of
     inside = doorways > 0
-    out = np.zeros(free.shape, dtype=np.int32)
+    out = np.zeros(doorways.shape, dtype=np.int32)
     out[inside] = np.unique(key[inside], return_inverse=True)[1].ravel() + 1
     return out
 
@@ -367,7 +399,8 @@ def room_map(
     visited[0] = True  # cells outside every region keep rule 1's label
     cells[~visited[doorways]] = 0
     undecided = cells > 0
-    rule3 = levels[: len(params.passage_widths_m)] if params.splits_at_openings else levels
+    # passage_regions: rule 3's levels, then (rule 5 at openings on) the opening parts
+    rule3, openings = levels[: len(params.passage_widths_m)], levels[len(params.passage_widths_m) :]
     for index, level in enumerate(rule3):
         if not undecided.any():
             break
@@ -376,9 +409,9 @@ def room_map(
     if not params.split_at_doorways:
         return cells
     cells = split_at_doorways(cells, doorways)
-    if params.splits_at_openings and len(levels) > len(params.passage_widths_m):
+    if params.splits_at_openings and openings:
         min_cells = round(params.min_room_m2 / field.resolution_m**2)
-        cells = split_at_openings(cells, levels[-1], min_cells)
+        cells = split_at_openings(cells, openings[0], min_cells)
     return cells
 
 
