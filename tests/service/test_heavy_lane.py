@@ -59,7 +59,9 @@ def make_pair(session: zenoh.Session) -> Shard:
                 max_sessions=16,
                 max_nodes=20_000,
                 max_batch_frames=256,
-                idle_timeout_s=60.0,
+                # Never idle here: on a loaded host the offline reference alone can outlast
+                # a minute, and an idle-closed session would leave the hand-over nothing.
+                idle_timeout_s=1e6,
                 max_pairs_per_frame=200_000,
                 max_edges_per_session=1_000_000,
             ),
