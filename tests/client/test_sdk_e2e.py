@@ -102,6 +102,52 @@ def test_round_trip_late_join_and_queries(
     assert service.terminate() == 0
 
 
+@pytest.mark.slow
+def test_apps_joining_a_two_instance_fleet_get_every_cached_transition(
+    router: str,
+    serve: Callable[..., ServeProcess],
+    client_session: Callable[[str], zenoh.Session],
+    fleet_name: str,
+) -> None:
+    # Two instances share the robots behind a router: a late app's history comes from two
+    # publication caches at once (one query to both, and late-publisher detection beside
+    # it), and no robot's older transitions may give way to its newer ones.
+    walk = two_room_walk(rooms=20, per_room=20)
+    expected = offline_seqs(walk)
+    assert len(expected) == 19
+    for _ in range(2):
+        serve("--max-batch-frames", "1", "-e", router)
+    session = client_session(router)
+    robots = [f"r{i}" for i in range(4)]
+    publishers = [RobotPublisher(fleet_name, robot, session=session) for robot in robots]
+    try:
+        assert all(p.wait_for_service(30.0) for p in publishers)
+        for features in walk:
+            for publisher in publishers:
+                publisher.publish(features, stamp_s=0.0)
+        with FleetClient(fleet_name, session=session, history=0) as queries:
+
+            def all_applied() -> bool:
+                states = [queries.state(robot) for robot in robots]
+                return all(s is not None and s.frames_applied == len(walk) for s in states)
+
+            wait_until(all_applied, 60.0, "every frame applied")
+        for _ in range(3):
+            with FleetClient(fleet_name, session=client_session(router)) as late:
+                got: dict[str, list[int]] = {robot: [] for robot in robots}
+                deadline = time.monotonic() + 30.0
+                while any(len(seqs) < len(expected) for seqs in got.values()):
+                    left = deadline - time.monotonic()
+                    transition = late.next_transition(timeout_s=max(0.0, left))
+                    if transition is None:
+                        break
+                    got[transition.robot].append(transition.seq)
+            assert got == dict.fromkeys(robots, expected)
+    finally:
+        for publisher in publishers:
+            publisher.close()
+
+
 def test_publisher_checks_names_and_limits_locally(
     serve: Callable[..., ServeProcess], client_session: Callable[[str], zenoh.Session]
 ) -> None:
