@@ -7,7 +7,9 @@ Run from the repository root. Per map, ``--poses`` poses are drawn uniformly (se
 the ground-truth rooms' cells and labelled with their true room, a robot that went
 everywhere and segmented perfectly; the room map (``lessmap.floorplan.roommap``) is scored
 with the benchmark's per-room precision and recall, with rule 3 (doorway regions) and
-without it. The doorway regions alone (no poses) are the geometry's own segmentation.
+without it. The doorway regions alone (no poses) are the geometry's own segmentation. The
+last column labels every free cell with its true room: the best a map of free cells can
+score (with furniture, the cells under it count in the ground truth and in no such map).
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     params = RoomMapParams(
         split_at_doorways=not args.join_across_doorways, furniture_max_m=args.furniture_max_m
     )
-    columns = ("nearest pose", "with doorways", "doorways alone")
+    columns = ("nearest pose", "with doorways", "doorways alone", "free cells, true rooms")
     print("| map | " + " | ".join(columns) + " |")
     print("|---|" + "---|" * len(columns))
     scores: dict[str, list[tuple[float, float]]] = {c: [] for c in columns}
@@ -69,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
         field = nearest_samples(grid, xy, params)
         levels = passage_regions(grid, params)
         with_doorways = room_map(field, labels, levels, params)
-        maps = (room_map(field, labels), with_doorways, levels[0])
+        free_truth = np.where(grid.free, truth, 0)
+        maps = (room_map(field, labels), with_doorways, levels[0], free_truth)
         row = []
         for column, labelled in zip(columns, maps, strict=True):
             score = precision_recall(labelled, truth)
