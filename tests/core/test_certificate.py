@@ -15,6 +15,7 @@ from lessmap.core.paper.spectral import (
     Bisection,
     Components,
     fiedler_pair,
+    frobenius_floor,
     lambda2_exceeds,
     split_graph,
 )
@@ -126,3 +127,48 @@ def test_certified_decisions_equal_full_solves_on_dlr() -> None:
     full = Partitioner(PartitionParams.from_profile("laser"), always_solve=True)
     assert decisions(fast, frames) == decisions(full, frames)
     assert full.transitions == 115
+
+
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 80),
+    density=st.floats(0.05, 1.0),
+    scale=st.sampled_from([1e-90, 1e-3, 1.0, 1e6]),
+)
+@settings(max_examples=300, deadline=None)
+def test_the_frobenius_floor_never_exceeds_lambda2(
+    seed: int, n: int, density: float, scale: float
+) -> None:
+    graph = sparse.csr_array(random_connected(np.random.default_rng(seed), n, density) * scale)
+    lambda2, _ = fiedler_pair(graph.toarray())
+    assert frobenius_floor(graph.toarray()) <= lambda2
+    assert frobenius_floor(graph) <= lambda2
+
+
+@pytest.mark.parametrize("n", [3, 10, 40, 200])
+def test_the_frobenius_floor_proves_a_complete_graph_and_nothing_apart(n: int) -> None:
+    # K_n: λ2 = n / (n - 1) and ||S||_F² = n / (n - 1), so the floor is 1 - 1/√(n - 1)
+    complete = np.ones((n, n)) - np.eye(n)
+    expected = 1.0 - 1.0 / np.sqrt(n - 1)
+    assert expected - 1e-9 < frobenius_floor(complete) <= expected
+    assert expected - 1e-9 < frobenius_floor(sparse.csr_array(complete)) <= expected
+    apart = two_cliques(n, 0.0, np.arange(2 * n, dtype=np.int64))
+    assert frobenius_floor(apart.toarray()) <= 0.0
+    assert frobenius_floor(apart) <= 0.0
+    assert frobenius_floor(np.zeros((n, n))) == -np.inf  # no degrees: no bound
+
+
+def test_decisions_the_frobenius_floor_settles_are_those_of_a_full_solve() -> None:
+    # a room walk at the laser profile's bound: most decisions are proven by the floor alone
+    walk = room_walk(3, rooms=5, back=True, door_frames=2, door_share=0.2)
+    params = PartitionParams.from_profile("laser")
+    fast = Partitioner(params)
+    full = Partitioner(params, always_solve=True)
+    proven = 0
+    for seq, frame in enumerate(walk.frames):
+        fast.observe(seq, float(seq), frame)
+        w = fast.graph.similarity()
+        proven += bool(w.shape[0] >= 2 and frobenius_floor(w) > params.lambda2_min)
+    assert proven > len(walk.frames) // 2
+    assert decisions(Partitioner(params), walk.frames) == decisions(full, walk.frames)
+    assert fast.transitions >= 1

@@ -71,10 +71,11 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     """Return True when λ2 of L v = λ D v provably exceeds ``bound`` (dense W only).
 
     Most decisions are nowhere near a transition (λ2 around 0.9 in a room being walked), and
-    proving λ2 > λ2_min settles one with a Cholesky factorization of a matrix that is
-    positive definite exactly when λ2 > bound + ``CERTIFICATE_MARGIN`` (Sylvester's law of
-    inertia), cheaper than the eigen-solve. The margin covers the factorization's rounding up
-    to ``CERTIFICATE_MAX_NODES``; larger graphs are never factorized. False means "not
+    proving λ2 > λ2_min settles one: by ``frobenius_floor`` when it suffices, else by a
+    Cholesky factorization of a matrix that is positive definite exactly when λ2 > bound +
+    ``CERTIFICATE_MARGIN`` (Sylvester's law of inertia), both cheaper than the eigen-solve.
+    The margin covers the factorization's rounding up to ``CERTIFICATE_MAX_NODES``; larger
+    graphs are never factorized. False means "not
     proven": the caller solves as usual, so decisions never change. The proof:
     ``docs/design/drift-certificate.md``.
 
@@ -90,6 +91,37 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     if isinstance(w, np.ndarray):
         return _dense_lambda2_exceeds(w, bound)
     return _sparse_lambda2_exceeds(w, bound)
+
+
+def frobenius_floor(w: Similarity) -> float:
+    """A proven lower bound of λ2 from ||S||_F alone (S = D^-1/2 W D^-1/2); -inf for none.
+
+    S's eigenvalues are 1 - λk, the first exactly 1, so (1 - λ2)² <= ||S||_F² - 1 and
+    λ2 >= 1 - √(||S||_F² - 1). A room's graph, nearly complete, has ||S||_F² close to 1,
+    so the bound proves most decisions for a third of a Cholesky factorization's cost, and
+    without its dense matrix. ``lambda2_exceeds`` tries it first.
+    """
+    if w.shape[0] < 2:
+        return -np.inf
+    if isinstance(w, np.ndarray):
+        return _dense_frobenius_floor(w, _add_reduce(w, axis=1))
+    return _sparse_frobenius_floor(w, _sparse_degrees(w))
+
+
+def _floor_of(square_sum: float, rounding_terms: int) -> float:
+    """The bound from a computed ||S||_F², raised first by (rounding_terms + 16)·ε of it.
+
+    Callers count their rounding: 1/d_i is within n·ε, so a term w_ij² / (d_i d_j) within
+    (2n + 3)·ε, and a sum of K non-negative terms within K·ε of their total (Higham §3.1),
+    so the bound is a proof in floating point too; 16·ε and 4·ε cover the last roundings.
+    Degrees under ``_TINY_DEGREE`` give none (callers): w_ij² could underflow there.
+    """
+    allowance = (rounding_terms + 16) * _EPS * square_sum
+    return 1.0 - float(np.sqrt(max(square_sum + allowance - 1.0, 0.0))) - 4 * _EPS
+
+
+_EPS = float(np.finfo(np.float64).eps)
+_TINY_DEGREE = 1e-100  # above it, a w_ij² that underflows is negligible beside ||S||_F² >= 1
 
 
 def split_graph(w: Similarity, *, dense_max_nodes: int = DENSE_MAX_NODES) -> Bisection | Components:
@@ -265,12 +297,22 @@ def _dense_lambda2_exceeds(w: NDArray[np.float64], bound: float) -> bool:
     if not _min_reduce(degrees) > 0.0:
         return False
     shift = bound + CERTIFICATE_MARGIN
+    if _dense_frobenius_floor(w, degrees) > shift:
+        return True  # proven by two matrix-vector products: most decisions stop here
     matrix = np.multiply.outer(degrees * ((shift + 1.0) / _add_reduce(degrees)), degrees)
     matrix -= w
     # The diagonal through a flat view: cheaper than ``ndarray.flat`` at tens of nodes.
     matrix.reshape(-1)[:: n + 1] += (1.0 - shift) * degrees
     _, info = lapack.dpotrf(matrix, lower=1, clean=0, overwrite_a=1)
     return bool(info == 0)
+
+
+def _dense_frobenius_floor(w: NDArray[np.float64], degrees: NDArray[np.float64]) -> float:
+    if not _min_reduce(degrees) > _TINY_DEGREE:
+        return -np.inf
+    inverse = 1.0 / degrees
+    n = w.shape[0]
+    return _floor_of(float(inverse @ (w * w) @ inverse), 4 * n)
 
 
 def _dense_split(w: NDArray[np.float64]) -> Bisection | Components:
@@ -361,6 +403,16 @@ def _sparse_degrees(w: sparse.csr_array) -> NDArray[np.float64]:
     return degrees
 
 
+def _sparse_frobenius_floor(w: sparse.csr_array, degrees: NDArray[np.float64]) -> float:
+    if not degrees.min() > _TINY_DEGREE:
+        return -np.inf
+    inverse = 1.0 / degrees
+    rows = np.repeat(inverse, np.diff(w.indptr))
+    terms = w.data * w.data * rows * inverse[w.indices]
+    # the terms' own rounding (3n), then one sum of all of them
+    return _floor_of(float(terms.sum()), 3 * w.shape[0] + terms.size)
+
+
 def _sparse_split(w: sparse.csr_array, dense_max_nodes: int) -> Bisection | Components:
     # Search first: ARPACK is not asked to converge on a repeated eigenvalue 0.
     count, labels = _sparse_components(w)
@@ -378,6 +430,8 @@ def _sparse_lambda2_exceeds(w: sparse.csr_array, bound: float) -> bool:
     if not degrees.min() > 0.0:
         return False
     shift = bound + CERTIFICATE_MARGIN
+    if _sparse_frobenius_floor(w, degrees) > shift:
+        return True  # no n x n matrix: most decisions stop here
     matrix = np.multiply.outer(degrees * ((shift + 1.0) / degrees.sum()), degrees)
     rows = np.repeat(np.arange(n), np.diff(w.indptr))
     matrix[rows, w.indices] -= w.data  # canonical CSR: no repeated entries
