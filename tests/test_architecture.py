@@ -302,13 +302,33 @@ def test_tests_never_import_the_benchmarks(path: Path) -> None:
 
 SIZE_LIMIT_LINES = 600
 #: Modules still over the limit, each with why; strict xfail, so a split one must leave the list.
-OVERSIZED: dict[str, str] = {}
+OVERSIZED: dict[str, str] = {
+    "benchmarks/core_bench.py": "three benchmarks of the core in one command: to split by stream",
+    "benchmarks/fleet/orchestrate.py": "runs, knee search and worker comparison: to split",
+    "benchmarks/fleet/report.py": "the report and its JSON form: to split",
+    "tests/core/test_areas_rules.py": "one test file per rule group: to split",
+    "tests/service/test_sessions.py": "the session table's tests: to split by concern",
+    "tests/service/test_durable.py": "checkpoint and replay tests: to split by concern",
+}
+#: Every Python file of the repository that is not generated: the packages, their tests, the
+#: benchmarks and the tools beside them (a generator once grew to 738 lines unnoticed).
+SIZED_FILES = sorted(
+    {
+        *ALL_FILES,
+        *(
+            path
+            for folder in ("tests", "benchmarks", "schemas/vectors", "scripts", "docs")
+            for path in (ROOT / folder).rglob("*.py")
+        ),
+    }
+)
 
 
-@pytest.mark.parametrize("path", ALL_FILES, ids=ids)
+@pytest.mark.parametrize("path", SIZED_FILES, ids=ids)
 def test_no_module_grows_past_the_size_limit(path: Path) -> None:
     lines = path.read_text(encoding="utf-8").count("\n")
     if ids(path) in OVERSIZED:
+        assert lines > SIZE_LIMIT_LINES, f"{lines} lines now: take it off OVERSIZED"
         pytest.xfail(OVERSIZED[ids(path)])
     assert lines <= SIZE_LIMIT_LINES, f"{lines} lines: split it by concern"
 
