@@ -306,9 +306,6 @@ OVERSIZED: dict[str, str] = {
     "benchmarks/core_bench.py": "three benchmarks of the core in one command: to split by stream",
     "benchmarks/fleet/orchestrate.py": "runs, knee search and worker comparison: to split",
     "benchmarks/fleet/report.py": "the report and its JSON form: to split",
-    "tests/core/test_areas_rules.py": "one test file per rule group: to split",
-    "tests/service/test_sessions.py": "the session table's tests: to split by concern",
-    "tests/service/test_durable.py": "checkpoint and replay tests: to split by concern",
 }
 #: Every Python file of the repository that is not generated: the packages, their tests, the
 #: benchmarks and the tools beside them (a generator once grew to 738 lines unnoticed).

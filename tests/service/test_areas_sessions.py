@@ -23,7 +23,7 @@ from lessmap.runtime.sessions import (
 from lessmap.runtime.store import CheckpointStore
 from lessmap.sim.simulator import simulate
 from lessmap_schemas.messages import Frame, SessionEnd
-from tests.service.test_durable import CommittingTable, crash, open_store
+from tests.service.durable_helpers import CommittingTable, crash, open_store
 
 if TYPE_CHECKING:
     from pathlib import Path

@@ -12,8 +12,7 @@ from typing import TYPE_CHECKING
 
 from lessmap.runtime.sessions.wire import wire_transition
 from lessmap_schemas.errors import ErrorCode
-from tests.service.identities import content_of, identity_of
-from tests.service.test_durable import (
+from tests.service.durable_helpers import (
     FLEET,
     FRAMES,
     REFERENCE,
@@ -25,6 +24,7 @@ from tests.service.test_durable import (
     open_store,
     transitions,
 )
+from tests.service.identities import content_of, identity_of
 
 if TYPE_CHECKING:
     from pathlib import Path

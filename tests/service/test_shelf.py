@@ -11,7 +11,7 @@ from lessmap.runtime.record import SessionRecord
 from lessmap.runtime.sessions import commit_checkpoints
 from lessmap.runtime.shelf import MemoryShelf
 from lessmap.runtime.store import CheckpointStore
-from tests.service.test_durable import (
+from tests.service.durable_helpers import (
     FLEET,
     FRAMES,
     REFERENCE,
