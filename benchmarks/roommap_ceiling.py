@@ -69,10 +69,11 @@ def main(argv: list[str] | None = None) -> int:
         xy = grid.cell_to_xy(pick[:, 0].astype(float), pick[:, 1].astype(float))
         labels = truth[pick[:, 0], pick[:, 1]].astype(np.int64)
         field = nearest_samples(grid, xy, params)
-        levels = passage_regions(grid, params)
-        with_doorways = room_map(field, labels, levels, params)
+        regions = passage_regions(grid, params)
+        assert regions is not None  # the default door width: rule 3 is on
+        with_doorways = room_map(field, labels, regions, params)
         free_truth = np.where(grid.free, truth, 0)
-        maps = (room_map(field, labels), with_doorways, levels[0], free_truth)
+        maps = (room_map(field, labels), with_doorways, regions.doorways, free_truth)
         row = []
         for column, labelled in zip(columns, maps, strict=True):
             score = precision_recall(labelled, truth)

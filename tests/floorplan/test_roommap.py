@@ -218,20 +218,27 @@ def test_wider_passages_split_two_areas_sharing_a_doorway_region() -> None:
     xy = grid.cell_to_xy(np.full(60, 16.0), np.arange(3, 63, dtype=float))
     areas = np.where(xy[:, 0] < 4.0, 1, 2)  # the change decided 0.4 m into B
     doorways_only = RoomMapParams(door_width_m=0.6, wider_passages_m=(), room_opening_m=0)
-    assert len(passage_regions(grid, doorways_only)) == 1
+    one = passage_regions(grid, doorways_only)
+    assert one is not None
+    assert len(one.levels) == 1
     assert door_regions(grid, 0.6).max() == 1  # the gap is wider than a door: one region
     field = nearest_samples(grid, xy)
-    one_level = room_map(field, areas, passage_regions(grid, doorways_only))
+    one_level = room_map(field, areas, one, doorways_only)
     params = RoomMapParams(door_width_m=0.6, wider_passages_m=(1.2,), room_opening_m=0)
     levels = passage_regions(grid, params)
-    assert len(levels) == 2
+    assert levels is not None
+    assert levels.widths_m == (0.6, 1.2)
+    assert len(levels.levels) == 2
+    assert levels.openings is None  # rule 5 at doorways only
     labels = room_map(field, areas, levels, params)
     in_b = np.zeros(grid.shape, dtype=bool)
     in_b[1:31, 36:65] = True
     assert (one_level[in_b] == 1).any()  # rule 1: B's entrance painted with A's late area
     assert (labels[in_b] == 2).all()
     assert (labels[1:31, 1:30] == 1).all()
-    assert passage_regions(grid, RoomMapParams(door_width_m=0)) == ()
+    assert passage_regions(grid, RoomMapParams(door_width_m=0)) is None
+    with pytest.raises(ValueError, match="regions cut at"):  # regions of other widths
+        room_map(field, areas, levels, RoomMapParams(door_width_m=0.6))
 
 
 def test_a_room_stops_at_an_opening_when_the_part_beyond_is_a_room() -> None:
@@ -252,7 +259,10 @@ def test_a_room_stops_at_an_opening_when_the_part_beyond_is_a_room() -> None:
     assert len(np.unique(labels(1.2, min_room_m2=10.0)[grid.free])) == 1  # B is under 10 m²
     assert len(np.unique(labels(0.0)[grid.free])) == 1  # doorways only: one room
     params = RoomMapParams(door_width_m=0.6, wider_passages_m=())
-    assert len(passage_regions(grid, params)) == 2  # the doorways, then rule 5's parts
+    regions = passage_regions(grid, params)
+    assert regions is not None
+    assert len(regions.levels) == 1  # the doorways alone; rule 5's parts beside them
+    assert regions.openings is not None
     with pytest.raises(ValueError, match="min_room_m2"):
         RoomMapParams(min_room_m2=-1.0)
 
@@ -280,7 +290,10 @@ def test_a_narrow_corridor_is_not_shared_out_among_the_rooms_along_it() -> None:
     xy = grid.cell_to_xy(cells[:, 0].astype(float), cells[:, 1].astype(float))
     areas = truth[cells[:, 0], cells[:, 1]]  # every room visited and named right
     params = RoomMapParams()  # doors of 1.2 m, openings of 2 m: the corridor is narrower
-    parts = passage_regions(grid, params)[-1]
+    regions = passage_regions(grid, params)
+    assert regions is not None
+    assert regions.openings is not None
+    parts = regions.openings
     assert len(np.unique(parts[truth == 1])) == 1
     labels = room_map(nearest_samples(grid, xy), areas, passage_regions(grid, params), params)
     assert len(np.unique(labels[truth == 1])) == 1

@@ -145,8 +145,8 @@ def evaluate_case(
     true_labels = [_true_rooms(poses[r].seqs, tracks[r]) for r in robots]
     own, fleet = maps(true_labels)
     results.append(MethodResult(method="truth", stream=None, robot_maps=own, fleet_map=fleet))
-    if regions:
-        geometry = precision_recall(regions[0], truth_rooms)
+    if regions is not None:
+        geometry = precision_recall(regions.doorways, truth_rooms)
         results.append(
             MethodResult(method="geometry", stream=None, robot_maps=(geometry,), fleet_map=geometry)
         )

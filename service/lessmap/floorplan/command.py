@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
     from lessmap.floorplan.grid import OccupancyGrid
     from lessmap.floorplan.live import LiveTrajectories
-    from lessmap.floorplan.roommap import RoomMapParams
+    from lessmap.floorplan.roommap import PassageRegions, RoomMapParams
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -217,7 +217,7 @@ def _from_file(
     args: argparse.Namespace,
     grid: OccupancyGrid,
     params: RoomMapParams,
-    regions: tuple[NDArray[np.int32], ...],
+    regions: PassageRegions | None,
     truth: NDArray[np.int32] | None,
     stage: Callable[[str], None],
 ) -> int:
@@ -264,7 +264,7 @@ def _draw_live(
     args: argparse.Namespace,
     grid: OccupancyGrid,
     params: RoomMapParams,
-    regions: tuple[NDArray[np.int32], ...],
+    regions: PassageRegions | None,
     truth: NDArray[np.int32] | None,
     trajectories: LiveTrajectories,
 ) -> dict[str, Any] | None:
@@ -291,7 +291,7 @@ def _room_map_files(
     args: argparse.Namespace,
     grid: OccupancyGrid,
     params: RoomMapParams,
-    regions: tuple[NDArray[np.int32], ...],
+    regions: PassageRegions | None,
     truth: NDArray[np.int32] | None,
     robots: list[tuple[NDArray[np.float64], NDArray[np.int64]]],
     source: str,

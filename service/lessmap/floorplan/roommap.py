@@ -33,13 +33,12 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
-
     from numpy.typing import NDArray
 
     from lessmap.floorplan.grid import OccupancyGrid
 
 __all__ = [
+    "PassageRegions",
     "RoomMapParams",
     "SampleField",
     "door_regions",
@@ -325,18 +324,33 @@ def _door_regions(floor: _Floor, width_m: float) -> NDArray[np.int32]:
     return regions.astype(np.int32)
 
 
-def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> tuple[NDArray[np.int32], ...]:
-    """Rule 3's regions at the doorway width, then at each wider passage; () when off.
+@dataclass(frozen=True, slots=True)
+class PassageRegions:
+    """Rule 3's regions at each passage width, doorways first, and rule 5's opening parts."""
 
-    When rule 5 applies at openings, its parts (``opening_parts``) come last.
+    widths_m: tuple[float, ...]  # the widths the levels were cut at
+    levels: tuple[NDArray[np.int32], ...]  # one ``door_regions`` array a width
+    openings: NDArray[np.int32] | None = None  # ``opening_parts``; None: rule 5 at doorways only
+
+    @property
+    def doorways(self) -> NDArray[np.int32]:
+        """The regions at the doorway width (the first)."""
+        return self.levels[0]
+
+
+def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> PassageRegions | None:
+    """Rule 3's regions at the doorway width, then at each wider passage; None when off.
+
+    When rule 5 applies at openings, its parts (``opening_parts``) come with them.
     """
-    if not params.passage_widths_m:
-        return ()
+    widths = params.passage_widths_m
+    if not widths:
+        return None
     floor = _Floor.of(grid, params.furniture_max_m)
-    levels = tuple(_door_regions(floor, width) for width in params.passage_widths_m)
+    levels = tuple(_door_regions(floor, width) for width in widths)
     if not params.splits_at_openings:
-        return levels
-    return (*levels, _opening_parts(floor, levels[0], params.room_opening_m))
+        return PassageRegions(widths, levels)
+    return PassageRegions(widths, levels, _opening_parts(floor, levels[0], params.room_opening_m))
 
 
 def opening_parts(
@@ -373,7 +387,7 @@ def _opening_parts(floor: _Floor, doorways: NDArray[np.int32], width_m: float) -
 def room_map(
     field: SampleField,
     labels: NDArray[np.int64],
-    regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
+    regions: PassageRegions | NDArray[np.int32] | None = None,
     params: RoomMapParams | None = None,
 ) -> NDArray[np.int32]:
     """Label the free cells the trajectory reaches with its areas (rules 1-3 and 5).
@@ -381,8 +395,8 @@ def room_map(
     Args:
         field: from ``nearest_samples``.
         labels: each sample's area (>= 1).
-        regions: ``passage_regions`` (doorways first), one ``door_regions`` array, or None
-            for rule 1 alone.
+        regions: ``passage_regions`` (made with ``params``' widths), one ``door_regions``
+            array (doorways alone), or None for rule 1 alone.
         params: the shares of rule 3 and whether rule 5 applies; default ``RoomMapParams()``.
 
     An area cut by rule 5 keeps its number on its largest part; the others get new numbers
@@ -390,18 +404,20 @@ def room_map(
     """
     params = params or RoomMapParams()
     cells = label_cells(field, labels)
-    levels = (regions,) if isinstance(regions, np.ndarray) else tuple(regions or ())
-    if not levels:
+    if regions is None:
         return cells
-    doorways = levels[0]
+    if isinstance(regions, np.ndarray):
+        regions = PassageRegions(params.passage_widths_m[:1], (regions,))
+    elif regions.widths_m != params.passage_widths_m:
+        msg = f"regions cut at {regions.widths_m} m, parameters at {params.passage_widths_m} m"
+        raise ValueError(msg)
+    doorways = regions.doorways
     visited = np.zeros(int(doorways.max()) + 1, dtype=bool)
     visited[doorways.ravel()[field.source_cells]] = True
     visited[0] = True  # cells outside every region keep rule 1's label
     cells[~visited[doorways]] = 0
     undecided = cells > 0
-    # passage_regions: rule 3's levels, then (rule 5 at openings on) the opening parts
-    rule3, openings = levels[: len(params.passage_widths_m)], levels[len(params.passage_widths_m) :]
-    for index, level in enumerate(rule3):
+    for index, level in enumerate(regions.levels):
         if not undecided.any():
             break
         share = params.region_share if index == 0 else params.opening_share
@@ -409,9 +425,9 @@ def room_map(
     if not params.split_at_doorways:
         return cells
     cells = split_at_doorways(cells, doorways)
-    if params.splits_at_openings and openings:
+    if params.splits_at_openings and regions.openings is not None:
         min_cells = round(params.min_room_m2 / field.resolution_m**2)
-        cells = split_at_openings(cells, openings[0], min_cells)
+        cells = split_at_openings(cells, regions.openings, min_cells)
     return cells
 
 
@@ -526,7 +542,7 @@ def fleet_room_map(
     grid: OccupancyGrid,
     robots: list[tuple[NDArray[np.float64], NDArray[np.int64]]],
     params: RoomMapParams | None = None,
-    regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
+    regions: PassageRegions | NDArray[np.int32] | None = None,
 ) -> NDArray[np.int32]:
     """One room map from several robots' labelled trajectories (``(xy, areas)`` each).
 
@@ -545,7 +561,7 @@ def merged_room_map(
     fields: list[SampleField],
     everyone: SampleField,
     labels: list[NDArray[np.int64]],
-    regions: NDArray[np.int32] | Sequence[NDArray[np.int32]] | None = None,
+    regions: PassageRegions | NDArray[np.int32] | None = None,
     params: RoomMapParams | None = None,
 ) -> NDArray[np.int32]:
     """Several robots' room map, their areas merged where they name the same place (rule 4).
