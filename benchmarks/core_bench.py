@@ -52,12 +52,9 @@ import io
 import json
 import pstats
 import statistics
-import subprocess
 import sys
 import time
-import tracemalloc
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -65,7 +62,9 @@ from scipy import linalg, sparse
 from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 from threadpoolctl import threadpool_limits
 
-from lessmap.core import CovGraph, Partitioner, PartitionParams, Transition
+from benchmarks.core_memory import bytes_per_node_and_edge, memory_child, run_memory_child
+from benchmarks.core_streams import Stream, room_chain, visual
+from lessmap.core import Partitioner, PartitionParams, Transition
 from lessmap.core.paper import covgraph
 
 if TYPE_CHECKING:
@@ -75,108 +74,10 @@ if TYPE_CHECKING:
 
     from lessmap.core.paper.submaps import Evaluation
 
-REPO = Path(__file__).resolve().parents[1]
 SIZES = (50, 100, 200, 400, 800, 1600, 3200)
 QUICK_SIZES = (50, 200, 800)
 ARPACK_TOL = 1e-10
-DOOR_FRAMES = 2  # frames at each side of a door that see both rooms
-ENTRY_FRAMES = 3  # measured frames from a door on (its two frames and one more)
 TARGETS_MS = {400: 1.0, 1600: 5.0, 3200: 12.0}  # the issue's median CPU bars
-
-
-# -- streams ---------------------------------------------------------------------------------
-
-
-@dataclass(slots=True)
-class Stream:
-    """Frames (distinct feature IDs) and which of them are measured (observe, timed)."""
-
-    name: str
-    profile: str
-    frames: list[NDArray[np.int64]] = field(default_factory=list)
-    measured: list[bool] = field(default_factory=list)
-
-    def add(self, features: NDArray[np.int64], measured: bool) -> None:
-        """Append one frame."""
-        self.frames.append(np.unique(features))
-        self.measured.append(measured)
-
-
-class Tracker:
-    """Landmarks tracked over frames: each track lives 10-30 frames, then a new one starts."""
-
-    def __init__(
-        self, rng: np.random.Generator, pool: NDArray[np.int64], alive: int, life: tuple[int, int]
-    ) -> None:
-        """Start ``alive`` tracks on ``pool``, their ends staggered as if tracking had begun."""
-        self._rng, self._life, self._frame = rng, life, 0
-        self.tracks = rng.choice(pool, size=alive, replace=False)
-        self._ends = rng.integers(1, life[1] + 1, size=alive)
-
-    def _restart(self, which: NDArray[np.int64], pool: NDArray[np.int64]) -> None:
-        free = np.setdiff1d(pool, self.tracks, assume_unique=True)
-        self.tracks[which] = self._rng.choice(free, size=which.size, replace=False)
-        self._ends[which] = self._frame + self._rng.integers(
-            *self._life, endpoint=True, size=which.size
-        )
-
-    def cross(self, pool: NDArray[np.int64], share: float) -> None:
-        """Move ``share`` of the tracks not on ``pool`` (the room left behind) onto it."""
-        old = np.flatnonzero(~np.isin(self.tracks, pool))
-        count = int(np.ceil(share * old.size))
-        self._restart(self._rng.choice(old, size=count, replace=False), pool)
-
-    def step(self, pool: NDArray[np.int64]) -> NDArray[np.int64]:
-        """One frame: tracks that ended restart on ``pool``; return the frame's features."""
-        done = np.flatnonzero(self._ends <= self._frame)
-        if done.size:
-            self._restart(done, pool)
-        self._frame += 1
-        return self.tracks.copy()
-
-
-def room_chain(n: int, *, frames: int, features: int = 40, rooms: int = 3, seed: int = 0) -> Stream:
-    """A walk through ``rooms`` rooms of ``n`` landmarks each (see the module docstring)."""
-    rng = np.random.default_rng(seed * 100_003 + n)
-    marks = rng.choice(10**9, size=rooms * n, replace=False).astype(np.int64).reshape(rooms, n)
-    alive = min(features, int(0.7 * n))
-    look_around = max(10, int(np.ceil(3 * n * 20 / alive)))  # ~3 tracks per landmark
-    per_room = max(4, (frames - ENTRY_FRAMES * (rooms - 1)) // rooms)
-    tracker = Tracker(rng, marks[0], alive, (10, 30))
-    stream = Stream(name=f"room chain n={n}", profile="laser")
-    for room in range(rooms):
-        pool = marks[room]
-        for t in range(ENTRY_FRAMES if room else 0):
-            if t < DOOR_FRAMES:  # the door: half of the view, then the rest, is the new room
-                tracker.cross(pool, 1.0 / (DOOR_FRAMES - t))
-            stream.add(tracker.step(pool), measured=True)
-        for _ in range(look_around):
-            stream.add(tracker.step(pool), measured=False)
-        for _ in range(per_room):
-            stream.add(tracker.step(pool), measured=True)
-    return stream
-
-
-def visual(
-    *,
-    frames_per_room: int = 60,
-    alive: int = 550,
-    pool: int = 1200,
-    rooms: int = 3,
-    warmup: int = 15,
-    seed: int = 0,
-) -> Stream:
-    """A stereo-tracking-like stream: ``alive`` tracks of 10-30 frames over room pools."""
-    rng = np.random.default_rng(seed + 7919)
-    marks = rng.choice(10**9, size=rooms * pool, replace=False).astype(np.int64)
-    marks = marks.reshape(rooms, pool)
-    tracker = Tracker(rng, marks[0], alive, (10, 30))
-    stream = Stream(name=f"visual {alive}/frame", profile="stereo")
-    door = frames_per_room - 10  # new tracks start on the next room from here on
-    for t in range(rooms * frames_per_room):
-        room = min(rooms - 1, (t + frames_per_room - door) // frames_per_room)
-        stream.add(tracker.step(marks[room]), measured=t >= warmup)
-    return stream
 
 
 # -- lessmap, timed ------------------------------------------------------------------------
@@ -420,117 +321,6 @@ def mrpt_binding() -> str | None:
             continue
         return name
     return None
-
-
-# -- memory --------------------------------------------------------------------------------
-
-
-def _retained(frames: list[list[int]]) -> tuple[int, int, int]:
-    """(nodes, edges, bytes tracemalloc sees held) of a CovGraph of ``frames``, W refreshed."""
-    gc.collect()
-    before = tracemalloc.get_traced_memory()[0]
-    graph = CovGraph()
-    for seq, frame in enumerate(frames):
-        graph.add_frame(seq, frame)
-    graph.similarity()  # as after a decision: W's values are held too
-    gc.collect()
-    held = tracemalloc.get_traced_memory()[0] - before
-    return graph.node_count, graph.edge_count, held
-
-
-def bytes_per_node_and_edge() -> dict[str, float]:
-    """Bytes a CovGraph holds per edge (same 2,000 nodes, 0.2 M vs 1 M edges: the sparse
-    store), per node (20,000 nodes in pairs: 10,000 edges), and per edge of a dense graph of
-    1,100 nodes (the dense store), from tracemalloc (numpy reports its buffers)."""
-    rng = np.random.default_rng(11)
-    tracemalloc.start()
-    try:
-        sparse_graph = [rng.choice(2000, size=40, replace=False).tolist() for _ in range(300)]
-        dense_graph = [rng.choice(2000, size=120, replace=False).tolist() for _ in range(200)]
-        _, e1, b1 = _retained(sparse_graph)
-        _, e2, b2 = _retained(dense_graph)
-        per_edge = (b2 - b1) / (e2 - e1)
-        n3, e3, b3 = _retained([[2 * i, 2 * i + 1] for i in range(10_000)])
-        per_node = (b3 - per_edge * e3) / n3
-        # A dense graph above 400 nodes (frames of half of 1,100 features: ~88 % of the
-        # pairs are edges) is held in the dense store: 24 B per pair, edge or not.
-        frames = [sorted(rng.choice(1100, size=550, replace=False).tolist()) for _ in range(7)]
-        n4, e4, b4 = _retained(frames)
-    finally:
-        tracemalloc.stop()
-    return {
-        "per_edge": per_edge,
-        "per_node": per_node,
-        "dense_nodes": n4,
-        "dense_share": 200.0 * e4 / (n4 * (n4 - 1)),
-        "dense_per_edge": (b4 - per_node * n4) / e4,
-    }
-
-
-def memory_child(nodes: int, edges: int, alive: int) -> dict[str, float]:
-    """Build one session of ``nodes`` landmarks, ``alive`` tracked at a time, to ``edges``.
-
-    New tracks start on landmarks never seen while there are any (the robot explores), so
-    the graph reaches ``nodes``. An exploring walk is a corridor to the partitioner, which
-    would split it long before, so frames are only applied; every 10 frames the pending
-    pairs are merged (reading ``edge_count`` does what a decision's refresh does first) and
-    at the end one decision runs on the whole graph. Returns the size, CPU seconds and the
-    peak RSS (VmHWM) with the RSS before the session.
-    """
-    base_kib = _hwm_kib()
-    rng = np.random.default_rng(5)
-    pool = rng.choice(10**9, size=nodes, replace=False).astype(np.int64)
-    tracks = np.arange(alive)
-    ends = rng.integers(1, 31, size=alive)
-    unseen = alive  # pool[unseen:] have not been seen yet
-    partitioner = Partitioner(PartitionParams.from_profile("stereo"))
-    started = time.process_time()
-    seq = 0
-    while True:
-        done = np.flatnonzero(ends <= seq)
-        if done.size:
-            fresh = min(done.size, nodes - unseen)
-            tracks[done[:fresh]] = np.arange(unseen, unseen + fresh)
-            unseen += fresh
-            if fresh < done.size:
-                free = np.setdiff1d(np.arange(nodes), tracks, assume_unique=True)
-                tracks[done[fresh:]] = rng.choice(free, size=done.size - fresh, replace=False)
-            ends[done] = seq + rng.integers(10, 31, size=done.size)
-        partitioner.apply(seq, float(seq), pool[tracks])
-        seq += 1
-        graph = partitioner.graph
-        if seq % 10 == 0 and graph.edge_count >= edges and graph.node_count >= nodes:
-            break
-    size = {"nodes": graph.node_count, "edges": graph.edge_count}
-    before_decision_kib = _hwm_kib()
-    partitioner.decide()
-    return {
-        **size,
-        "transitions": partitioner.transitions,
-        "peak_before_decision_mib": before_decision_kib / 1024,
-        "frames": seq,
-        "cpu_s": time.process_time() - started,
-        "base_rss_mib": base_kib / 1024,
-        "peak_rss_mib": _hwm_kib() / 1024,
-    }
-
-
-def _hwm_kib() -> int:
-    # VmHWM, the peak RSS of this process image (ru_maxrss would carry the parent's over
-    # fork and exec).
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1])
-    return 0
-
-
-def run_memory_child(nodes: int, edges: int, alive: int) -> dict[str, float]:
-    """Run ``memory_child`` in a fresh interpreter; return its JSON answer."""
-    command = [sys.executable, "-m", "benchmarks.core_bench", "--memory-child"]
-    command += [str(nodes), str(edges), str(alive)]
-    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, check=True)
-    answer: dict[str, float] = json.loads(done.stdout.strip().splitlines()[-1])
-    return answer
 
 
 # -- report --------------------------------------------------------------------------------

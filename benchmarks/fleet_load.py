@@ -18,13 +18,12 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
+from benchmarks.fleet.cli import add_fleet_options, run_fleet
+from benchmarks.fleet.knee import find_knee
 from benchmarks.fleet.orchestrate import (
     LoadReport,
     LoadSpec,
-    add_fleet_options,
-    find_knee,
     format_report,
-    run_fleet,
     run_load,
     simulated_streams,
 )

@@ -27,7 +27,6 @@ Lost frames are counted by seq on the service side: after every robot sent its
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -47,9 +46,9 @@ from benchmarks.fleet.loadgen import (
     LoadSpec,
     calibrate_spacing,
     generator_main,
-    robot_name,
     simulated_streams,
 )
+from benchmarks.fleet.metrics import histogram, parse_metrics
 from benchmarks.fleet.process import (
     RouterProcess,
     Sampler,
@@ -63,25 +62,15 @@ from benchmarks.fleet.process import (
     offline_baseline,
     proc_cpu_s,
     proc_status_kib,
-    pyspy_path,
     stop_all,
     stop_process,
     thread_cpu_s,
 )
-from benchmarks.fleet.report import (
-    KNEE_HEADER,
-    InstanceFigures,
-    LoadReport,
-    _json,
-    format_report,
-    histogram,
-    knee_row,
-    parse_metrics,
-)
-from benchmarks.fleet.takeover import TakeoverWatch
+from benchmarks.fleet.report import InstanceFigures, LoadReport, format_report
+from benchmarks.fleet.takeover import TakeoverWatch, _kill_one
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Sequence
+    from collections.abc import Iterable, Sequence
 
     import zenoh
 
@@ -90,17 +79,13 @@ if TYPE_CHECKING:
 __all__ = [
     "LoadReport",
     "LoadSpec",
-    "add_fleet_options",
-    "find_knee",
     "format_report",
     "generator_main",
-    "run_fleet",
     "run_load",
     "simulated_streams",
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-_KNEE_ROBOTS = (25, 50, 100, 150, 200, 300, 400, 600, 800, 1000)
 
 
 # -- one run -------------------------------------------------------------------------------------
@@ -375,63 +360,6 @@ class _CheckpointTap:
         return self.puts, self.bytes, self.sampled_zlib / self.sampled if self.sampled else math.nan
 
 
-def _kill_one(
-    spec: LoadSpec,
-    services: Sequence[ServiceProcess | WorkerView],
-    t0: float,
-    cpu_start: dict[int, float],
-    figures: dict[str, InstanceFigures],
-    session: zenoh.Session,
-    say: Callable[[str], None],
-) -> TakeoverWatch:
-    """At ``t0 + kill_after_s``, kill -9 the first instance; watch its robots move."""
-    from lessmap_schemas.partition import assignment, partition_of
-
-    assert spec.kill_after_s is not None
-    victim, survivors = services[0], services[1:]
-    owners = assignment([i.instance for i in services])
-    lost = {p for p, (owner, _) in owners.items() if owner == victim.instance}
-    period = 1.0 / spec.rate_hz
-    time.sleep(max(0.0, t0 + spec.kill_after_s - time.time()))
-    metrics = parse_metrics(victim.metrics_text())
-    cpu = proc_cpu_s(victim.pid) - cpu_start[victim.pid]
-    killed_at = victim.kill9()
-    figures[victim.instance] = InstanceFigures.from_metrics(
-        metrics,
-        name=victim.instance,
-        pid=victim.pid,
-        robots=0,
-        partitions_at_start=len(lost),
-        frames_offered=0,
-        cpu_load_s=cpu,
-        killed=True,
-    )
-    # The last frame each moved robot had published at the kill, from the schedule
-    # (robot i publishes frame k at t0 + k/R + i/(N R)).
-    moved: dict[str, int] = {}
-    for index in range(spec.robots):
-        name = robot_name(index)
-        if partition_of(spec.fleet, name) in lost:
-            due = (killed_at - t0 - index * period / spec.robots) / period
-            moved[name] = min(spec.frames_per_robot - 1, math.floor(due))
-    say(
-        f"killed {victim.instance} (pid {victim.pid}) with SIGKILL: {len(moved)} robots on "
-        f"{len(lost)} partitions move"
-    )
-    watch = TakeoverWatch(
-        session,
-        spec.fleet,
-        moved,
-        victim,
-        survivors,
-        killed_at,
-        len(lost),
-        timeout_s=max(10.0, spec.duration_s - spec.kill_after_s + 10.0),
-    )
-    watch.start()
-    return watch
-
-
 def _fill_instances(
     report: LoadReport, figures: list[InstanceFigures], results: list[dict[str, Any]]
 ) -> None:
@@ -609,231 +537,6 @@ def _build_report(
             "nominal (CPU shared with the service, or Zenoh back-pressure)"
         )
     return report
-
-
-# -- the knee --------------------------------------------------------------------------------
-
-
-def find_knee(
-    base: LoadSpec,
-    robots: Sequence[int],
-    log: IO[str] | None = None,
-    meets: Callable[[LoadReport], bool] = LoadReport.passes,
-) -> tuple[int | None, list[LoadReport]]:
-    """Run increasing fleet sizes until one misses the bar; return the largest that met it."""
-    reports: list[LoadReport] = []
-    knee: int | None = None
-    for count in robots:
-        report = run_load(replace(base, robots=count), log=log)
-        reports.append(report)
-        if log is not None:
-            log.write(knee_row(report) + "\n")
-            log.flush()
-        if not meets(report):
-            break
-        knee = count
-    return knee, reports
-
-
-# -- command line ------------------------------------------------------------------------------
-
-
-def add_fleet_options(parser: argparse.ArgumentParser) -> None:
-    """Add the options of the fleet load benchmark (shared with benchmarks/fleet_load.py)."""
-    parser.add_argument("--robots", type=int, default=200, help="robots N (default 200)")
-    parser.add_argument("--rate", type=float, default=10.0, help="frames/s per robot (10)")
-    parser.add_argument("--features", type=int, default=20, help="mean features per frame (20)")
-    parser.add_argument("--duration", type=float, default=60.0, help="seconds of load (60)")
-    parser.add_argument("--seed", type=int, default=0, help="simulator seed (0)")
-    parser.add_argument(
-        "--generators",
-        type=int,
-        default=2,
-        choices=[1, 2, 3, 4],
-        help="load generator processes (default 2)",
-    )
-    parser.add_argument("--rooms", type=int, default=12, help="rooms per building (12)")
-    parser.add_argument("--shards", type=int, help="service shards (default: its own, 1)")
-    parser.add_argument(
-        "--workers",
-        dest="serve_workers",
-        type=int,
-        default=1,
-        help="worker processes of each `lessmap serve --workers N` (default 1); each worker "
-        "is reported as an instance",
-    )
-    parser.add_argument(
-        "--compare-workers",
-        type=lambda t: [int(v) for v in t.split(",")],
-        metavar="N,M",
-        help="with --find-knee: find the knee for each of these --workers counts in one run "
-        "and print them side by side",
-    )
-    parser.add_argument(
-        "--instances",
-        type=int,
-        default=1,
-        help="service instances (default 1: one instance, its own router); N > 1: a "
-        "`lessmap router` and N instances joined to it as clients, sharing the fleet's "
-        "partitions; the report gives each instance's frames received next to its robots'",
-    )
-    parser.add_argument(
-        "--kill-one-after",
-        type=float,
-        metavar="S",
-        help="with --instances >= 2: kill -9 one instance S seconds into the load and report "
-        "how long until each of its robots is served by a survivor, and the frames lost",
-    )
-    parser.add_argument(
-        "--max-batch-frames",
-        type=int,
-        help="service coalescing bound (default: its own; 1 = decide per frame)",
-    )
-    parser.add_argument(
-        "--batch-linger-ms",
-        type=float,
-        help="service wait for more frames after a wake-up (default: its own; 0 = off)",
-    )
-    parser.add_argument(
-        "--memory-only",
-        action="store_true",
-        help="run the service without session checkpoints (default: checkpoints on)",
-    )
-    parser.add_argument(
-        "--pin-generators",
-        action="store_true",
-        help="run the load generators on the last CPU only (default: anywhere); the service "
-        "keeps every CPU",
-    )
-    parser.add_argument(
-        "--method",
-        choices=["paper", "areas"],
-        help="segmentation method of the service's sessions (default: its own, areas)",
-    )
-    parser.add_argument("--json", action="store_true", help="print the report as JSON")
-    parser.add_argument(
-        "--find-knee",
-        action="store_true",
-        help="run increasing N at --rate x --features and report the largest N "
-        "with 0 lost, p99 service latency ≤ 250 ms and flat RSS",
-    )
-    parser.add_argument(
-        "--knee-robots",
-        type=lambda t: [int(v) for v in t.split(",")],
-        default=list(_KNEE_ROBOTS),
-        help="fleet sizes for --find-knee, comma separated",
-    )
-    parser.add_argument(
-        "--knee-duration",
-        type=float,
-        default=40.0,
-        help="seconds per --find-knee step (40: shorter steps end before the CovGraphs of "
-        "200+ robots have grown, and the RSS rule then fails on warm-up)",
-    )
-    parser.add_argument(
-        "--profile",
-        type=Path,
-        metavar="FILE",
-        help="py-spy record the service after warm-up: raw collapsed stacks "
-        "plus FILE.summary.txt, or a flame graph if FILE ends in .svg",
-    )
-    parser.add_argument(
-        "--profile-duration", type=float, default=20.0, help="seconds of profile (20)"
-    )
-    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
-
-
-def spec_from_args(args: argparse.Namespace) -> LoadSpec:
-    """Build the load spec from parsed options."""
-    return LoadSpec(
-        robots=args.robots,
-        rate_hz=args.rate,
-        features=args.features,
-        duration_s=args.duration,
-        seed=args.seed,
-        generators=args.generators,
-        rooms=args.rooms,
-        shards=args.shards,
-        serve_workers=args.serve_workers,
-        instances=args.instances,
-        kill_after_s=args.kill_one_after,
-        max_batch_frames=args.max_batch_frames,
-        batch_linger_ms=args.batch_linger_ms,
-        memory_only=args.memory_only,
-        pin_generators=args.pin_generators,
-        method=args.method,
-    )
-
-
-def run_fleet(args: argparse.Namespace) -> int:
-    """Run the fleet load benchmark; exit code 0 when the bar is met, 2 when missed."""
-    log = None if args.quiet else sys.stderr
-    spec = spec_from_args(args)
-    if args.find_knee and args.compare_workers:
-        return _compare_workers(spec, args, log)
-    if args.find_knee:
-        if log is not None:
-            log.write(KNEE_HEADER + "\n")
-        knee, reports = find_knee(
-            replace(spec, duration_s=args.knee_duration), args.knee_robots, log=log
-        )
-        if args.json:
-            sys.stdout.write(
-                _json({"knee_robots": knee, "runs": [r.as_dict() for r in reports]}) + "\n"
-            )
-        else:
-            table = "\n".join([KNEE_HEADER, *(knee_row(r) for r in reports)])
-            found = f"{knee} robots" if knee is not None else "none of these sizes met the bar"
-            sys.stdout.write(
-                f"{table}\nknee: {found} at {spec.rate_hz:g} Hz × {spec.features} features\n"
-            )
-        return 0
-    if args.profile is not None and pyspy_path() is None:
-        sys.stderr.write("fleet_load: --profile needs py-spy (pip install py-spy)\n")
-        return 2
-    report = run_load(spec, profile=args.profile, profile_duration_s=args.profile_duration, log=log)
-    if args.json:
-        sys.stdout.write(_json(report.as_dict()) + "\n")
-    else:
-        sys.stdout.write(format_report(report))
-    return 0 if report.passes() else 2
-
-
-def _compare_workers(spec: LoadSpec, args: argparse.Namespace, log: IO[str] | None) -> int:
-    """The knee of each ``--workers`` count of ``--compare-workers``, side by side."""
-    found: list[tuple[int, int | None, list[LoadReport]]] = []
-    for count in args.compare_workers:
-        if log is not None:
-            log.write(f"--workers {count}\n{KNEE_HEADER}\n")
-        knee, reports = find_knee(
-            replace(spec, duration_s=args.knee_duration, serve_workers=count),
-            args.knee_robots,
-            log=log,
-            meets=LoadReport.meets_latency_bar,
-        )
-        found.append((count, knee, reports))
-    if args.json:
-        runs = {
-            str(count): {"knee_robots": knee, "runs": [r.as_dict() for r in reports]}
-            for count, knee, reports in found
-        }
-        sys.stdout.write(_json({"workers": runs, "load_average_end": load_average()}) + "\n")
-        return 0
-    lines = []
-    for count, _knee, reports in found:
-        lines += [f"--workers {count}", KNEE_HEADER, *(knee_row(r) for r in reports)]
-    knees = ", ".join(
-        f"{knee if knee is not None else 'none'} robots with --workers {count}"
-        for count, knee, _ in found
-    )
-    one_min, five_min, _ = load_average()
-    lines.append(
-        f"knee (0 lost, p99 receipt -> decision <= 250 ms; the pass column adds flat RSS) "
-        f"at {spec.rate_hz:g} Hz x {spec.features} features: {knees} "
-        f"(load average at the end {one_min:.2f} / {five_min:.2f}, {os.cpu_count()} CPUs)"
-    )
-    sys.stdout.write("\n".join(lines) + "\n")
-    return 0
 
 
 if __name__ == "__main__":

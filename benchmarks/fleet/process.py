@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from benchmarks.fleet.report import summarize_profile
+from benchmarks.fleet.profile_summary import summarize_profile
 
 if TYPE_CHECKING:
     from collections.abc import Callable

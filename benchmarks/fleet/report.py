@@ -1,80 +1,24 @@
 """The report of the fleet load benchmark: Prometheus histograms, figures, text and JSON.
 
 ``LoadReport`` holds everything one load run measured; ``format_report`` and ``knee_row``
-print it, ``_json`` writes it as strict JSON. ``parse_metrics`` and ``histogram`` read the
-service's Prometheus exposition; ``summarize_profile`` condenses py-spy collapsed stacks.
+print it, ``_json`` writes it as strict JSON. ``parse_metrics`` and ``histogram``
+(``metrics.py``) read the service's Prometheus exposition; ``summarize_profile``
+(``profile_summary.py``) condenses py-spy collapsed stacks.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from benchmarks.fleet.loadgen import LoadSpec
+from benchmarks.fleet.metrics import Histogram
 from lessmap.core.segmenter import DEFAULT_METHOD
 
 _QUEUE_P99_TARGET_S = 0.25
 _RSS_FLAT_FRACTION = 0.05  # growth over the load's second half above this share: not flat
-
-
-# -- Prometheus metrics -----------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Histogram:
-    """A Prometheus histogram: bucket upper bounds and cumulative counts."""
-
-    bounds: tuple[float, ...]
-    cumulative: tuple[float, ...]
-    count: float
-    total: float
-
-    def quantile(self, q: float) -> float:
-        """Upper bound of the bucket holding the q-quantile (inf past the last bound)."""
-        if self.count <= 0:
-            return math.nan
-        for bound, seen in zip(self.bounds, self.cumulative, strict=True):
-            if seen >= q * self.count:
-                return bound
-        return math.inf
-
-    @property
-    def mean(self) -> float:
-        """Mean of the observations."""
-        return self.total / self.count if self.count else math.nan
-
-
-_SAMPLE = re.compile(r"^([a-zA-Z_:][\w:]*)(\{[^}]*\})?\s+(\S+)$")
-
-
-def parse_metrics(text: str) -> dict[str, float]:
-    """Return every sample of a Prometheus text exposition as ``name{labels}`` -> value."""
-    samples: dict[str, float] = {}
-    for line in text.splitlines():
-        match = _SAMPLE.match(line)
-        if match and not line.startswith("#"):
-            samples[match[1] + (match[2] or "")] = float(match[3])
-    return samples
-
-
-def histogram(samples: dict[str, float], name: str) -> Histogram:
-    """Extract one histogram from ``parse_metrics`` output."""
-    buckets: list[tuple[float, float]] = []
-    for key, value in samples.items():
-        if key.startswith(f"{name}_bucket{{"):
-            le = re.search(r'le="([^"]+)"', key)
-            if le:
-                buckets.append((float(le[1]), value))
-    buckets.sort()
-    return Histogram(
-        tuple(b for b, _ in buckets),
-        tuple(c for _, c in buckets),
-        samples.get(f"{name}_count", 0.0),
-        samples.get(f"{name}_sum", 0.0),
-    )
 
 
 # -- the report --------------------------------------------------------------------------------
@@ -514,55 +458,6 @@ def _rss_line(samples: list[tuple[float, int, float]], points: int = 12) -> str:
         return "-"
     step = max(1, len(samples) // points)
     return ", ".join(f"{t:.0f}: {kib / 1024:.0f}" for t, kib, _ in samples[::step])
-
-
-# -- profile summary ------------------------------------------------------------------------
-
-
-def summarize_profile(raw: str, top: int = 25) -> str:
-    """Summarize py-spy raw (collapsed) stacks: share of samples by thread, self, inclusive.
-
-    Frames are merged by function and file (line numbers dropped), so a function counts
-    once however many of its lines were sampled.
-    """
-    own: dict[str, float] = {}
-    inclusive: dict[str, float] = {}
-    threads: dict[str, float] = {}
-    total = 0.0
-    for line in raw.splitlines():
-        stack, _, count_text = line.rpartition(" ")
-        if not stack or not count_text.isdigit():
-            continue
-        count = float(count_text)
-        thread, *calls = stack.split(";")
-        calls = [_LINE_NUMBER.sub(")", frame) for frame in calls] or [thread]
-        total += count
-        name = _THREAD_ID.sub("", thread)
-        threads[name] = threads.get(name, 0.0) + count
-        own[calls[-1]] = own.get(calls[-1], 0.0) + count
-        for frame in set(calls):
-            inclusive[frame] = inclusive.get(frame, 0.0) + count
-    if not total:
-        return "no samples\n"
-    lines = [
-        f"{total:.0f} samples of the service thread holding the GIL",
-        "",
-        "by thread:",
-    ]
-    lines += [f"  {100 * n / total:5.1f} %  {name}" for name, n in _top(threads, top)]
-    lines += ["", "self time (the function itself):"]
-    lines += [f"  {100 * n / total:5.1f} %  {name}" for name, n in _top(own, top)]
-    lines += ["", "inclusive time (the function and what it calls):"]
-    lines += [f"  {100 * n / total:5.1f} %  {name}" for name, n in _top(inclusive, top)]
-    return "\n".join(lines) + "\n"
-
-
-_LINE_NUMBER = re.compile(r":\d+\)$")
-_THREAD_ID = re.compile(r"^thread \(\d+\): ")
-
-
-def _top(counts: dict[str, float], top: int) -> list[tuple[str, float]]:
-    return sorted(counts.items(), key=lambda item: -item[1])[:top]
 
 
 # -- the knee table ---------------------------------------------------------------------------

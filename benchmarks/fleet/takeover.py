@@ -24,13 +24,17 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from benchmarks.fleet.report import parse_metrics
+from benchmarks.fleet.loadgen import robot_name
+from benchmarks.fleet.metrics import parse_metrics
+from benchmarks.fleet.process import proc_cpu_s
+from benchmarks.fleet.report import InstanceFigures
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     import zenoh
 
+    from benchmarks.fleet.loadgen import LoadSpec
     from benchmarks.fleet.process import ServiceProcess, WorkerView
 
 _TOOK = re.compile(r"took (\d+) partition\(s\) in (\d+) ms \((\d+) checkpoint")
@@ -192,3 +196,60 @@ class TakeoverWatch:
             return True
         when = time.mktime(time.strptime(stamp[1].replace("T", " "), "%Y-%m-%d %H:%M:%S"))
         return when + float(f"0.{stamp[2]}") >= self.result.killed_at - 0.001
+
+
+def _kill_one(
+    spec: LoadSpec,
+    services: Sequence[ServiceProcess | WorkerView],
+    t0: float,
+    cpu_start: dict[int, float],
+    figures: dict[str, InstanceFigures],
+    session: zenoh.Session,
+    say: Callable[[str], None],
+) -> TakeoverWatch:
+    """At ``t0 + kill_after_s``, kill -9 the first instance; watch its robots move."""
+    from lessmap_schemas.partition import assignment, partition_of
+
+    assert spec.kill_after_s is not None
+    victim, survivors = services[0], services[1:]
+    owners = assignment([i.instance for i in services])
+    lost = {p for p, (owner, _) in owners.items() if owner == victim.instance}
+    period = 1.0 / spec.rate_hz
+    time.sleep(max(0.0, t0 + spec.kill_after_s - time.time()))
+    metrics = parse_metrics(victim.metrics_text())
+    cpu = proc_cpu_s(victim.pid) - cpu_start[victim.pid]
+    killed_at = victim.kill9()
+    figures[victim.instance] = InstanceFigures.from_metrics(
+        metrics,
+        name=victim.instance,
+        pid=victim.pid,
+        robots=0,
+        partitions_at_start=len(lost),
+        frames_offered=0,
+        cpu_load_s=cpu,
+        killed=True,
+    )
+    # The last frame each moved robot had published at the kill, from the schedule
+    # (robot i publishes frame k at t0 + k/R + i/(N R)).
+    moved: dict[str, int] = {}
+    for index in range(spec.robots):
+        name = robot_name(index)
+        if partition_of(spec.fleet, name) in lost:
+            due = (killed_at - t0 - index * period / spec.robots) / period
+            moved[name] = min(spec.frames_per_robot - 1, math.floor(due))
+    say(
+        f"killed {victim.instance} (pid {victim.pid}) with SIGKILL: {len(moved)} robots on "
+        f"{len(lost)} partitions move"
+    )
+    watch = TakeoverWatch(
+        session,
+        spec.fleet,
+        moved,
+        victim,
+        survivors,
+        killed_at,
+        len(lost),
+        timeout_s=max(10.0, spec.duration_s - spec.kill_after_s + 10.0),
+    )
+    watch.start()
+    return watch

@@ -9,11 +9,11 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from benchmarks import core_bench
+from benchmarks import core_bench, core_streams
 from lessmap.core.paper import covgraph
 
 if TYPE_CHECKING:
-    from benchmarks.core_bench import Stream
+    from benchmarks.core_streams import Stream
 
 
 def test_the_table_is_printed_at_tiny_sizes(capsys: pytest.CaptureFixture[str]) -> None:
@@ -48,10 +48,10 @@ def test_the_table_is_printed_at_tiny_sizes(capsys: pytest.CaptureFixture[str]) 
 @pytest.mark.parametrize(
     "stream",
     [
-        core_bench.room_chain(50, frames=20),
-        core_bench.room_chain(200, frames=20),  # dense counts, the λ2 floor carried
-        core_bench.room_chain(450, frames=12),  # above 400 nodes: CSR counts and ARPACK
-        core_bench.visual(frames_per_room=25, alive=120, pool=300, warmup=5),
+        core_streams.room_chain(50, frames=20),
+        core_streams.room_chain(200, frames=20),  # dense counts, the λ2 floor carried
+        core_streams.room_chain(450, frames=12),  # above 400 nodes: CSR counts and ARPACK
+        core_streams.visual(frames_per_room=25, alive=120, pool=300, warmup=5),
     ],
     ids=["room chain 50", "room chain 200", "room chain 450", "small visual"],
 )
@@ -68,7 +68,7 @@ def test_decisions_with_the_dense_store_above_dense_max_nodes_equal_the_exact_de
 ):
     # 120 of 300 landmarks a frame: most pairs are edges, so above 100 nodes the graph is
     # held in the dense store and handed to ARPACK as CSR (71 of the 75 decisions).
-    stream = core_bench.visual(frames_per_room=25, alive=120, pool=300, warmup=5)
+    stream = core_streams.visual(frames_per_room=25, alive=120, pool=300, warmup=5)
     params = core_bench.params_of(stream, dense_max_nodes=100)
     fast = core_bench.decisions(stream, params, exact=False)
     assert fast == core_bench.decisions(stream, params, exact=True)
@@ -76,7 +76,7 @@ def test_decisions_with_the_dense_store_above_dense_max_nodes_equal_the_exact_de
 
 
 def test_the_store_comparison_runs_both_stores_to_the_same_decisions() -> None:
-    stream = core_bench.visual(frames_per_room=15, alive=120, pool=300, warmup=5)
+    stream = core_streams.visual(frames_per_room=15, alive=120, pool=300, warmup=5)
     line = core_bench.store_ab(stream, core_bench.params_of(stream, dense_max_nodes=100))
     assert "dense store: median" in line
     assert "sparse store: median" in line
