@@ -75,9 +75,8 @@ def lambda2_exceeds(w: Similarity, bound: float) -> bool:
     Cholesky factorization of a matrix that is positive definite exactly when λ2 > bound +
     ``CERTIFICATE_MARGIN`` (Sylvester's law of inertia), both cheaper than the eigen-solve.
     The margin covers the factorization's rounding up to ``CERTIFICATE_MAX_NODES``; larger
-    graphs are never factorized. False means "not
-    proven": the caller solves as usual, so decisions never change. The proof:
-    ``docs/design/drift-certificate.md``.
+    graphs are never factorized. False means "not proven": the caller solves as usual, so
+    decisions never change. The proofs: ``docs/design/drift-certificate.md``.
 
     Args:
         w: CovRate similarity, symmetric, non-negative, zero diagonal, shape (n, n).
