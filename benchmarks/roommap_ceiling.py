@@ -8,8 +8,9 @@ the ground-truth rooms' cells and labelled with their true room, a robot that we
 everywhere and segmented perfectly; the room map (``lessmap.floorplan.roommap``) is scored
 with the benchmark's per-room precision and recall, with rule 3 (doorway regions) and
 without it. The doorway regions alone (no poses) are the geometry's own segmentation. The
-last column labels every free cell with its true room: the best a map of free cells can
-score (with furniture, the cells under it count in the ground truth and in no such map).
+last column labels every free cell with its true room, and furniture by rule 6: the best
+such a map can score (with furniture, the cells under a piece joined to a wall count in
+the ground truth and in no such map).
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
         "--join-across-doorways", action="store_true", help="rule 5 off, as in lessmap rooms"
     )
     parser.add_argument(
+        "--no-furniture-rooms", action="store_true", help="rule 6 off: furniture unlabelled"
+    )
+    parser.add_argument(
         "--furniture-max-m",
         type=float,
         default=RoomMapParams().furniture_max_m,
@@ -53,9 +57,11 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write(f"no *_gt_segmentation.png in {args.floorplans}\n")
         return 1
     params = RoomMapParams(
-        split_at_doorways=not args.join_across_doorways, furniture_max_m=args.furniture_max_m
+        split_at_doorways=not args.join_across_doorways,
+        furniture_max_m=args.furniture_max_m,
+        furniture_rooms=not args.no_furniture_rooms,
     )
-    columns = ("nearest pose", "with doorways", "doorways alone", "free cells, true rooms")
+    columns = ("nearest pose", "with doorways", "doorways alone", "true rooms")
     print("| map | " + " | ".join(columns) + " |")
     print("|---|" + "---|" * len(columns))
     scores: dict[str, list[tuple[float, float]]] = {c: [] for c in columns}
@@ -72,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         regions = passage_regions(grid, params)
         assert regions is not None  # the default door width: rule 3 is on
         with_doorways = room_map(field, labels, regions, params)
-        free_truth = np.where(grid.free, truth, 0)
+        free_truth = np.where(grid.free, truth, 0).astype(np.int32)
+        if regions.furniture is not None:
+            free_truth = regions.furniture.label(free_truth)
         maps = (room_map(field, labels), with_doorways, regions.doorways, free_truth)
         row = []
         for column, labelled in zip(columns, maps, strict=True):

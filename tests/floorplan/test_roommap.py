@@ -3,12 +3,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lessmap.floorplan.furniture import FurniturePieces, furniture
 from lessmap.floorplan.grid import OccupancyGrid
 from lessmap.floorplan.roommap import (
     RoomMapParams,
     door_regions,
     fleet_room_map,
-    furniture,
     label_cells,
     merge_overlapping,
     nearest_samples,
@@ -164,6 +164,43 @@ def test_a_desk_standing_free_makes_no_doorway_a_wall_standing_free_does() -> No
         params = RoomMapParams(door_width_m=0.8, furniture_max_m=furniture_max_m)
         labels = room_map(field, areas, passage_regions(desk, params), params)
         assert len(np.unique(labels[desk.free])) == rooms
+
+
+def test_furniture_takes_the_room_around_it_and_only_one() -> None:
+    grid = two_rooms()
+    free = grid.free.copy()
+    free[4:7, 5:9] = False  # a desk in A
+    free[9:11, 20] = False  # a post in the door, between A and B
+    free[1, 30:33] = False  # a radiator on B's wall: joined to it, a wall
+    grid = OccupancyGrid(free=free, resolution_m=RES_M)
+    pieces = FurniturePieces.of(grid, 1.0)
+    assert int(pieces.pieces.max()) == 2
+    rooms = np.where(grid.free, room_of_cols(grid), 0).astype(np.int32)
+    rooms[grid.free & (np.arange(41) == 20)] = 0  # the door's own cells: no room
+    labelled = pieces.label(rooms)
+    assert (labelled[4:7, 5:9] == 1).all()
+    assert (labelled[9:11, 20] == 0).all()  # rooms 1 and 2 around it: neither
+    assert (labelled[1, 30:33] == 0).all()
+    assert (labelled[grid.free] == rooms[grid.free]).all()  # free cells untouched
+    # cells with no room aside: a desk at the edge of what was reached still takes its room
+    partly = rooms.copy()
+    partly[3:8, 4:7] = 0
+    assert (pieces.label(partly)[4:7, 5:9] == 1).all()
+    assert (pieces.label(np.zeros_like(rooms))[~grid.free] == 0).all()
+    with pytest.raises(ValueError, match="shape"):
+        pieces.label(rooms[:, :-1])
+
+
+def test_rule_6_labels_the_desk_with_the_room_map_and_can_be_turned_off() -> None:
+    desk = room_with(slice(7, 13), slice(18, 23))
+    xy = walk(desk, 2, 38)
+    field = nearest_samples(desk, xy)
+    areas = np.ones(len(xy), dtype=np.int64)
+    for furniture_rooms, desk_label in ((True, 1), (False, 0)):
+        params = RoomMapParams(door_width_m=0.8, furniture_rooms=furniture_rooms)
+        labels = room_map(field, areas, passage_regions(desk, params), params)
+        assert (labels[7:13, 18:23] == desk_label).all()
+        assert (labels[0] == 0).all()  # walls never
 
 
 def test_an_obstacle_at_the_maps_edge_is_a_wall() -> None:

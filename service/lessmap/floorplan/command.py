@@ -139,6 +139,11 @@ def add_room_map_options(parser: argparse.ArgumentParser) -> None:
         help="the smallest part beyond an opening that is a room (default %(default)s)",
     )
     parser.add_argument(
+        "--no-furniture-rooms",
+        action="store_true",
+        help="leave furniture unlabelled instead of giving it the room around it (rule 6)",
+    )
+    parser.add_argument(
         "--join-across-doorways",
         action="store_true",
         help=(
@@ -159,6 +164,7 @@ def room_map_params(args: argparse.Namespace) -> RoomMapParams:
         room_opening_m=args.room_opening_m,
         min_room_m2=args.min_room_m2,
         split_at_doorways=not args.join_across_doorways,
+        furniture_rooms=not args.no_furniture_rooms,
     )
 
 

@@ -1,6 +1,7 @@
 """A room map: each free cell of a grid labelled by the area of the robot poses it is nearest.
 
-Input: the grid and each pose with its area; output: int32 labels of the grid's shape, 0 none.
+Input: the grid and each pose with its area; output: int32 labels of the grid's shape, 0 none
+(and furniture by rule 6).
 
 1. **Nearest pose.** A free cell takes the area of the pose nearest by a walk over free cells
    (8-neighbours, diagonals √2), so a wall is never crossed; poses in one cell vote.
@@ -9,11 +10,10 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
 3. **Doorways.** Free space is cut into regions at passages narrower than ``door_width_m``
    (cores: cells over half a door from walls, each cell joining its nearest); an obstacle
    joined to no wall and at most ``furniture_max_m`` long is furniture, never one side of a
-   doorway (``furniture``). A region with
-   no pose stays 0 (seen, not visited); one an area holds ``region_share`` of goes to it
-   whole (a late decision paints nothing). What no area holds is cut again at each of the
-   ``wider_passages_m`` in turn (openings), where ``opening_share`` decides; what is left
-   keeps rule 1's labels.
+   doorway (``lessmap.floorplan.furniture``). A region with no pose stays 0 (seen, not
+   visited); one an area holds ``region_share`` of goes to it whole (a late decision
+   paints nothing). What no area holds is cut again at each of the ``wider_passages_m``
+   in turn (openings), where ``opening_share`` decides; what is left keeps rule 1's labels.
 4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
    robots' poses, one holds half of the other's; then rules 1-3 over all poses.
 5. **A room stops at a doorway.** An area's cells in two doorway regions are two rooms: a
@@ -21,6 +21,9 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
    (``split_at_doorways``). So are its cells on two sides of an opening narrower than
    ``room_opening_m`` where the part beyond holds ``min_room_m2`` (``opening_parts``,
    ``split_at_openings``).
+6. **Furniture is floor.** A piece of furniture whose free cells around name one room takes
+   that room (``furniture_rooms``; ``FurniturePieces``): what a cleaning robot cannot reach
+   under a desk is still the office.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
+
+from lessmap.floorplan.furniture import FurniturePieces, furniture
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -43,7 +48,6 @@ __all__ = [
     "SampleField",
     "door_regions",
     "fleet_room_map",
-    "furniture",
     "label_cells",
     "merge_overlapping",
     "merged_room_map",
@@ -79,6 +83,8 @@ class RoomMapParams:
     region_share: float = 0.6  # rule 3: the share of a doorway region one area must hold
     opening_share: float = 0.5  # rule 3: the same at the wider passages: the majority
     merge_m: float = 1.5  # rule 4: cells this near a robot's poses show where its areas are
+    # rule 6: the floor under furniture is the room's (the benchmark's ground truth counts it)
+    furniture_rooms: bool = True
 
     def __post_init__(self) -> None:
         if not (self.max_distance_m > 0 and self.merge_m > 0):
@@ -246,29 +252,6 @@ def label_cells(field: SampleField, labels: NDArray[np.int64]) -> NDArray[np.int
     return out
 
 
-def furniture(grid: OccupancyGrid, max_length_m: float) -> NDArray[np.bool_]:
-    """Occupied cells of free-standing obstacles no longer than ``max_length_m``.
-
-    An obstacle is an 8-connected set of occupied cells; it stands free when it touches no
-    wall (walls join up into long structures reaching the map's edge, so a short obstacle
-    not at the edge is a table, a chair or a cabinet). Its length is its bounding box's
-    longer side. ``max_length_m`` 0: none.
-    """
-    occupied = ~grid.free
-    if max_length_m <= 0 or not occupied.any():
-        return np.zeros(occupied.shape, dtype=bool)
-    labels, count = ndimage.label(occupied, structure=np.ones((3, 3)))
-    short = np.zeros(count + 1, dtype=bool)
-    longest = max_length_m / grid.resolution_m
-    for index, box in enumerate(ndimage.find_objects(labels), start=1):
-        if box is not None:
-            short[index] = max(box[0].stop - box[0].start, box[1].stop - box[1].start) <= longest
-    short[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = False
-    short[0] = False
-    out: NDArray[np.bool_] = short[labels]
-    return out
-
-
 @dataclass(frozen=True, slots=True)
 class _Floor:
     """What rules 3 and 5 cut, whatever the width: free cells and furniture (one per map)."""
@@ -280,8 +263,8 @@ class _Floor:
     node: NDArray[np.int64]
 
     @classmethod
-    def of(cls, grid: OccupancyGrid, furniture_max_m: float) -> _Floor:
-        walkable = grid.free | furniture(grid, furniture_max_m)
+    def of(cls, grid: OccupancyGrid, furniture_cells: NDArray[np.bool_]) -> _Floor:
+        walkable = grid.free | furniture_cells
         clearance = ndimage.distance_transform_edt(walkable) * grid.resolution_m
         graph, node = _free_graph(walkable)
         return cls(grid, walkable, clearance, graph, node)
@@ -315,7 +298,7 @@ def door_regions(
     shape: 0 on occupied cells (furniture too) and on free cells no core reaches, regions
     1..k otherwise.
     """
-    return _door_regions(_Floor.of(grid, furniture_max_m), door_width_m)
+    return _door_regions(_Floor.of(grid, furniture(grid, furniture_max_m)), door_width_m)
 
 
 def _door_regions(floor: _Floor, width_m: float) -> NDArray[np.int32]:
@@ -331,6 +314,7 @@ class PassageRegions:
     widths_m: tuple[float, ...]  # the widths the levels were cut at
     levels: tuple[NDArray[np.int32], ...]  # one ``door_regions`` array a width
     openings: NDArray[np.int32] | None = None  # ``opening_parts``; None: rule 5 at doorways only
+    furniture: FurniturePieces | None = None  # rule 6; None: off
 
     @property
     def doorways(self) -> NDArray[np.int32]:
@@ -341,16 +325,19 @@ class PassageRegions:
 def passage_regions(grid: OccupancyGrid, params: RoomMapParams) -> PassageRegions | None:
     """Rule 3's regions at the doorway width, then at each wider passage; None when off.
 
-    When rule 5 applies at openings, its parts (``opening_parts``) come with them.
+    When rule 5 applies at openings, its parts (``opening_parts``) come with them, and
+    the furniture pieces when rule 6 is on.
     """
     widths = params.passage_widths_m
     if not widths:
         return None
-    floor = _Floor.of(grid, params.furniture_max_m)
+    pieces = FurniturePieces.of(grid, params.furniture_max_m)
+    floor = _Floor.of(grid, pieces.pieces > 0)
     levels = tuple(_door_regions(floor, width) for width in widths)
-    if not params.splits_at_openings:
-        return PassageRegions(widths, levels)
-    return PassageRegions(widths, levels, _opening_parts(floor, levels[0], params.room_opening_m))
+    openings = None
+    if params.splits_at_openings:
+        openings = _opening_parts(floor, levels[0], params.room_opening_m)
+    return PassageRegions(widths, levels, openings, pieces if params.furniture_rooms else None)
 
 
 def opening_parts(
@@ -364,7 +351,7 @@ def opening_parts(
     a wide corridor part from it, and a narrow corridor is never shared out among the
     rooms along it. Returns int32 parts, 0 where ``doorways`` is 0.
     """
-    return _opening_parts(_Floor.of(grid, furniture_max_m), doorways, width_m)
+    return _opening_parts(_Floor.of(grid, furniture(grid, furniture_max_m)), doorways, width_m)
 
 
 def _opening_parts(floor: _Floor, doorways: NDArray[np.int32], width_m: float) -> NDArray[np.int32]:
@@ -422,12 +409,13 @@ def room_map(
             break
         share = params.region_share if index == 0 else params.opening_share
         cells, undecided = _give_dominated(cells, level, undecided, share)
-    if not params.split_at_doorways:
-        return cells
-    cells = split_at_doorways(cells, doorways)
-    if params.splits_at_openings and regions.openings is not None:
-        min_cells = round(params.min_room_m2 / field.resolution_m**2)
-        cells = split_at_openings(cells, regions.openings, min_cells)
+    if params.split_at_doorways:
+        cells = split_at_doorways(cells, doorways)
+        if params.splits_at_openings and regions.openings is not None:
+            min_cells = round(params.min_room_m2 / field.resolution_m**2)
+            cells = split_at_openings(cells, regions.openings, min_cells)
+    if regions.furniture is not None:
+        cells = regions.furniture.label(cells)
     return cells
 
 
