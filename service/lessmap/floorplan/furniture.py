@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import ndimage
 
+from lessmap.floorplan.pairs import unique_pairs
+
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
@@ -89,9 +91,7 @@ class FurniturePieces:
                 touch = (pieces[here] > 0) & grid.free[there]
                 ring_piece.append(pieces[here][touch].astype(np.int64))
                 ring_cell.append(flat[there][touch])
-        pairs = np.unique(
-            np.stack([np.concatenate(ring_piece), np.concatenate(ring_cell)], axis=1), axis=0
-        ).reshape(-1, 2)
+        pairs, _, _ = unique_pairs(np.concatenate(ring_piece), np.concatenate(ring_cell))
         return cls(pieces, pairs[:, 0].copy(), pairs[:, 1].copy())
 
     def label(self, rooms: NDArray[np.int32]) -> NDArray[np.int32]:
@@ -101,8 +101,7 @@ class FurniturePieces:
             raise ValueError(msg)
         around = rooms.ravel()[self.ring_cell]
         named = around > 0
-        pairs = np.unique(np.stack([self.ring_piece[named], around[named]], axis=1), axis=0)
-        pairs = pairs.reshape(-1, 2)
+        pairs, _, _ = unique_pairs(self.ring_piece[named], around[named])
         count = np.bincount(pairs[:, 0], minlength=int(self.pieces.max(initial=0)) + 1)
         room_of_piece = np.zeros(count.size, dtype=np.int32)
         single = pairs[count[pairs[:, 0]] == 1]

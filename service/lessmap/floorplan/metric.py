@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from lessmap.floorplan.pairs import unique_pairs
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
@@ -71,8 +73,7 @@ def precision_recall(
     overlap = np.zeros((segments.size, rooms.size))
     both = np.isin(seg, segments) & np.isin(gt, rooms)
     if both.any():
-        pairs = np.stack([seg[both], gt[both]], axis=1)
-        unique, counts = np.unique(pairs, axis=0, return_counts=True)
+        unique, counts, _ = unique_pairs(seg[both], gt[both])
         rows = np.searchsorted(segments, unique[:, 0])
         cols = np.searchsorted(rooms, unique[:, 1])
         overlap[rows, cols] = counts
@@ -189,8 +190,7 @@ def _match(
 
 def _majority_share(groups: NDArray[np.int64], values: NDArray[np.int64]) -> NDArray[np.bool_]:
     """Per element, whether its value is its group's most common one (ties: the smaller)."""
-    pairs = np.stack([groups, values], axis=1)
-    unique, inverse, counts = np.unique(pairs, axis=0, return_inverse=True, return_counts=True)
+    unique, counts, inverse = unique_pairs(groups, values)
     order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
     first = np.unique(unique[order, 0], return_index=True)[1]
     best = unique[order][first]  # per group, in group order

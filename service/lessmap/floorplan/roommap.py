@@ -36,6 +36,7 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
 from lessmap.floorplan.furniture import FurniturePieces, furniture
+from lessmap.floorplan.pairs import unique_pairs
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -240,8 +241,7 @@ def label_cells(field: SampleField, labels: NDArray[np.int64]) -> NDArray[np.int
     source_label = np.zeros(field.source_cells.size, dtype=np.int64)
     if kept.any():
         # count (source, label) pairs; per source the label with most samples, smaller on ties
-        pairs = np.stack([field.sample_source[kept], labels[kept]], axis=1)
-        unique, counts = np.unique(pairs, axis=0, return_counts=True)
+        unique, counts, _ = unique_pairs(field.sample_source[kept], labels[kept])
         order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
         first = np.unique(unique[order, 0], return_index=True)[1]
         best = unique[order][first]
@@ -426,8 +426,7 @@ def _give_dominated(
     both = undecided & (regions > 0)
     if not both.any():
         return cells, undecided
-    pairs = np.stack([regions[both], cells[both]], axis=1).astype(np.int64)
-    unique, counts = np.unique(pairs, axis=0, return_counts=True)
+    unique, counts, _ = unique_pairs(regions[both], cells[both])
     totals = np.bincount(unique[:, 0], weights=counts)
     order = np.lexsort((unique[:, 1], -counts, unique[:, 0]))
     first = np.unique(unique[order, 0], return_index=True)[1]
@@ -510,8 +509,7 @@ def merge_overlapping(
                 continue
             size_a = np.bincount(maps[a].ravel(), minlength=int(offsets[a + 1] - offsets[a]) + 1)
             size_b = np.bincount(maps[b].ravel(), minlength=int(offsets[b + 1] - offsets[b]) + 1)
-            pairs = np.stack([maps[a][both], maps[b][both]], axis=1).astype(np.int64)
-            unique, counts = np.unique(pairs, axis=0, return_counts=True)
+            unique, counts, _ = unique_pairs(maps[a][both], maps[b][both])
             for (la, lb), count in zip(unique, counts, strict=True):
                 if count >= min_share * min(size_a[la], size_b[lb]):
                     parent[root(int(offsets[a] + la))] = root(int(offsets[b] + lb))
