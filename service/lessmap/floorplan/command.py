@@ -324,7 +324,7 @@ def _room_map_files(
     files = write_room_map(rooms, grid, args.out)
     record: dict[str, Any] = {
         "rooms": len(np.unique(rooms[rooms > 0])),
-        "labelled_share": round(float((rooms > 0).sum() / grid.free.sum()), 4),
+        "labelled_share": round(float((rooms[grid.free] > 0).sum() / grid.free.sum()), 4),
         "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
     }
     if truth is not None:

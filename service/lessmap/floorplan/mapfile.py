@@ -9,7 +9,11 @@
   occupancy is grey / 255: every free cell reads free, every wall occupied, so the file is
   a navigation map whose grey values are the rooms. ``load_grid`` reads it back, and
   ``read_room_labels`` its rooms.
-- ``<stem>.png``: walls black, free cells without a room light grey, a colour per room.
+- ``<stem>.png``: walls black, free cells without a room light grey, a colour per room,
+  furniture given a room (rule 6 of ``lessmap.floorplan.roommap``) in a darker shade of it.
+
+The PGM keeps furniture occupied whatever its room: a navigation map must not read a desk
+as floor, so the furniture's rooms are in the picture (and the scores) only.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ __all__ = ["MAX_LABELS", "RoomMapFiles", "compact_labels", "read_room_labels", "
 MAX_LABELS = 254
 OCCUPIED_GREY = 255
 UNLABELLED_RGB = (230, 230, 230)
+FURNITURE_SHADE = 0.6  # furniture in the picture: its room's colour, this much as bright
 
 
 class RoomMapFiles(NamedTuple):
@@ -113,9 +118,30 @@ def write_room_map(labels: NDArray[np.integer], grid: OccupancyGrid, stem: Path)
     colours = room_colours(count)
     labelled = rooms > 0
     rgb[labelled] = colours[rooms[labelled]]
+    furnished = _furniture_rooms(labels, rooms, grid.free)
+    shaded = furnished > 0
+    rgb[shaded] = (colours[furnished[shaded]] * FURNITURE_SHADE).astype(np.uint8)
     with _replacing(files.png) as part:
         Image.fromarray(rgb, mode="RGB").save(part, format="PNG")
     return files
+
+
+def _furniture_rooms(
+    labels: NDArray[np.integer], rooms: NDArray[np.int32], free: NDArray[np.bool_]
+) -> NDArray[np.int32]:
+    """The occupied cells' rooms, numbered as ``rooms`` numbers the free cells' (else 0)."""
+    out = np.zeros(rooms.shape, dtype=np.int32)
+    given = ~free & (np.asarray(labels) > 0)
+    named = free & (rooms > 0)
+    if not (given.any() and named.any()):
+        return out
+    # every label is one room: its free cells all carry one compact number
+    original, first = np.unique(np.asarray(labels)[named], return_index=True)
+    number = rooms[named][first]
+    index = np.clip(np.searchsorted(original, labels[given]), 0, original.size - 1)
+    found = original[index] == labels[given]
+    out[given] = np.where(found, number[index], 0)
+    return out
 
 
 @contextmanager
