@@ -13,6 +13,7 @@ from lessmap.floorplan.mapfile import (
     FURNITURE_SHADE,
     UNLABELLED_RGB,
     compact_labels,
+    read_room_cells,
     read_room_labels,
     room_colours,
     write_room_map,
@@ -50,6 +51,15 @@ def test_furniture_stays_occupied_in_the_pgm_and_is_shaded_in_the_picture(
     assert (picture[3:5, 8:10] == shade).all()
     assert (picture[1, 1] == UNLABELLED_RGB).all()
     assert (picture[0, 0] == 0).all()  # walls black
+    # every cell's room, as scored: the desk with its room, the free cells as in the PGM
+    cells = read_room_cells(files.rooms)
+    assert (cells[3:5, 8:10] == 2).all()
+    assert (cells[grid.free] == rooms[grid.free]).all()
+    assert (cells[0] == 0).all()
+    with pytest.raises(FloorplanError, match="16-bit"):
+        read_room_cells(files.png)
+    with pytest.raises(FloorplanError, match="no such file"):
+        read_room_cells(tmp_path / "none.rooms.png")
 
 
 def test_a_room_map_without_furniture_rooms_draws_none(tmp_path: Path) -> None:
@@ -58,6 +68,7 @@ def test_a_room_map_without_furniture_rooms_draws_none(tmp_path: Path) -> None:
     files = write_room_map(labels, grid, tmp_path / "rooms")
     picture = np.asarray(Image.open(files.png))
     assert (picture[3:5, 8:10] == 0).all()
+    assert (read_room_cells(files.rooms)[3:5, 8:10] == 0).all()
 
 
 def test_labels_renumber_in_raster_order_and_the_limits_hold(tmp_path: Path) -> None:

@@ -13,7 +13,8 @@ import pytest
 
 from lessmap.cli.app import main
 from lessmap.floorplan.grid import load_grid, room_labels
-from lessmap.floorplan.mapfile import read_room_labels
+from lessmap.floorplan.mapfile import read_room_cells, read_room_labels
+from lessmap.floorplan.metric import precision_recall
 from lessmap.floorplan.simcases import BenchCase, SimulatedRun, building_run
 
 
@@ -64,6 +65,11 @@ def test_a_room_map_is_written_and_scored(run_files: SimulatedRun, tmp_path: Pat
     assert len(np.unique(labels[labels > 0])) == record["rooms"]
     assert (labels[~source.free] == 0).all()
     assert Path(record["files"]["png"]).stat().st_size > 0
+    # the file of every cell's room is the map the figures score
+    truth = room_labels(run_files.labels, source.resolution_m, min_room_m2=0.0)
+    score = precision_recall(read_room_cells(Path(record["files"]["rooms"])), truth)
+    assert round(score.precision, 4) == record["benchmark"]["precision"]
+    assert round(score.recall, 4) == record["benchmark"]["recall"]
 
 
 def test_one_robot_with_given_transitions(

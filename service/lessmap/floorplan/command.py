@@ -325,7 +325,12 @@ def _room_map_files(
     record: dict[str, Any] = {
         "rooms": len(np.unique(rooms[rooms > 0])),
         "labelled_share": round(float((rooms[grid.free] > 0).sum() / grid.free.sum()), 4),
-        "files": {"pgm": str(files.pgm), "yaml": str(files.yaml), "png": str(files.png)},
+        "files": {
+            "pgm": str(files.pgm),
+            "yaml": str(files.yaml),
+            "png": str(files.png),
+            "rooms": str(files.rooms),
+        },
     }
     if truth is not None:
         score = precision_recall(rooms, truth)

@@ -11,9 +11,11 @@
   ``read_room_labels`` its rooms.
 - ``<stem>.png``: walls black, free cells without a room light grey, a colour per room,
   furniture given a room (rule 6 of ``lessmap.floorplan.roommap``) in a darker shade of it.
+- ``<stem>.rooms.png``: 16-bit grey, every cell's room numbered as in the PGM, furniture
+  included, 0 none: the room map as scored (``read_room_cells``).
 
 The PGM keeps furniture occupied whatever its room: a navigation map must not read a desk
-as floor, so the furniture's rooms are in the picture (and the scores) only.
+as floor, so the furniture's rooms are in the other two files.
 """
 
 from __future__ import annotations
@@ -35,7 +37,14 @@ if TYPE_CHECKING:
 
     from lessmap.floorplan.grid import OccupancyGrid
 
-__all__ = ["MAX_LABELS", "RoomMapFiles", "compact_labels", "read_room_labels", "write_room_map"]
+__all__ = [
+    "MAX_LABELS",
+    "RoomMapFiles",
+    "compact_labels",
+    "read_room_cells",
+    "read_room_labels",
+    "write_room_map",
+]
 
 MAX_LABELS = 254
 OCCUPIED_GREY = 255
@@ -49,6 +58,7 @@ class RoomMapFiles(NamedTuple):
     pgm: Path
     yaml: Path
     png: Path
+    rooms: Path  # every cell's room, furniture included
 
 
 def compact_labels(labels: NDArray[np.integer]) -> NDArray[np.int32]:
@@ -94,6 +104,7 @@ def write_room_map(labels: NDArray[np.integer], grid: OccupancyGrid, stem: Path)
         stem.with_name(stem.name + ".pgm"),
         stem.with_name(stem.name + ".yaml"),
         stem.with_name(stem.name + ".png"),
+        stem.with_name(stem.name + ".rooms.png"),
     )
     grey = np.where(grid.free, rooms, OCCUPIED_GREY).astype(np.uint8)
     # Each file is written beside its name and renamed over it: a reader of a map that is
@@ -123,6 +134,9 @@ def write_room_map(labels: NDArray[np.integer], grid: OccupancyGrid, stem: Path)
     rgb[shaded] = (colours[furnished[shaded]] * FURNITURE_SHADE).astype(np.uint8)
     with _replacing(files.png) as part:
         Image.fromarray(rgb, mode="RGB").save(part, format="PNG")
+    every = np.where(grid.free, rooms, furnished).astype(np.uint16)
+    with _replacing(files.rooms) as part:
+        Image.fromarray(every).save(part, format="PNG")
     return files
 
 
@@ -153,6 +167,28 @@ def _replacing(path: Path) -> Iterator[Path]:
         os.replace(part, path)
     finally:
         part.unlink(missing_ok=True)
+
+
+def read_room_cells(path: Path) -> NDArray[np.int32]:
+    """Every cell's room from the ``.rooms.png`` ``write_room_map`` wrote (0 = none).
+
+    Raises:
+        FloorplanError: the file is missing or not a 16-bit grey image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            if image.mode not in ("I;16", "I"):
+                msg = f"{path}: not a 16-bit grey room map (mode {image.mode})"
+                raise FloorplanError(msg)
+            return np.asarray(image, dtype=np.int32)
+    except FileNotFoundError:
+        msg = f"{path}: no such file"
+        raise FloorplanError(msg) from None
+    except (UnidentifiedImageError, OSError) as exc:
+        msg = f"{path}: not an image this tool reads ({exc.__class__.__name__})"
+        raise FloorplanError(msg) from None
 
 
 def read_room_labels(pgm: Path) -> NDArray[np.int32]:
