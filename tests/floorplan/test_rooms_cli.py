@@ -52,7 +52,7 @@ def test_a_room_map_is_written_and_scored(run_files: SimulatedRun, tmp_path: Pat
     )
     assert (code, err) == (0, "")
     assert record["robots"] == ["robot0", "robot1"]
-    assert record["segmentation"] == "rooms"
+    assert record["segmentation"] == "areas"
     assert record["benchmark"]["precision"] >= 0.9
     assert record["benchmark"]["rooms"] == 8
     # the YAML is a map_server map of the same free cells; its grey values are the rooms
