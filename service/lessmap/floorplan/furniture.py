@@ -70,6 +70,7 @@ class FurniturePieces:
     pieces: NDArray[np.int32]  # (rows, cols): each furniture cell's piece, 0 elsewhere
     ring_piece: NDArray[np.int64]  # (m,) a piece ...
     ring_cell: NDArray[np.int64]  # (m,) ... and the flat index of a free cell touching it
+    count: int  # pieces 1..count
 
     @classmethod
     def of(cls, grid: OccupancyGrid, max_length_m: float) -> FurniturePieces:
@@ -92,7 +93,7 @@ class FurniturePieces:
                 ring_piece.append(pieces[here][touch].astype(np.int64))
                 ring_cell.append(flat[there][touch])
         pairs, _, _ = unique_pairs(np.concatenate(ring_piece), np.concatenate(ring_cell))
-        return cls(pieces, pairs[:, 0].copy(), pairs[:, 1].copy())
+        return cls(pieces, pairs[:, 0].copy(), pairs[:, 1].copy(), int(pieces.max(initial=0)))
 
     def label(self, rooms: NDArray[np.int32]) -> NDArray[np.int32]:
         """Rule 6: each piece the free cells around name one room of gets that room."""
@@ -102,9 +103,9 @@ class FurniturePieces:
         around = rooms.ravel()[self.ring_cell]
         named = around > 0
         pairs, _, _ = unique_pairs(self.ring_piece[named], around[named])
-        count = np.bincount(pairs[:, 0], minlength=int(self.pieces.max(initial=0)) + 1)
-        room_of_piece = np.zeros(count.size, dtype=np.int32)
-        single = pairs[count[pairs[:, 0]] == 1]
+        rooms_around = np.bincount(pairs[:, 0], minlength=self.count + 1)
+        room_of_piece = np.zeros(self.count + 1, dtype=np.int32)
+        single = pairs[rooms_around[pairs[:, 0]] == 1]
         room_of_piece[single[:, 0]] = single[:, 1]
         take = room_of_piece[self.pieces]
         return np.where((take > 0) & (rooms == 0), take, rooms).astype(np.int32)

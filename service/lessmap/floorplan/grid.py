@@ -24,6 +24,7 @@ __all__ = [
     "FloorplanError",
     "OccupancyGrid",
     "load_grid",
+    "read_image",
     "room_labels",
 ]
 
@@ -73,20 +74,34 @@ class OccupancyGrid:
         return np.stack([rows - 1 - up.astype(np.int64), col], axis=-1)
 
 
-def _grey(path: Path) -> NDArray[np.uint8]:
-    """An image as 8-bit grey (alpha ignored), as the benchmark reads it."""
+def read_image(path: Path, modes: tuple[str, ...] = (), kind: str = "") -> NDArray[np.int32]:
+    """An image's pixels: as 8-bit grey (alpha ignored), or as stored when ``modes`` names it.
+
+    Raises:
+        FloorplanError: the file is missing, not an image, or (``modes`` given) stored in
+            another mode than those (``kind`` says what was expected).
+    """
     from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as image:
-            grey = image.convert("L")
-            return np.asarray(grey, dtype=np.uint8)
+            if not modes:
+                return np.asarray(image.convert("L"), dtype=np.int32)
+            if image.mode not in modes:
+                msg = f"{path}: not {kind} (mode {image.mode})"
+                raise FloorplanError(msg)
+            return np.asarray(image, dtype=np.int32)
     except FileNotFoundError:
         msg = f"{path}: no such file"
         raise FloorplanError(msg) from None
     except (UnidentifiedImageError, OSError) as exc:
         msg = f"{path}: not an image this tool reads ({exc.__class__.__name__})"
         raise FloorplanError(msg) from None
+
+
+def _grey(path: Path) -> NDArray[np.uint8]:
+    """An image as 8-bit grey (alpha ignored), as the benchmark reads it."""
+    return read_image(path).astype(np.uint8)
 
 
 def _read_yaml(path: Path) -> dict[str, object]:

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from lessmap.floorplan.grid import FloorplanError
+from lessmap.floorplan.grid import FloorplanError, read_image
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -175,20 +175,7 @@ def read_room_cells(path: Path) -> NDArray[np.int32]:
     Raises:
         FloorplanError: the file is missing or not a 16-bit grey image.
     """
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as image:
-            if image.mode not in ("I;16", "I"):
-                msg = f"{path}: not a 16-bit grey room map (mode {image.mode})"
-                raise FloorplanError(msg)
-            return np.asarray(image, dtype=np.int32)
-    except FileNotFoundError:
-        msg = f"{path}: no such file"
-        raise FloorplanError(msg) from None
-    except (UnidentifiedImageError, OSError) as exc:
-        msg = f"{path}: not an image this tool reads ({exc.__class__.__name__})"
-        raise FloorplanError(msg) from None
+    return read_image(path, ("I;16", "I"), "a 16-bit grey room map")
 
 
 def read_room_labels(pgm: Path) -> NDArray[np.int32]:
@@ -197,18 +184,5 @@ def read_room_labels(pgm: Path) -> NDArray[np.int32]:
     Raises:
         FloorplanError: the file is missing or not an 8-bit grey image.
     """
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(pgm) as image:
-            if image.mode != "L":
-                msg = f"{pgm}: not an 8-bit grey room map (mode {image.mode})"
-                raise FloorplanError(msg)
-            grey = np.asarray(image, dtype=np.int32)
-    except FileNotFoundError:
-        msg = f"{pgm}: no such file"
-        raise FloorplanError(msg) from None
-    except (UnidentifiedImageError, OSError) as exc:
-        msg = f"{pgm}: not an image this tool reads ({exc.__class__.__name__})"
-        raise FloorplanError(msg) from None
+    grey = read_image(pgm, ("L",), "an 8-bit grey room map")
     return np.where(grey == OCCUPIED_GREY, 0, grey).astype(np.int32)
