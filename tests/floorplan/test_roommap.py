@@ -337,6 +337,29 @@ def test_a_narrow_corridor_is_not_shared_out_among_the_rooms_along_it() -> None:
     assert len(np.unique(labels[grid.free])) == 5
 
 
+def test_a_corridor_named_anew_on_each_pass_is_one_room() -> None:
+    grid, truth = corridor_with_offices()
+    cells = np.argwhere(truth > 0)[::7]
+    xy = grid.cell_to_xy(cells[:, 0].astype(float), cells[:, 1].astype(float))
+    areas = truth[cells[:, 0], cells[:, 1]].copy()
+    in_corridor = areas == 1
+    # three passes along the corridor, each a new area: none holds 60 % of it; no wider
+    # passage is tried, so no level of rule 3 decides it
+    areas[in_corridor] = np.select(
+        [cells[in_corridor, 1] < 60, cells[in_corridor, 1] < 100], [1, 7], 8
+    )
+    field = nearest_samples(grid, xy)
+    params = RoomMapParams(wider_passages_m=())
+    labels = room_map(field, areas, passage_regions(grid, params), params)
+    corridor = labels[truth == 1]
+    assert (corridor == 1).all()  # the largest area (cols 1-59) takes the whole corridor
+    for office in range(2, 6):
+        assert (labels[truth == office] == office).all()
+    kept = RoomMapParams(wider_passages_m=(), region_plurality=False)
+    pieces = room_map(field, areas, passage_regions(grid, kept), kept)
+    assert {1, 7, 8} <= set(np.unique(pieces[truth == 1]))  # rule 1's labels: a piece a pass
+
+
 def test_split_at_openings_keeps_small_parts_with_their_area() -> None:
     regions = np.array([[1, 1, 1, 1, 2, 2, 2, 3]], dtype=np.int32)
     labels = np.array([[5, 5, 5, 5, 5, 5, 5, 5]], dtype=np.int32)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -12,9 +13,11 @@ import numpy as np
 import pytest
 
 from lessmap.cli.app import main
+from lessmap.floorplan.command import add_room_map_options, room_map_params
 from lessmap.floorplan.grid import load_grid, room_labels
 from lessmap.floorplan.mapfile import read_room_cells, read_room_labels
 from lessmap.floorplan.metric import precision_recall
+from lessmap.floorplan.roommap import RoomMapParams
 from lessmap.floorplan.simcases import BenchCase, SimulatedRun, building_run
 
 
@@ -204,3 +207,18 @@ def test_a_missing_option_is_a_usage_error(
         main(["rooms", str(run_files.frames), "-o", "x"])
     assert exited.value.code == 2
     assert "--map" in capsys.readouterr().err
+
+
+def test_the_rule_switches_reach_the_room_map_parameters() -> None:
+    parser = argparse.ArgumentParser()
+    add_room_map_options(parser)
+    defaults = room_map_params(parser.parse_args([]))
+    assert defaults == RoomMapParams()
+    switched = room_map_params(
+        parser.parse_args(
+            ["--keep-shared-regions", "--no-furniture-rooms", "--join-across-doorways"]
+        )
+    )
+    assert switched == RoomMapParams(
+        region_plurality=False, furniture_rooms=False, split_at_doorways=False
+    )

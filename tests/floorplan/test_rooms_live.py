@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from contextlib import contextmanager
@@ -58,9 +59,18 @@ def same_partition(a: np.ndarray[Any, Any], b: np.ndarray[Any, Any]) -> bool:
     return len(pairs) == len({x for x, _ in pairs}) == len({y for _, y in pairs})
 
 
+@pytest.mark.timeout(600)  # an offline run, a service, a follower and a replay, one after another
 def test_a_followed_fleet_gets_the_offline_room_map(
     walk: Path, serve: Callable[..., ServeProcess], tmp_path: Path
 ) -> None:
+    offline_out = tmp_path / "offline"
+    offline = lessmap(
+        "rooms", walk, "--method", "areas", "--map", EXAMPLE_YAML, "--labels", EXAMPLE_LABELS,
+        "-o", offline_out, "-q", timeout_s=300.0,
+    )  # fmt: skip
+    assert offline.returncode == 0, offline.stderr
+    [expected] = [json.loads(line) for line in offline.stdout.splitlines()]
+    frames = sum(1 for line in walk.read_text().splitlines() if line.strip())
     service = serve("--memory-only", "--max-batch-frames", "1", "--method", "areas")
     fleet = f"rooms-{uuid.uuid4().hex[:6]}"
     live_out, err_path = tmp_path / "live", tmp_path / "follow.err"
@@ -73,6 +83,25 @@ def test_a_followed_fleet_gets_the_offline_room_map(
             stderr=err,
             text=True,
         )  # fmt: skip
+    assert follower.stdout is not None
+    records: list[dict[str, Any]] = []
+    reader = threading.Thread(
+        target=lambda: records.extend(json.loads(line) for line in follower.stdout or ()),
+        daemon=True,
+    )
+    reader.start()
+
+    def unique_transitions(counts: dict[str, int]) -> int:
+        return counts["transitions"] - counts.get("transitions repeated", 0)
+
+    def caught_up() -> bool:
+        # a map drawn after every frame and every transition the offline run decided
+        return any(
+            r["counts"]["frames"] == frames
+            and unique_transitions(r["counts"]) >= expected["transitions"]
+            for r in list(records)
+        )
+
     try:
         wait_until(
             lambda: "following fleet" in err_path.read_text(),
@@ -86,32 +115,26 @@ def test_a_followed_fleet_gets_the_offline_room_map(
             "--settle", "2", "-q",
         )  # fmt: skip
         assert replay.returncode == 0, replay.stderr
-        time.sleep(2.5)  # two redraws after the last transition
+        wait_until(caught_up, 120.0, "a map of every frame and transition", err_path.read_text)
         follower.send_signal(signal.SIGINT)
-        out, _ = follower.communicate(timeout=60)
+        follower.wait(timeout=60)
     finally:
         if follower.poll() is None:
             os.kill(follower.pid, signal.SIGKILL)
             follower.wait()
+        reader.join(timeout=30)  # the pipe ends with the process
+        follower.stdout.close()
     assert follower.returncode == 0, err_path.read_text()
     assert "Traceback" not in err_path.read_text()
-    records = [json.loads(line) for line in out.splitlines()]
     assert len(records) >= 2, "a map while the robots walked, and the last"
     assert [r["final"] for r in records] == [False] * (len(records) - 1) + [True]
     last = records[-1]
-    frames = sum(1 for line in walk.read_text().splitlines() if line.strip())
     assert last["counts"]["frames"] == frames
     assert last["poses"] == frames
     assert last["robots"] == ["robot0", "robot1"]
     assert records[0]["poses"] < frames  # drawn while they walked, not only at the end
 
-    offline_out = tmp_path / "offline"
-    offline = lessmap(
-        "rooms", walk, "--method", "areas", "--map", EXAMPLE_YAML, "--labels", EXAMPLE_LABELS,
-        "-o", offline_out, "-q",
-    )  # fmt: skip
-    assert offline.returncode == 0, offline.stderr
-    [expected] = [json.loads(line) for line in offline.stdout.splitlines()]
+    assert unique_transitions(last["counts"]) == expected["transitions"]
     assert last["rooms"] == expected["rooms"]
     assert last["benchmark"] == expected["benchmark"]
     live_map = read_room_labels(Path(last["files"]["pgm"]))

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from lessmap.files.frames import read_frames
 from lessmap.floorplan.command import add_room_map_options, room_map_params
@@ -166,7 +167,10 @@ def _work(
     simulator, case, root, methods, params, tolerance_m = job
     folder = root / case.name
     folder.mkdir(parents=True, exist_ok=True)
-    return evaluate_case(simulator, case, folder, methods, params, tolerance_m)
+    # BLAS on one thread: the cases already run in --jobs processes, and OpenBLAS threads
+    # on top of them fight over the cores for factorizations too small to share
+    with threadpool_limits(limits=1):
+        return evaluate_case(simulator, case, folder, methods, params, tolerance_m)
 
 
 def run_bench(

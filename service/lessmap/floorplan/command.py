@@ -139,6 +139,14 @@ def add_room_map_options(parser: argparse.ArgumentParser) -> None:
         help="the smallest part beyond an opening that is a room (default %(default)s)",
     )
     parser.add_argument(
+        "--keep-shared-regions",
+        action="store_true",
+        help=(
+            "cells of a doorway region no area holds and no wider passage cuts keep the "
+            "nearest pose's area instead of going to the region's largest area (rule 3)"
+        ),
+    )
+    parser.add_argument(
         "--no-furniture-rooms",
         action="store_true",
         help="leave furniture unlabelled instead of giving it the room around it (rule 6)",
@@ -165,18 +173,26 @@ def room_map_params(args: argparse.Namespace) -> RoomMapParams:
         min_room_m2=args.min_room_m2,
         split_at_doorways=not args.join_across_doorways,
         furniture_rooms=not args.no_furniture_rooms,
+        region_plurality=not args.keep_shared_regions,
     )
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lessmap rooms``."""
+    from threadpoolctl import threadpool_limits
+
     from lessmap.cli.foreground import stop_signals
     from lessmap.cli.progress import progress
     from lessmap.errors import ConfigError
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
     from lessmap.floorplan.roommap import passage_regions
 
-    with stop_signals() as stop:  # first: a signal during start-up still ends cleanly
+    # BLAS on one thread, as serve and segment run it: the segmentation's factorizations
+    # are small, and OpenBLAS threads fighting over a busy host's cores cost several times them
+    with (
+        stop_signals() as stop,
+        threadpool_limits(limits=1),
+    ):  # first: a signal during start-up still ends cleanly
         if (args.frames is None) == (args.fleet is None):
             msg = "give FRAMES (a file) or --fleet F (a running fleet), one of them"
             raise ConfigError(msg)

@@ -13,7 +13,9 @@ Input: the grid and each pose with its area; output: int32 labels of the grid's 
    doorway (``lessmap.floorplan.furniture``). A region with no pose stays 0 (seen, not
    visited); one an area holds ``region_share`` of goes to it whole (a late decision
    paints nothing). What no area holds is cut again at each of the ``wider_passages_m``
-   in turn (openings), where ``opening_share`` decides; what is left keeps rule 1's labels.
+   in turn (openings), where ``opening_share`` decides. What is still shared goes to the
+   region's largest area (``region_plurality``): no passage offers a place to cut it, so a
+   corridor the stream named anew on every pass is still one room.
 4. **Fleet.** Areas of two robots are one room when, on the cells within ``merge_m`` of both
    robots' poses, one holds half of the other's; then rules 1-3 over all poses.
 5. **A room stops at a doorway.** An area's cells in two doorway regions are two rooms: a
@@ -83,6 +85,9 @@ class RoomMapParams:
     min_room_m2: float = 4.0  # rule 5 at openings: a smaller part beyond is a nook, not a room
     region_share: float = 0.6  # rule 3: the share of a doorway region one area must hold
     opening_share: float = 0.5  # rule 3: the same at the wider passages: the majority
+    # rule 3: what no passage decided goes to its doorway region's largest area; off, it
+    # keeps rule 1's labels (a corridor walked between rooms is then one piece a pass)
+    region_plurality: bool = True
     merge_m: float = 1.5  # rule 4: cells this near a robot's poses show where its areas are
     # rule 6: the floor under furniture is the room's (the benchmark's ground truth counts it)
     furniture_rooms: bool = True
@@ -409,6 +414,8 @@ def room_map(
             break
         share = params.region_share if index == 0 else params.opening_share
         cells, undecided = _give_dominated(cells, level, undecided, share)
+    if params.region_plurality and undecided.any():
+        cells, undecided = _give_dominated(cells, doorways, undecided, 0.0)
     if params.split_at_doorways:
         cells = split_at_doorways(cells, doorways)
         if params.splits_at_openings and regions.openings is not None:
@@ -422,7 +429,10 @@ def room_map(
 def _give_dominated(
     cells: NDArray[np.int32], regions: NDArray[np.int32], undecided: NDArray[np.bool_], share: float
 ) -> tuple[NDArray[np.int32], NDArray[np.bool_]]:
-    """Give each region's undecided cells to an area holding ``share`` of them (rule 3)."""
+    """Give each region's undecided cells to an area holding ``share`` of them (rule 3).
+
+    Ties go to the lower label; at ``share`` 0 every region goes to its largest area.
+    """
     both = undecided & (regions > 0)
     if not both.any():
         return cells, undecided
