@@ -59,14 +59,14 @@ def same_partition(a: np.ndarray[Any, Any], b: np.ndarray[Any, Any]) -> bool:
     return len(pairs) == len({x for x, _ in pairs}) == len({y for _, y in pairs})
 
 
-@pytest.mark.timeout(600)  # an offline run, a service, a follower and a replay, one after another
+@pytest.mark.timeout(300)  # an offline run, a service, a follower and a replay, one after another
 def test_a_followed_fleet_gets_the_offline_room_map(
     walk: Path, serve: Callable[..., ServeProcess], tmp_path: Path
 ) -> None:
     offline_out = tmp_path / "offline"
     offline = lessmap(
         "rooms", walk, "--method", "areas", "--map", EXAMPLE_YAML, "--labels", EXAMPLE_LABELS,
-        "-o", offline_out, "-q", timeout_s=300.0,
+        "-o", offline_out, "-q",
     )  # fmt: skip
     assert offline.returncode == 0, offline.stderr
     [expected] = [json.loads(line) for line in offline.stdout.splitlines()]

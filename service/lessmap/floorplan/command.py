@@ -187,12 +187,10 @@ def run(args: argparse.Namespace) -> int:
     from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
     from lessmap.floorplan.roommap import passage_regions
 
-    # BLAS on one thread, as serve and segment run it: the segmentation's factorizations
-    # are small, and OpenBLAS threads fighting over a busy host's cores cost several times them
-    with (
-        stop_signals() as stop,
-        threadpool_limits(limits=1),
-    ):  # first: a signal during start-up still ends cleanly
+    # Signals first: one during start-up still ends cleanly. BLAS on one thread, as serve
+    # and segment run it: OpenBLAS threads fighting over a busy host's cores cost the small
+    # factorizations of the segmentation many times their work.
+    with stop_signals() as stop, threadpool_limits(limits=1):
         if (args.frames is None) == (args.fleet is None):
             msg = "give FRAMES (a file) or --fleet F (a running fleet), one of them"
             raise ConfigError(msg)
