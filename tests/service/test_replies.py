@@ -145,7 +145,16 @@ def test_serve_cuts_a_long_state_to_its_payload_limit(
     # A small max_payload_bytes stands for a long session's state: a robot whose rooms
     # alternate gets a closed submap per room; its state soon outgrows 2,000 bytes.
     limit = 2000
-    service = serve("--method", "paper", "--limits-max-payload-bytes", str(limit), metrics=True)
+    # One decision a frame: coalesced frames under load would join rooms and close fewer submaps.
+    service = serve(
+        "--method",
+        "paper",
+        "--max-batch-frames",
+        "1",
+        "--limits-max-payload-bytes",
+        str(limit),
+        metrics=True,
+    )
     session = client_session(service.endpoint)
     rooms = [list(range(70_000 * (r + 1), 70_000 * (r + 1) + 40)) for r in range(2)]  # 5 B ids
     with RobotPublisher(fleet_name, "walker", session=session) as robot:
