@@ -117,6 +117,38 @@ def test_the_window_learns_a_longer_half_at_a_slower_pace() -> None:
     assert widths[0] > 2 * widths[1]
 
 
+def test_the_window_reaches_as_far_whatever_the_detection_rate() -> None:
+    # Missed detections lower every CovRate, not how far the view reaches: the window is
+    # sized against the stream's own ceiling.
+    def width(detect: float, *, relative: bool = True) -> int:
+        # the old absolute bar: 0.6 of CovRate 1
+        params = (
+            RoomParams() if relative else RoomParams(window_similarity=0.6, window_relative=False)
+        )
+        window = FrameWindow(params)
+        for seq, _, features in walk(along(0.0, 29.0, 0.3), seed=1, detect=detect):
+            if features:
+                window.add(seq, frozenset(features))
+        found = window.width()
+        assert found is not None
+        return found
+
+    sure, noisy = width(0.9), width(0.7)
+    assert abs(sure - noisy) <= 0.2 * sure
+    assert width(0.7, relative=False) < 0.7 * sure  # a bar of CovRate itself shrinks it
+
+
+def test_a_session_saved_before_the_relative_window_keeps_its_window() -> None:
+    tracker = RoomTracker(RoomParams(window_similarity=0.6, window_relative=False))
+    run(tracker, walk(along(1.0, 19.0, 0.1), seed=2))
+    data = snapshot.to_bytes(tracker)
+    restored = snapshot.from_bytes(data)
+    assert restored.params == tracker.params
+    assert snapshot.to_bytes(restored) == data
+    saved = {k: v for k, v in snapshot._hex(tracker.params).items() if k != "window_relative"}
+    assert snapshot._params(saved) == tracker.params  # a field it did not have: off
+
+
 def test_a_restored_tracker_goes_on_with_the_same_decisions_and_bytes() -> None:
     frames = walk(along(1.0, 29.0, 0.1) + along(29.0, 1.0, -0.1), seed=5)
     straight = RoomTracker()

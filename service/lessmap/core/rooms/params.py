@@ -16,10 +16,14 @@ from lessmap.core.errors import GraphError
 class RoomParams:
     """How a ``RoomTracker`` finds and names rooms (rules in ``lessmap.core.rooms.tracker``)."""
 
-    # Rule 1: a window side spans the frames over which the view keeps this CovRate with
-    # its first frame, learnt from the stream; so its length follows speed, rate and range.
-    # 0.6: a longer view of the area behind steadies the cut (fewer false peaks in rooms).
-    window_similarity: float = 0.6
+    # Rule 1: a window side spans the frames over which the view keeps this share of the
+    # CovRate of frames seen from the same place, learnt from the stream; so its length
+    # follows speed, rate and range. 0.65 (0.6 of CovRate at 9 detections in 10): a longer
+    # view of the area behind steadies the cut (fewer false peaks in rooms).
+    window_similarity: float = 0.65
+    # The share is of the stream's own ceiling: a detector that misses more landmarks lowers
+    # every CovRate, not how far the view reaches. False: of CovRate 1 (sessions saved so).
+    window_relative: bool = True
     window_min_frames: int = 2  # a pair: at 2 frames a second, 3 frames put decisions 1.5 m late
     window_max_frames: int = 30  # the memory a side may take, and the decision's lag
     lag_smoothing: float = 0.02  # weight of a new frame in the learnt lag profile

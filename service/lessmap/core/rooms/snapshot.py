@@ -63,11 +63,17 @@ def _hex(params: RoomParams) -> dict[str, Any]:
 
 
 def _params(d: dict[str, Any]) -> RoomParams:
-    floats = {k for k, v in asdict(RoomParams()).items() if isinstance(v, float)}
-    values: dict[str, Any] = {k: float.fromhex(v) if k in floats else int(v) for k, v in d.items()}
-    # Snapshots from before the sure-cut rule keep deciding as they did.
+    defaults = asdict(RoomParams())
+    floats = {k for k, v in defaults.items() if isinstance(v, float)}
+    flags = {k for k, v in defaults.items() if isinstance(v, bool)}
+    values: dict[str, Any] = {
+        k: float.fromhex(v) if k in floats else bool(v) if k in flags else int(v)
+        for k, v in d.items()
+    }
+    # Snapshots from before the sure-cut rule and the relative window keep deciding as they did.
     values.setdefault("sure_cut", float("inf"))
     values.setdefault("sure_features", 1)
+    values.setdefault("window_relative", False)
     return RoomParams(**values)
 
 

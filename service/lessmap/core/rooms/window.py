@@ -70,14 +70,28 @@ class FrameWindow:
         """Frames in a half: the first lag at which the view has changed enough (rule 1).
 
         None until the profile knows a lag where similarity fell to ``window_similarity``
-        or it has seen every lag up to the maximum.
+        of its ceiling (of 1 without ``window_relative``) or it has seen every lag up to
+        the maximum.
         """
         p = self.params
         known = min(int(np.count_nonzero(self.lag_seen)), p.window_max_frames)
+        bar = p.window_similarity * (self.ceiling() if p.window_relative else 1.0)
         for d in range(p.window_min_frames, known + 1):
-            if self.lag_mean[d - 1] <= p.window_similarity:
+            if self.lag_mean[d - 1] <= bar:
                 return d
         return p.window_max_frames if known >= p.window_max_frames else None
+
+    def ceiling(self) -> float:
+        """The CovRate of two frames seen from one place: the profile taken back to lag 0.
+
+        Missed detections and misassociations keep it under 1; from the first two lags, so
+        the robot's motion between neighbouring frames is taken out.
+        """
+        if not self.lag_seen[0]:
+            return 1.0
+        first = float(self.lag_mean[0])
+        back = 2.0 * first - float(self.lag_mean[1]) if self.lag_seen[1] else first
+        return min(1.0, max(first, back))
 
     def matrix(self, n: int) -> NDArray[np.float64]:
         """Similarities of the last ``n`` frames, symmetric, zero diagonal."""
