@@ -4,8 +4,7 @@ The paper cuts everything seen since the last change, so a small room must outwe
 area before it. Here the cut is local (``docs/design/rooms.md`` has the reasons):
 
 1. Window: non-empty frames; a half spans the frames over which the view keeps
-   ``window_similarity`` of the CovRate of frames seen from one place, both learnt from the
-   stream's own lag profile.
+   ``window_similarity`` of its CovRate from one place, learnt from the lag profile.
 2. Cut: within-half minus across-half similarity, less what a steady walk gives; a peak of
    at least ``cut_min`` proposes a change at the newer half's first frame.
 3. Confirmation: each side holds ``min_side_features``; the newer half is not what the
