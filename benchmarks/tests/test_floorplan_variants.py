@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import floorplan_variants
-from benchmarks.floorplan_variants import FLOORPLANS, VariantSimulator
+from benchmarks.floorplan_variants import FLOORPLANS
 from lessmap.files.frames import read_frames
 from lessmap.floorplan.options import PROFILES, SensorProfile, TourOptions
 from lessmap.floorplan.simcases import BenchCase, FloorplanSimulator
@@ -16,7 +16,7 @@ from lessmap.floorplan.simcases import BenchCase, FloorplanSimulator
 VARIANTS = {
     name: value
     for name, value in vars(floorplan_variants).items()
-    if isinstance(value, VariantSimulator)
+    if isinstance(value, FloorplanSimulator)
 }
 
 
@@ -25,13 +25,15 @@ def test_each_variant_changes_one_setting_to_another_value() -> None:
     tour_fields = {f.name for f in fields(TourOptions)}
     assert len(VARIANTS) == 6
     for name, variant in VARIANTS.items():
-        changed = len(variant.sensor) + len(variant.tour) + (variant.speed_factor != 1.0)
+        sensor, tour = variant.sensor_changes, variant.tour_changes
+        changed = len(sensor) + len(tour) + (variant.speed_factor != 1.0)
         assert changed == 1, name
-        assert set(variant.sensor) <= sensor_fields, name
-        assert set(variant.tour) <= tour_fields, name
-        for key, value in variant.sensor.items():
+        assert (variant.robots, variant.furnished) == (2, False), name
+        assert set(sensor) <= sensor_fields, name
+        assert set(tour) <= tour_fields, name
+        for key, value in sensor.items():
             assert asdict(PROFILES["laser270"])[key] != value, name
-        for key, value in variant.tour.items():
+        for key, value in tour.items():
             assert asdict(TourOptions())[key] != value, name
 
 

@@ -15,12 +15,13 @@ ground-truth image (the same with every doorway closed), at ``RESOLUTION_M``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
     from pathlib import Path
 
     from lessmap.sim.building import Building
@@ -191,13 +192,19 @@ FLOORPLAN_SPEED_MPS = 1.0
 class FloorplanSimulator:
     """Tour a benchmark map of ``folder`` (``benchmark_map``) with the floor-plan simulator.
 
-    Every room is toured by ``robots`` robots at ``FLOORPLAN_SPEED_MPS``; the sensor is
-    ``case.sensor``, a profile of ``lessmap.floorplan.options.PROFILES``.
+    Every room is toured by ``robots`` robots at ``FLOORPLAN_SPEED_MPS`` times
+    ``speed_factor``; the sensor is ``case.sensor``, a profile of
+    ``lessmap.floorplan.options.PROFILES``, with ``sensor_changes`` (``SensorProfile`` fields)
+    and the walk's ``tour_changes`` (``TourOptions`` fields) applied: other simulators than
+    the default are the same one with some settings changed.
     """
 
     folder: Path
     furnished: bool = False
     robots: int = ROBOTS
+    sensor_changes: Mapping[str, Any] = field(default_factory=dict)
+    tour_changes: Mapping[str, Any] = field(default_factory=dict)
+    speed_factor: float = 1.0
 
     def __call__(self, case: BenchCase, folder: Path) -> SimulatedRun:
         """Simulate ``case`` and write its files into ``folder``."""
@@ -211,11 +218,13 @@ class FloorplanSimulator:
             raise FloorplanError(msg)
         image, labels = benchmark_map(case.map, self.folder, furnished=self.furnished)
         grid = load_grid(image)
-        tour = TourOptions(
-            rate_hz=case.rate_hz, speed_m_per_frame=FLOORPLAN_SPEED_MPS / case.rate_hz
-        )
+        speed_m_per_frame = FLOORPLAN_SPEED_MPS * self.speed_factor / case.rate_hz
+        tour = TourOptions(rate_hz=case.rate_hz, speed_m_per_frame=speed_m_per_frame)
         options = FloorplanOptions(
-            sensor=PROFILES[case.sensor], robots=self.robots, seed=case.seed, tour=tour
+            sensor=replace(PROFILES[case.sensor], **self.sensor_changes),
+            robots=self.robots,
+            seed=case.seed,
+            tour=replace(tour, **self.tour_changes),
         )
         run = simulate_floorplan(grid, room_labels(labels, grid.resolution_m), options)
         sources = {"map": str(image), "labels": str(labels)}
