@@ -176,8 +176,10 @@ def run_load(
                         generators.append(
                             _start_generator(spec, g, spacing, service.endpoint, work)
                         )
+                    # A generator simulates its robots' whole walk before it says ready.
+                    setup_s = 300.0 + spec.duration_s / 2
                     for g, process in enumerate(generators):
-                        _wait_line(process, "ready", 600.0, f"generator {g}")
+                        _wait_line(process, "ready", setup_s, f"generator {g}")
                     say(
                         f"{spec.generators} generator(s) ready; publishing for "
                         f"{spec.duration_s:g} s"
