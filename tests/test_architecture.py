@@ -285,8 +285,13 @@ def test_the_papers_method_stands_alone(path: Path) -> None:
 @pytest.mark.parametrize("path", files("lessmap", "core", "areas"), ids=ids)
 def test_areas_build_on_the_paper_and_nothing_above(path: Path) -> None:
     outside = {m for m in project_imports(path) if not within(m, "lessmap.core.areas")}
-    allowed = ("lessmap.core.paper", "lessmap.core.errors")
+    allowed = ("lessmap.core.paper", "lessmap.core.errors", "lessmap.core.lagprofile")
     assert all(m == "lessmap.core" or within(m, *allowed) for m in outside), outside
+
+
+def test_the_lag_profile_is_a_leaf_of_the_core() -> None:
+    # areas and rooms share it: it must pull nothing of either (or anything else) in.
+    assert not project_imports(ROOT / "service" / "lessmap" / "core" / "lagprofile.py")
 
 
 TEST_FILES = sorted((ROOT / "tests").rglob("*.py"))

@@ -131,7 +131,7 @@ def test_garbage_and_other_versions_are_graph_errors() -> None:
     with pytest.raises(GraphError, match="not an area snapshot"):
         from_bytes(b"garbage")
     data = to_bytes(AreaTracker())
-    assert AREAS_SNAPSHOT_VERSION == 10
+    assert AREAS_SNAPSHOT_VERSION == 11
     with pytest.raises(GraphError, match="area snapshot damaged"):
         from_bytes(data[: len(data) // 2])
 
@@ -153,7 +153,7 @@ def test_a_version_7_snapshot_resumes_under_the_default_bound() -> None:
     old = from_bytes(as_npz_snapshot(data, snapshot, as_version(7)))
     assert old.params == replace(tracker.params, max_area_sightings=100_000)
     assert old.sightings == tracker.sightings > 0
-    with pytest.raises(GraphError, match="version 6, expected one of 7, 8, 9, 10"):
+    with pytest.raises(GraphError, match="version 6, expected one of 7, 8, 9, 10, 11"):
         from_bytes(as_npz_snapshot(data, snapshot, as_version(6)))
 
 

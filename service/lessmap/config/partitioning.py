@@ -61,6 +61,14 @@ class PartitionSettings(BaseModel):
         "(a subsample by id hash; a stream under it is taken whole; 0 = keep all)",
     )
 
+    # The areas method's AreaParams.spans_in_views: its spans of rules 3a and 3c measured in
+    # the stream's own view changes, so a robot's frame rate does not change what they mean.
+    spans_in_views: bool = Field(
+        AreaParams().spans_in_views,
+        description="areas: measure the confirmation spans in the stream's view changes "
+        "(learnt from its frames) instead of frames; for robots sending many frames a metre",
+    )
+
     def partition_params(self) -> PartitionParams:
         """Return the core's parameters: the profile's thresholds unless overridden."""
         ncut_min, lambda2_min = PROFILES[self.profile]
@@ -125,9 +133,9 @@ def area_params(settings: PartitionSettings, *, empty_frames_omitted: bool = Fal
     """Return the area tracker's parameters: its own proposer thresholds unless overridden.
 
     The profile is not applied: the proposer answers before the paper's thresholds would.
-    The guards and the seed mode pass through to the proposer; ``max_features_kept`` to the
-    tracker. A stream that leaves out its empty frames has its stamp gaps read as blindness
-    (``AreaParams.for_stream``).
+    The guards and the seed mode pass through to the proposer; ``max_features_kept`` and
+    ``spans_in_views`` to the tracker. A stream that leaves out its empty frames has its
+    stamp gaps read as blindness (``AreaParams.for_stream``).
     """
     base = AreaParams().for_stream(empty_frames_omitted=empty_frames_omitted)
     proposal = replace(
@@ -140,4 +148,9 @@ def area_params(settings: PartitionSettings, *, empty_frames_omitted: bool = Fal
         min_frames_between=settings.min_frames_between,
         min_cluster_size=settings.min_cluster_size,
     )
-    return replace(base, proposal=proposal, max_features_kept=settings.max_features_kept)
+    return replace(
+        base,
+        proposal=proposal,
+        max_features_kept=settings.max_features_kept,
+        spans_in_views=settings.spans_in_views,
+    )

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from lessmap.core.areas.params import AreaParams
 from lessmap.files.frames import read_frames
 from lessmap.floorplan.command import add_room_map_options, room_map_params
 from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
@@ -96,8 +97,9 @@ def evaluate_case(
     methods: Sequence[str] = METHODS,
     params: RoomMapParams | None = None,
     tolerance_m: float = 1.0,
+    areas: AreaParams | None = None,
 ) -> CaseResult:
-    """Simulate one case into ``folder`` and score every method on it."""
+    """Simulate one case into ``folder`` and score every method on it (``areas``' params)."""
     params = params or RoomMapParams()
     run: SimulatedRun = simulator(case, folder)
     grid = load_grid(run.grid_map, run.resolution_m)
@@ -136,7 +138,7 @@ def evaluate_case(
                 length = max(1, round(poses[robot].seqs.size / (changes + 1)))
                 cuts[robot] = fixed_cuts(poses[robot].seqs, length)
         else:
-            cuts = method_cuts(frames, method)
+            cuts = method_cuts(frames, method, areas)
         stream = StreamScore()
         for robot in robots:
             stream += stream_score(tracks[robot], cuts.get(robot, []), tolerance_m)
@@ -162,15 +164,15 @@ def _true_rooms(seqs: NDArray[np.int64], track: Track) -> NDArray[np.int64]:
 
 
 def _work(
-    job: tuple[Simulator, BenchCase, Path, tuple[str, ...], RoomMapParams, float],
+    job: tuple[Simulator, BenchCase, Path, tuple[str, ...], RoomMapParams, float, AreaParams],
 ) -> CaseResult:
-    simulator, case, root, methods, params, tolerance_m = job
+    simulator, case, root, methods, params, tolerance_m, areas = job
     folder = root / case.name
     folder.mkdir(parents=True, exist_ok=True)
     # BLAS on one thread: the cases already run in --jobs processes, and OpenBLAS threads
     # on top of them fight over the cores for factorizations too small to share
     with threadpool_limits(limits=1):
-        return evaluate_case(simulator, case, folder, methods, params, tolerance_m)
+        return evaluate_case(simulator, case, folder, methods, params, tolerance_m, areas)
 
 
 def run_bench(
@@ -183,17 +185,20 @@ def run_bench(
     jobs: int = 1,
     work_dir: Path | None = None,
     progress: Progress = NO_PROGRESS,
+    areas: AreaParams | None = None,
 ) -> list[CaseResult]:
     """Run every case (in ``jobs`` processes) and return the results in case order.
 
     The runs' files go to ``work_dir`` (kept), or to a temporary folder (removed);
-    ``progress`` counts the cases done.
+    ``progress`` counts the cases done; ``areas`` are the ``areas`` method's parameters.
     """
     params = params or RoomMapParams()
+    areas = areas or AreaParams()
     progress.stage(f"{len(cases)} cases", len(cases))
     with tempfile.TemporaryDirectory(prefix="lessmap-floorplan-") as scratch:
         root = work_dir or Path(scratch)
-        work = [(simulator, case, root, tuple(methods), params, tolerance_m) for case in cases]
+        job = (tuple(methods), params, tolerance_m, areas)
+        work = [(simulator, case, root, *job) for case in cases]
         if jobs <= 1 or len(work) <= 1:
             return list(tracked((_work(job) for job in work), progress))
         with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
@@ -336,6 +341,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     parser.add_argument("--tolerance-m", type=float, default=1.0)
+    parser.add_argument(
+        "--spans-in-views",
+        action="store_true",
+        help="areas: its confirmation spans in the stream's view changes, not frames",
+    )
     add_room_map_options(parser)
     parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")
     parser.add_argument("--work", type=Path, help="keep the runs' files in this folder")
@@ -375,6 +385,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 jobs=args.jobs,
                 work_dir=args.work,
                 progress=shown,
+                areas=AreaParams(spans_in_views=args.spans_in_views),
             )
     except (FloorplanError, DatasetError, OSError) as exc:
         sys.stderr.write(f"lessmap.floorplan.bench: {exc}\n")

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
+    from lessmap.core.areas.params import AreaParams
     from lessmap.files.frames import FrameRow
 
 __all__ = [
@@ -148,14 +149,19 @@ def read_transitions(path: Path) -> dict[str, list[Cut]]:
     return cuts
 
 
-def method_cuts(frames: Sequence[FrameRow], method: str) -> dict[str, list[Cut]]:
-    """Run ``paper``, ``areas`` or ``rooms`` (default parameters) over the frames, per robot."""
+def method_cuts(
+    frames: Sequence[FrameRow], method: str, areas: AreaParams | None = None
+) -> dict[str, list[Cut]]:
+    """Run ``paper``, ``areas`` or ``rooms`` over the frames, per robot.
+
+    Default parameters, but ``areas``' when given.
+    """
     from lessmap.evaluation.methods import run_method
 
     if method not in METHODS:
         msg = f"unknown method {method!r}; choose one of {', '.join(METHODS)}"
         raise FloorplanError(msg)
-    events = run_method(frames, method)
+    events = run_method(frames, method, areas=areas)
     return {
         robot: [Cut(e.seq, e.boundary_seq, e.area, e.revisit) for e in found]
         for robot, found in events.items()

@@ -73,6 +73,20 @@ class AreaParams:
     # frames first: a doorway seen through (270°) proposes early, a 360° door late.
     weak_ncut: float = 0.4
     weak_frames: int = 6
+    # Rules 3a, 3c: ``confirm_frames`` and ``familiar_margin_frames`` are frames of a stream
+    # whose view keeps ``view_share`` of its CovRate from one place for ``view_frames``
+    # frames (the generated buildings at 2 frames a second, where they were measured). With
+    # ``spans_in_views`` they scale by the stream's own such frames, learnt from its lag
+    # profile (``lessmap.core.lagprofile``): at 10 frames a second a door takes five times
+    # the frames it takes at 2. ``weak_frames`` stays in frames: scaled, it held the late
+    # proposals of 360° sensors so long that areabench's 360° recall fell to 84 %.
+    spans_in_views: bool = False
+    view_share: float = 0.65
+    view_frames: int = 8
+    # The lag profile looks this many non-empty frames back, on one frame in
+    # ``view_every`` (a row of set intersections each): ~6 intersections a frame.
+    view_max_lag: int = 48
+    view_every: int = 8
     # Rule 5: non-empty frames that must favour a known area; fewer recognise a doorway
     # before the door, more recognise a 360° return late.
     recognise_frames: int = 3
@@ -113,6 +127,10 @@ class AreaParams:
             "recognise_llr": self.recognise_llr >= 0.0,
             "merge_overlap": self.merge_overlap > 0.0,
             "seam_frames": self.seam_frames >= 0,
+            "view_share": 0.0 < self.view_share < 1.0,
+            "view_frames": self.view_frames >= 1,
+            "view_max_lag": self.view_max_lag >= 2,
+            "view_every": self.view_every >= 1,
             "max_features_kept": self.max_features_kept >= 0,
         }
         for name, ok in checks.items():

@@ -11,7 +11,7 @@ for recognition and merging; 3: the parameter ``familiar_relative``; 4: ``weak_n
 ``weak_frames``; 5: ``blind_span`` and ``blind_margin``; 6: ``seam_frames``; 7:
 ``period_steps``, the last stamp steps and the kept frames that follow a stamp gap; 8:
 ``max_area_sightings``; 9: ``max_features_kept`` and the sampler's threshold; 10: the
-framing instead of ``.npz``).
+framing instead of ``.npz``; 11: ``spans_in_views`` and its lag profile).
 """
 
 from __future__ import annotations
@@ -34,12 +34,12 @@ from lessmap.core.paper.submaps import Reason
 if TYPE_CHECKING:
     from collections.abc import Collection, Sequence
 
-AREAS_SNAPSHOT_VERSION = 10
+AREAS_SNAPSHOT_VERSION = 11
 _MAGIC = b"LMAREA1\n"
 #: Version 7 is version 8 without ``max_area_sightings`` (it reads as the default): sessions
 #: checkpointed before the bound resume under it. Versions 7 and 8 have no sampling: their
 #: sessions resume keeping every feature (``max_features_kept`` 0), as they did.
-READABLE_VERSIONS = (7, 8, 9, AREAS_SNAPSHOT_VERSION)
+READABLE_VERSIONS = (7, 8, 9, 10, AREAS_SNAPSHOT_VERSION)
 _ARRAYS = {
     "proposer": "|u1",
     **dict.fromkeys(
@@ -107,6 +107,11 @@ def to_bytes(tracker: AreaTracker) -> bytes:
         "merged": [[gone, into] for gone, into in tracker.merged.items()],
         "last_stamp_s": tracker.last_stamp_s.hex(),  # hex keeps the float exact
         "sample_threshold": tracker.sampler.threshold,
+        # the lag profile (rules 3a, 3c): learnt only with spans_in_views, so kept only then
+        "view_lag_mean": [x.hex() for x in tracker.lag_mean.tolist()]
+        if tracker.params.spans_in_views
+        else [],
+        "view_lag_seen": tracker.lag_seen.tolist() if tracker.params.spans_in_views else [],
         "candidate": None
         if candidate is None
         else {
@@ -152,6 +157,7 @@ def from_bytes(data: bytes) -> AreaTracker:
         fields = dict(meta["params"])
         fields["proposal"] = proposer.params
         fields.setdefault("max_features_kept", 0)  # versions 7, 8: every feature kept
+        fields.setdefault("spans_in_views", False)  # versions 7-10: spans in frames
         tracker = AreaTracker(AreaParams(**fields))
         tracker.sampler = FeatureSampler(
             tracker.params.max_features_kept, meta.get("sample_threshold", KEEP_ALL)
@@ -189,6 +195,9 @@ def from_bytes(data: bytes) -> AreaTracker:
         for name in _INT_FIELDS:
             setattr(tracker, name, meta[name])
         tracker.last_stamp_s = float.fromhex(meta["last_stamp_s"])
+        lag_mean, lag_seen = meta.get("view_lag_mean", []), meta.get("view_lag_seen", [])
+        tracker.lag_mean[: len(lag_mean)] = [float.fromhex(x) for x in lag_mean]
+        tracker.lag_seen[: len(lag_seen)] = lag_seen
         found = meta["candidate"]
         if found is not None:
             tracker.candidate = Candidate(

@@ -20,6 +20,9 @@ from collections import deque
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from lessmap.core import lagprofile
 from lessmap.core.areas import rules
 from lessmap.core.areas.events import (
     AreaReason,
@@ -48,6 +51,9 @@ from lessmap.core.paper.submaps import Reason, Submap
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
+
+#: Weight of a new row in the lag profile once it has seen 50 (rules 3a, 3c): a slow mean.
+LAG_SMOOTHING = 0.02
 
 __all__ = [
     "EMPTY_OMITTED_PERIOD_STEPS",
@@ -95,6 +101,9 @@ class AreaTracker:
         self.frames_applied = 0
         self.transitions = 0
         self._profiles: dict[int, Profile | None] = {}  # derived from areas (rule 8)
+        # rules 3a, 3c with spans_in_views: mean CovRate of non-empty frames d apart (d - 1)
+        self.lag_mean = np.zeros(p.view_max_lag, dtype=np.float64)
+        self.lag_seen = np.zeros(p.view_max_lag, dtype=np.int64)
 
     # -- read ------------------------------------------------------------------------------
 
@@ -152,6 +161,7 @@ class AreaTracker:
         if self.last_seq is not None and seq <= self.last_seq:
             msg = f"frame seq {seq} is not after the last applied seq {self.last_seq}"
             raise StaleFrameError(msg)
+        p = self.params
         seen = self.sampler.keep(distinct(seq, features))
         self._step(seq, float(stamp_s))
         self.last_seq = seq
@@ -160,6 +170,8 @@ class AreaTracker:
         if self.segment_first_seq is None:
             self.segment_first_seq = seq
         self.segment_frame_count += 1
+        if seen and p.spans_in_views and seq % p.view_every == 0:
+            self._learn_view(seen)
         self.frames.append((seq, seen))
         self._forget_gaps()
         if seen:
@@ -216,6 +228,26 @@ class AreaTracker:
                 self.gaps.append((seq, missing))
         self.steps.append(step)
 
+    def _learn_view(self, seen: tuple[int, ...]) -> None:
+        """Learn the lag profile from one frame's CovRate to the non-empty frames before it."""
+        here = set(seen)
+        row: list[float] = []
+        for _, earlier in reversed(self.frames):
+            if earlier:
+                row.append(len(here.intersection(earlier)) / min(len(here), len(earlier)))
+                if len(row) == len(self.lag_mean):
+                    break
+        lagprofile.learn(self.lag_mean, self.lag_seen, np.array(row), LAG_SMOOTHING)
+
+    def _in_views(self, frames: int) -> int:
+        """A span of ``frames`` at the reference view speed, in this stream's frames."""
+        p = self.params
+        if not p.spans_in_views:
+            return frames
+        bar = p.view_share * lagprofile.ceiling(self.lag_mean, self.lag_seen)
+        view = lagprofile.first_lag_at(self.lag_mean, self.lag_seen, bar, 1, p.view_max_lag)
+        return frames if view is None else round(frames * view / p.view_frames)
+
     def _forget_gaps(self) -> None:
         """Drop the gaps before the first kept frame (no rule looks there)."""
         first = self.frames[0][0] if self.frames else None
@@ -250,7 +282,7 @@ class AreaTracker:
         p = self.params
         weak = candidate.ncut is not None and candidate.ncut > p.weak_ncut
         if weak and seq - boundary < p.weak_frames:  # rule 3d
-            if seq - candidate.seq >= p.confirm_frames:
+            if seq - candidate.seq >= self._in_views(p.confirm_frames):
                 self.candidate = None
             return None
         after, before, moved = rules.sides(self.frames, self.segment_counts, boundary)
@@ -259,7 +291,7 @@ class AreaTracker:
             self.candidate = None  # no closed area is this small: the segment goes on
             return None
         if len(after) < minimum:
-            if seq - candidate.seq >= self.params.confirm_frames:
+            if seq - candidate.seq >= self._in_views(p.confirm_frames):
                 self.candidate = None
             return None
         share = rules.familiar_share(
@@ -269,7 +301,7 @@ class AreaTracker:
             boundary,
             after,
             rate=p.familiar_rate,
-            margin=p.familiar_margin_frames,
+            margin=self._in_views(p.familiar_margin_frames),
             relative=p.familiar_relative,
         )
         if self._blind(boundary) or share >= p.stay_share:

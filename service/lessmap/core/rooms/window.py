@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from lessmap.core import lagprofile
 from lessmap.core.rooms.params import RoomParams
 
 Frame = tuple[int, frozenset[int]]  # (seq, distinct features), non-empty
@@ -59,12 +60,7 @@ class FrameWindow:
         self.frames.append((seq, features))
         self.rows.append(row)
         lags = len(self.frames) - 1
-        if lags:
-            seen = self.lag_seen[:lags] + 1
-            # a running mean at first, then an exponential one: early frames teach fast
-            weight = np.maximum(1.0 / seen, self.params.lag_smoothing)
-            self.lag_mean[:lags] += weight * (row[:lags] - self.lag_mean[:lags])
-            self.lag_seen[:lags] = seen
+        lagprofile.learn(self.lag_mean, self.lag_seen, row[:lags], self.params.lag_smoothing)
 
     def width(self) -> int | None:
         """Frames in a half: the first lag at which the view has changed enough (rule 1).
@@ -74,24 +70,14 @@ class FrameWindow:
         the maximum.
         """
         p = self.params
-        known = min(int(np.count_nonzero(self.lag_seen)), p.window_max_frames)
         bar = p.window_similarity * (self.ceiling() if p.window_relative else 1.0)
-        for d in range(p.window_min_frames, known + 1):
-            if self.lag_mean[d - 1] <= bar:
-                return d
-        return p.window_max_frames if known >= p.window_max_frames else None
+        return lagprofile.first_lag_at(
+            self.lag_mean, self.lag_seen, bar, p.window_min_frames, p.window_max_frames
+        )
 
     def ceiling(self) -> float:
-        """The CovRate of two frames seen from one place: the profile taken back to lag 0.
-
-        Missed detections and misassociations keep it under 1; from the first two lags, so
-        the robot's motion between neighbouring frames is taken out.
-        """
-        if not self.lag_seen[0]:
-            return 1.0
-        first = float(self.lag_mean[0])
-        back = 2.0 * first - float(self.lag_mean[1]) if self.lag_seen[1] else first
-        return min(1.0, max(first, back))
+        """The CovRate of two frames seen from one place (``lagprofile.ceiling``)."""
+        return lagprofile.ceiling(self.lag_mean, self.lag_seen)
 
     def matrix(self, n: int) -> NDArray[np.float64]:
         """Similarities of the last ``n`` frames, symmetric, zero diagonal."""
