@@ -486,3 +486,15 @@ def test_the_cap_samples_the_default_method_and_leaves_the_paper_alone(
         kept, every = set(sampled[0][part]["features"]), set(whole[0][part]["features"])
         assert kept < every
         assert len(kept) < len(every) / 2
+
+
+def test_spans_in_views_reach_the_areas_method(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = camera_frames_file(tmp_path / "cam.frames.jsonl")
+    plain = run(["segment", str(path)], capsys)[1]
+    views = run(["segment", str(path), "--spans-in-views"], capsys)[1]
+    assert plain[-1]["params"]["spans_in_views"] is False
+    assert views[-1]["params"]["spans_in_views"] is True
+    # the door found either way (a two-room walk: its spans decide when, not whether)
+    assert len(views) == len(plain) >= 2

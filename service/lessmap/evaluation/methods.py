@@ -37,10 +37,11 @@ METHODS = ("paper", "areas", "rooms")
 EMPTY_FRAMES_OMITTED = frozenset({"mrclam6", "mrclam1_w1s"})
 
 
-def dataset_area_params(path: Path) -> AreaParams:
-    """The area parameters for a shared data set's frames file (``EMPTY_FRAMES_OMITTED``)."""
+def dataset_area_params(path: Path, base: AreaParams | None = None) -> AreaParams:
+    """``base`` (the defaults) for a shared data set's frames file (``EMPTY_FRAMES_OMITTED``)."""
     name = path.name.removesuffix(".frames.jsonl")
-    return AreaParams().for_stream(empty_frames_omitted=name in EMPTY_FRAMES_OMITTED)
+    base = base if base is not None else AreaParams()
+    return base.for_stream(empty_frames_omitted=name in EMPTY_FRAMES_OMITTED)
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from lessmap.core.areas.params import AreaParams
 from lessmap.evaluation.baselines import fixed_frames
 from lessmap.evaluation.methods import (
     AreaEvent,
@@ -94,7 +95,9 @@ def rows(run_frames: list[dict[str, Any]]) -> list[FrameRow]:
     ]
 
 
-def sim_buildings(seeds: int, first_seed: int = 0, **options: Any) -> dict[str, SimResult]:
+def sim_buildings(
+    seeds: int, first_seed: int = 0, *, areas: AreaParams | None = None, **options: Any
+) -> dict[str, SimResult]:
     """Score both methods on ``seeds`` simulated 8-room buildings (robots kept apart)."""
     changes: list[dict[str, Any]] = []
     found: dict[str, dict[str, list[AreaEvent]]] = {m: {} for m in METHODS}
@@ -105,7 +108,7 @@ def sim_buildings(seeds: int, first_seed: int = 0, **options: Any) -> dict[str, 
         frames = rows(run.frames)
         changes += [{"robot": f"{seed}/{c.robot}", "seq": c.seq} for c in run.room_changes]
         for method in METHODS:
-            events = run_method(frames, method)
+            events = run_method(frames, method, areas=areas)
             tallies[method].add(events, frames)
             revisits[method] += revisit_score(run.truth, events)
             found[method] |= {f"{seed}/{robot}": items for robot, items in events.items()}
@@ -117,23 +120,26 @@ def sim_buildings(seeds: int, first_seed: int = 0, **options: Any) -> dict[str, 
     }
 
 
-def open_area(seeds: int, first_seed: int = 0, **options: Any) -> dict[str, Tally]:
+def open_area(
+    seeds: int, first_seed: int = 0, *, areas: AreaParams | None = None, **options: Any
+) -> dict[str, Tally]:
     """Transitions of both methods in one doorless room, ``seeds`` runs of 3 robots."""
     tallies = {m: Tally() for m in METHODS}
     for seed in range(first_seed, first_seed + seeds):
         run = simulate(seed, rooms=1, robots=3, frames_per_robot=1000, **options)
         frames = rows(run.frames)
         for method in METHODS:
-            tallies[method].add(run_method(frames, method), frames)
+            tallies[method].add(run_method(frames, method, areas=areas), frames)
     return tallies
 
 
-def dataset_tally(path: Path) -> dict[str, Tally]:
+def dataset_tally(path: Path, areas: AreaParams | None = None) -> dict[str, Tally]:
     """Transitions and fragments of both methods on a recorded frames file."""
     frames = list(read_frames(path))
     tallies = {m: Tally() for m in METHODS}
     for method in METHODS:
-        tallies[method].add(run_method(frames, method, areas=dataset_area_params(path)), frames)
+        params = dataset_area_params(path, areas)
+        tallies[method].add(run_method(frames, method, areas=params), frames)
     return tallies
 
 
@@ -161,7 +167,7 @@ class LossRow:
     e_exclusive_fixed: float
 
 
-def dlr_loss(path: Path) -> list[LossRow]:
+def dlr_loss(path: Path, areas: AreaParams | None = None) -> list[LossRow]:
     """Return e on dlr of each method's segments (areas also merged) and of fixed frames."""
     from lessmap.evaluation.data.dataset import load_dataset
 
@@ -176,7 +182,7 @@ def dlr_loss(path: Path) -> list[LossRow]:
 
     out: list[LossRow] = []
     for method in METHODS:
-        events = run_method(frames, method).get(dataset.robot, [])
+        events = run_method(frames, method, areas=areas).get(dataset.robot, [])
         labelings = [(method, _segments(seqs, events))]
         if method == "areas":
             labelings.append(("areas, revisits merged", _areas(seqs, events)))
@@ -200,8 +206,10 @@ def _pct(value: float | None, digits: int = 0) -> str:
     return "n/a" if value is None else f"{100 * value:.{digits}f}%"
 
 
-def report(seeds: int, datasets: Path, first_seed: int = 0) -> str:
-    """Measure everything and return the tables as Markdown."""
+def report(
+    seeds: int, datasets: Path, first_seed: int = 0, params: AreaParams | None = None
+) -> str:
+    """Measure everything and return the tables as Markdown (``params``: the areas')."""
     last_seed = first_seed + seeds - 1
     lines = [
         f"simulated buildings: 8 rooms, 3 robots, 1000 frames each, seeds {first_seed}-"
@@ -220,7 +228,7 @@ def report(seeds: int, datasets: Path, first_seed: int = 0) -> str:
     }
     buildings: dict[str, dict[str, SimResult]] = {}
     for case, options in cases.items():
-        buildings[case] = sim_buildings(seeds, first_seed, **options)
+        buildings[case] = sim_buildings(seeds, first_seed, areas=params, **options)
         for method, result in buildings[case].items():
             s, r = result.score, result.revisits
             latency = "n/a" if s.latency_mean is None else f"{s.latency_mean:.1f}"
@@ -251,11 +259,11 @@ def report(seeds: int, datasets: Path, first_seed: int = 0) -> str:
             },
         }
     for name, options in open_cases.items():
-        areas[name] = open_area(seeds, first_seed, **options)
+        areas[name] = open_area(seeds, first_seed, areas=params, **options)
     for name in ("mrclam6", "mrclam1_w1s", "dlr"):
         path = datasets / f"{name}.frames.jsonl"
         if path.is_file():
-            areas[name] = dataset_tally(path)
+            areas[name] = dataset_tally(path, params)
         else:
             lines.append(f"({path} not found: skipped)")
     for name, tallies in areas.items():
@@ -265,7 +273,7 @@ def report(seeds: int, datasets: Path, first_seed: int = 0) -> str:
                 f"{t.per_robot_10min:.2f} | {t.tiny} |"
             )
     dlr = datasets / "dlr.frames.jsonl"
-    losses = dlr_loss(dlr) if dlr.is_file() else []
+    losses = dlr_loss(dlr, params) if dlr.is_file() else []
     if losses:
         lines += [
             "",
@@ -341,8 +349,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--datasets", type=Path, default=Path("../shared/datasets"), help="data set folder"
     )
+    parser.add_argument(
+        "--spans-in-views",
+        action="store_true",
+        help="areas: its confirmation spans in the stream's view changes, not frames",
+    )
     args = parser.parse_args(argv)
-    sys.stdout.write(report(args.seeds, args.datasets, args.first_seed))
+    params = AreaParams(spans_in_views=args.spans_in_views)
+    sys.stdout.write(report(args.seeds, args.datasets, args.first_seed, params))
     return 0
 
 
