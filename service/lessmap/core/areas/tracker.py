@@ -4,7 +4,7 @@
 
 1. Minimum evidence: frames are pooled before they reach the proposer.
 2. Proposals: the paper's test, with looser thresholds, names a boundary frame.
-3. Confirmation: (a) enough features, (b) not blind, (c) not the current area's own, (d) lasted.
+3. Confirmation: (a) enough features, (b) not blind, (c) not its area's, (d) lasted; (e) in views.
 4. Which area: a known area that saw enough of the new side is entered again, else a new one.
 5. Recognition: when recent frames fit a known area's profile better, the robot is back there.
 6. Merging: a change into a known area overlapping the current one merges them, no transition.
