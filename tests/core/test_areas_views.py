@@ -97,3 +97,15 @@ def test_the_view_parameters_are_checked() -> None:
     for field, value in [("view_share", 1.0), ("view_frames", 0), ("view_max_lag", 1)]:
         with pytest.raises(GraphError, match=field):
             AreaParams(**{field: value})  # type: ignore[arg-type]
+
+
+def test_a_damaged_lag_profile_is_a_graph_error() -> None:
+    from lessmap.core.errors import GraphError
+
+    meta, arrays = unframe(to_bytes(fed(VIEWS, sliding(1, 50))), snapshot._MAGIC, snapshot._ARRAYS)
+    meta["view_lag_mean"] = ["not a float"] * 3
+    with pytest.raises(GraphError, match="not an area snapshot"):
+        from_bytes(frame(snapshot._MAGIC, meta, arrays))
+    meta["view_lag_mean"] = ["0x0p+0"] * (VIEWS.view_max_lag + 1)  # longer than the profile
+    with pytest.raises(GraphError, match="not an area snapshot"):
+        from_bytes(frame(snapshot._MAGIC, meta, arrays))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -136,3 +137,18 @@ def test_a_bad_simulator_is_reported_in_one_line(capsys: pytest.CaptureFixture[s
         assert err.startswith("lessmap.floorplan.bench: ")
         assert message in err
         assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("changes", "says"),
+    [
+        ({"sensor_changes": {"detection_probability": 0.7}}, "no SensorProfile field"),
+        ({"tour_changes": {"turn_rate": 180.0}}, "no TourOptions field"),
+        ({"speed_factor": 0.0}, "speed_factor must be > 0"),
+    ],
+)
+def test_a_misspelt_simulator_setting_is_one_clear_error(
+    changes: dict[str, Any], says: str
+) -> None:
+    with pytest.raises(FloorplanError, match=says):
+        FloorplanSimulator(EXAMPLE_DIR, **changes)

@@ -206,6 +206,26 @@ class FloorplanSimulator:
     tour_changes: Mapping[str, Any] = field(default_factory=dict)
     speed_factor: float = 1.0
 
+    def __post_init__(self) -> None:
+        # A misspelt setting of a user's own variant is a one-line error, not a worker's
+        # traceback halfway through a benchmark.
+        from dataclasses import fields
+
+        from lessmap.floorplan.grid import FloorplanError
+        from lessmap.floorplan.options import SensorProfile, TourOptions
+
+        for changes, kind in (
+            (self.sensor_changes, SensorProfile),
+            (self.tour_changes, TourOptions),
+        ):
+            unknown = sorted(set(changes) - {f.name for f in fields(kind)})
+            if unknown:
+                msg = f"no {kind.__name__} field {', '.join(unknown)}"
+                raise FloorplanError(msg)
+        if not self.speed_factor > 0.0:
+            msg = f"speed_factor must be > 0, got {self.speed_factor}"
+            raise FloorplanError(msg)
+
     def __call__(self, case: BenchCase, folder: Path) -> SimulatedRun:
         """Simulate ``case`` and write its files into ``folder``."""
         from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels

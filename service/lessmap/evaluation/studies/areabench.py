@@ -137,8 +137,8 @@ def dataset_tally(path: Path, areas: AreaParams | None = None) -> dict[str, Tall
     """Transitions and fragments of both methods on a recorded frames file."""
     frames = list(read_frames(path))
     tallies = {m: Tally() for m in METHODS}
+    params = dataset_area_params(path, areas)
     for method in METHODS:
-        params = dataset_area_params(path, areas)
         tallies[method].add(run_method(frames, method, areas=params), frames)
     return tallies
 
