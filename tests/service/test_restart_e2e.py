@@ -210,16 +210,18 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
         expected = offline_area_changes(frames)
         record = as_area_record
         assert any(change["revisit"] for change in expected)  # the areas' own fields matter
-    # Checkpoints every 300 frames: the kill lands well after the last one (seq 1199), so
-    # the frames between it and the crash, which the dead process had applied and whose
-    # transitions it had published, must come back from the cache too.
+    # Checkpoints every 300 frames and only by count (the 10 s clock could land one at any
+    # seq on a slow machine): the robot holds after 1250 frames and the kill comes once they
+    # are applied, after the last checkpoint (seq 1199), so the frames between it and the crash,
+    # which the dead process had applied and whose transitions it had published, must come
+    # back from the cache too.
     # The rule a site sizes by: checkpoint interval + rate x downtime <= min(robot cache,
     # catch-up frames). A busy CI machine can take 10 s to restart the service (120 frames/s
     # x 10 s): cache and catch-up are sized for that, and the cache gets time to answer
     # (with the 1000-frame defaults a slow restart rightly reported frames as missing).
     options = (
         *("-m", "peer", "-e", router, "--max-batch-frames", "1", "--method", method.value),
-        *("--checkpoint-every-frames", "300"),
+        *("--checkpoint-every-frames", "300", "--checkpoint-interval-s", "3600"),
         *("--catchup-max-frames", "3000", "--catchup-wait-s", "10"),
     )
     session = client_session(router)
@@ -242,7 +244,7 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
         robot = RobotPublisher(fleet_name, "dlr", session=session, cache=3000)
         first = serve(*options)
         assert robot.wait_for_service(20.0), first.log()
-        paced = PacedRobot(robot, frames, hold_at=2000)
+        paced = PacedRobot(robot, frames, hold_at=1250)
         paced.start()
         try:
             applied_before = [0]
@@ -253,11 +255,12 @@ def test_a_restart_mid_stream_catches_up_from_the_robots_cache(
                 return applied_before[0] >= count
 
             wait_until(lambda: applied_at_least(1250), 60.0, "1250 frames applied")
+            assert applied_before[0] == paced.sent == 1250  # held there: the kill finds 1250
             first.process.send_signal(how)
             code = first.process.wait(15)
             assert code == (-signal.SIGKILL if how == signal.SIGKILL else 0), first.log()
             stopped_at = paced.sent
-            paced.resume()  # if it waited at hold_at for the service to catch up
+            paced.resume()  # from its hold
             time.sleep(2.0)  # no instance runs; the robot goes on publishing
             paced.pause()  # frames are left for after the restart, however long it takes
             second = serve(*options)
