@@ -492,8 +492,8 @@ def test_spans_in_views_reach_the_areas_method(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = camera_frames_file(tmp_path / "cam.frames.jsonl")
-    plain = run(["segment", str(path)], capsys)[1]
-    views = run(["segment", str(path), "--spans-in-views"], capsys)[1]
+    plain = run(["segment", str(path), "--no-spans-in-views"], capsys)[1]
+    views = run(["segment", str(path)], capsys)[1]  # on by default
     assert plain[-1]["params"]["spans_in_views"] is False
     assert views[-1]["params"]["spans_in_views"] is True
     # the door found either way (a two-room walk: its spans decide when, not whether)

@@ -34,14 +34,18 @@ def test_the_view_length_follows_how_fast_the_view_moves() -> None:
     # (1) first at d = 9; moving 2: (25 - 2d) / 25, first at d = 5.
     slow, fast = fed(VIEWS, sliding(1, 200)), fed(VIEWS, sliding(2, 200))
     assert lagprofile.ceiling(slow.lag_mean, slow.lag_seen) == pytest.approx(1.0)
-    # the spans scale by view / view_frames (8): 16 frames become 18 and 10
-    assert (slow._in_views(16), fast._in_views(16)) == (18, 10)
-    assert fed(AreaParams(), sliding(1, 200))._in_views(16) == 16  # off: frames
+    # the spans grow by view / view_frames (8): 16 frames become 18; a faster view than the
+    # reference's keeps the 16 measured (5 / 8 would make them 10)
+    assert (slow._in_views(16), fast._in_views(16)) == (18, 16)
+    assert fed(AreaParams(), sliding(3, 200))._in_views(16) == 16
+    assert fed(AreaParams(), sliding(1, 200))._in_views(16) == 18  # on by default
+    off = AreaParams(spans_in_views=False)
+    assert fed(off, sliding(1, 200))._in_views(16) == 16  # off: frames
     assert AreaTracker(VIEWS)._in_views(16) == 16  # nothing learnt yet: frames
 
 
-def test_off_by_default_learns_nothing_and_keeps_no_profile() -> None:
-    tracker = fed(AreaParams(), sliding(1, 100))
+def test_off_learns_nothing_and_keeps_no_profile() -> None:
+    tracker = fed(AreaParams(spans_in_views=False), sliding(1, 100))
     assert not tracker.lag_seen.any()
     meta, _ = unframe(to_bytes(tracker), snapshot._MAGIC, snapshot._ARRAYS)
     assert meta["view_lag_mean"] == meta["view_lag_seen"] == []
@@ -80,7 +84,7 @@ def test_a_restored_session_decides_as_the_uninterrupted_one(cut: int) -> None:
 
 def test_a_version_10_snapshot_resumes_with_spans_in_frames() -> None:
     """Sessions checkpointed before the option resume as they ran: spans in frames."""
-    tracker = fed(AreaParams(), rooms_walk(3, 40))
+    tracker = fed(AreaParams(spans_in_views=False), rooms_walk(3, 40))
     meta, arrays = unframe(to_bytes(tracker), snapshot._MAGIC, snapshot._ARRAYS)
     meta["version"] = 10
     for key in ("view_lag_mean", "view_lag_seen"):

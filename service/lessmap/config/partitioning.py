@@ -65,8 +65,9 @@ class PartitionSettings(BaseModel):
     # the stream's own view changes, so a robot's frame rate does not change what they mean.
     spans_in_views: bool = Field(
         AreaParams().spans_in_views,
-        description="areas: measure the confirmation spans in the stream's view changes "
-        "(learnt from its frames) instead of frames; for robots sending many frames a metre",
+        description="areas: the confirmation spans grow with the stream's view changes "
+        "(learnt from its frames), so a robot sending many frames a metre gets as many "
+        "metres; never fewer frames than measured; false: in frames",
     )
 
     def partition_params(self) -> PartitionParams:

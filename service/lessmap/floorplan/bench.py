@@ -343,8 +343,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tolerance-m", type=float, default=1.0)
     parser.add_argument(
         "--spans-in-views",
-        action="store_true",
-        help="areas: its confirmation spans in the stream's view changes, not frames",
+        action=argparse.BooleanOptionalAction,
+        default=AreaParams().spans_in_views,
+        help="areas: its confirmation spans in the stream's view changes, not only frames "
+        "(default on; --no-spans-in-views: in frames)",
     )
     add_room_map_options(parser)
     parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")

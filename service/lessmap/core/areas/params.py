@@ -76,11 +76,13 @@ class AreaParams:
     # Rules 3a, 3c: ``confirm_frames`` and ``familiar_margin_frames`` are frames of a stream
     # whose view keeps ``view_share`` of its CovRate from one place for ``view_frames``
     # frames (the generated buildings at 2 frames a second, where they were measured). With
-    # ``spans_in_views`` they scale by the stream's own such frames, learnt from its lag
+    # ``spans_in_views`` they grow by the stream's own such frames, learnt from its lag
     # profile (``lessmap.core.lagprofile``): at 10 frames a second a door takes five times
-    # the frames it takes at 2. ``weak_frames`` stays in frames: scaled, it held the late
-    # proposals of 360° sensors so long that areabench's 360° recall fell to 84 %.
-    spans_in_views: bool = False
+    # the frames it takes at 2. A faster view keeps the measured counts (the tracker's
+    # ``_in_views``). ``weak_frames`` stays in frames: scaled, it held the late proposals of
+    # 360° sensors so long that areabench's 360° recall fell to 84 %. False: spans in frames
+    # (sessions saved before version 11).
+    spans_in_views: bool = True
     view_share: float = 0.65
     view_frames: int = 8
     # The lag profile looks this many non-empty frames back, on one frame in

@@ -240,13 +240,18 @@ class AreaTracker:
         lagprofile.learn(self.lag_mean, self.lag_seen, np.array(row), LAG_SMOOTHING)
 
     def _in_views(self, frames: int) -> int:
-        """A span of ``frames`` at the reference view speed, in this stream's frames."""
+        """A span of ``frames`` at the reference view speed, in this stream's frames.
+
+        Never fewer than ``frames``: a view that changes faster than the reference's (2
+        frames a second, a short range) keeps the spans that were measured, because a
+        decision on fewer frames rests on fewer detections, however far they reach.
+        """
         p = self.params
         if not p.spans_in_views:
             return frames
         bar = p.view_share * lagprofile.ceiling(self.lag_mean, self.lag_seen)
         view = lagprofile.first_lag_at(self.lag_mean, self.lag_seen, bar, 1, p.view_max_lag)
-        return frames if view is None else round(frames * view / p.view_frames)
+        return frames if view is None else max(frames, round(frames * view / p.view_frames))
 
     def _forget_gaps(self) -> None:
         """Drop the gaps before the first kept frame (no rule looks there)."""

@@ -351,8 +351,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument(
         "--spans-in-views",
-        action="store_true",
-        help="areas: its confirmation spans in the stream's view changes, not frames",
+        action=argparse.BooleanOptionalAction,
+        default=AreaParams().spans_in_views,
+        help="areas: its confirmation spans in the stream's view changes, not only frames "
+        "(default on; --no-spans-in-views: in frames)",
     )
     args = parser.parse_args(argv)
     params = AreaParams(spans_in_views=args.spans_in_views)
