@@ -12,6 +12,7 @@ given the area of its first visit, *false* visits given an area first given to a
 
 from __future__ import annotations
 
+import argparse
 from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -35,6 +36,17 @@ METHODS = ("paper", "areas", "rooms")
 #: nothing and its blindness is a gap between stamps. Declared, as a user declares a source
 #: (``segment --empty-frames-omitted``, ``serve --empty-frames-omitted FLEET``).
 EMPTY_FRAMES_OMITTED = frozenset({"mrclam6", "mrclam1_w1s"})
+
+
+def add_spans_in_views_option(parser: argparse.ArgumentParser) -> None:
+    """``--[no-]spans-in-views``: ``AreaParams.spans_in_views`` for the offline studies."""
+    parser.add_argument(
+        "--spans-in-views",
+        action=argparse.BooleanOptionalAction,
+        default=AreaParams().spans_in_views,
+        help="areas: its confirmation spans grow with the stream's view changes (default "
+        "on; --no-spans-in-views: in frames)",
+    )
 
 
 def dataset_area_params(path: Path, base: AreaParams | None = None) -> AreaParams:

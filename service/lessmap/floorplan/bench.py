@@ -33,6 +33,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from lessmap.core.areas.params import AreaParams
+from lessmap.evaluation.methods import add_spans_in_views_option
 from lessmap.files.frames import read_frames
 from lessmap.floorplan.command import add_room_map_options, room_map_params
 from lessmap.floorplan.grid import FloorplanError, load_grid, room_labels
@@ -341,13 +342,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     parser.add_argument("--tolerance-m", type=float, default=1.0)
-    parser.add_argument(
-        "--spans-in-views",
-        action=argparse.BooleanOptionalAction,
-        default=AreaParams().spans_in_views,
-        help="areas: its confirmation spans in the stream's view changes, not only frames "
-        "(default on; --no-spans-in-views: in frames)",
-    )
+    add_spans_in_views_option(parser)
     add_room_map_options(parser)
     parser.add_argument("--by", choices=GROUPS, default="map", help="rows per (default map)")
     parser.add_argument("--work", type=Path, help="keep the runs' files in this folder")

@@ -25,6 +25,7 @@ from lessmap.evaluation.baselines import fixed_frames
 from lessmap.evaluation.methods import (
     AreaEvent,
     RevisitScore,
+    add_spans_in_views_option,
     dataset_area_params,
     revisit_score,
     run_method,
@@ -349,13 +350,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--datasets", type=Path, default=Path("../shared/datasets"), help="data set folder"
     )
-    parser.add_argument(
-        "--spans-in-views",
-        action=argparse.BooleanOptionalAction,
-        default=AreaParams().spans_in_views,
-        help="areas: its confirmation spans in the stream's view changes, not only frames "
-        "(default on; --no-spans-in-views: in frames)",
-    )
+    add_spans_in_views_option(parser)
     args = parser.parse_args(argv)
     params = AreaParams(spans_in_views=args.spans_in_views)
     sys.stdout.write(report(args.seeds, args.datasets, args.first_seed, params))
